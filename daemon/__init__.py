@@ -1,0 +1,1 @@
+"""baromapd: the acquisition daemon (ports, device sessions, recorder, Zenoh, systemd)."""

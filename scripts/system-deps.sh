@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Debian packages baromap's firmware build and firmware-in-the-loop tests need.
+# As root: installs what is missing. Otherwise: says what is missing and how to get it;
+# the tests that need them are then skipped with that reason, the rest still run.
+set -euo pipefail
+
+packages=(python3-venv gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev libelf-dev
+          pkg-config g++ make)
+
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+# python3-venv only matters when the interpreter cannot make a venv by itself.
+if python3 -c 'import ensurepip' 2>/dev/null; then
+  missing=("${missing[@]/python3-venv}")
+fi
+read -r -a missing <<< "${missing[*]}"
+
+if [ ${#missing[@]} -eq 0 ]; then
+  exit 0
+fi
+if ! command -v apt-get >/dev/null 2>&1; then
+  echo "system-deps: not a Debian system; firmware tests will be skipped (missing: ${missing[*]})" >&2
+  exit 0
+fi
+if [ "$(id -u)" -ne 0 ]; then
+  echo "system-deps: missing Debian packages: ${missing[*]}" >&2
+  echo "system-deps: run 'sudo apt-get install ${missing[*]}' to build the firmware and run" >&2
+  echo "system-deps: its simulator tests; without them those tests are skipped." >&2
+  exit 0
+fi
+echo "system-deps: installing ${missing[*]}" >&2
+export DEBIAN_FRONTEND=noninteractive
+if ! apt-get install -y -q --no-install-recommends "${missing[@]}" >/dev/null; then
+  apt-get update -q >/dev/null
+  apt-get install -y -q --no-install-recommends "${missing[@]}" >/dev/null
+fi

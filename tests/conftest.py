@@ -1,0 +1,92 @@
+"""Suite-wide fixtures: hardware opt-in options and a guard against leaked threads and fds."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+SHARED_DATA = REPO.parent / "shared" / "data"
+
+HARDWARE_OPTIONS = {
+    "--baro-port": "serial port (or URL) of a real barometer board",
+    "--lms-port": "serial port of a real SICK LMS200",
+    "--p2os-port": "serial port of a real Pioneer base",
+}
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    group = parser.getgroup("baromap hardware", "opt-in tests against real devices")
+    for option, help_text in HARDWARE_OPTIONS.items():
+        group.addoption(option, default=None, help=help_text)
+
+
+def hardware_port(config: pytest.Config, option: str) -> str:
+    """The port given for ``option``, or skip: hardware tests are opt-in."""
+    port = config.getoption(option)
+    if not port:
+        pytest.skip(f"no real device: pass {option} PATH to run against hardware")
+    return str(port)
+
+
+def _open_fds() -> set[int]:
+    fds = set()
+    for name in os.listdir("/proc/self/fd"):
+        fd = int(name)
+        try:
+            target = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue  # the fd listdir itself used, already closed
+        if (
+            target.startswith("/dev/pts/")
+            or target == "/dev/ptmx"
+            or not target.startswith(("anon_inode:", "/proc/"))
+        ):
+            fds.add(fd)
+    return fds
+
+
+@pytest.fixture(autouse=True)
+def no_leaks(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Fail a test that leaves threads running or file descriptors (ptys included) open.
+
+    A short grace period lets threads that were told to stop finish joining.
+    """
+    if request.node.get_closest_marker("allow_leaks"):
+        yield
+        return
+    threads_before = set(threading.enumerate())
+    fds_before = _open_fds()
+    yield
+    deadline = time.monotonic() + 2.0
+    while True:
+        threads = [t for t in threading.enumerate() if t not in threads_before and t.is_alive()]
+        fds = _open_fds() - fds_before
+        if (not threads and not fds) or time.monotonic() > deadline:
+            break
+        time.sleep(0.05)
+    problems = []
+    if threads:
+        problems.append("threads still running: " + ", ".join(t.name for t in threads))
+    if fds:
+        targets = []
+        for fd in sorted(fds):
+            try:
+                targets.append(f"{fd}->{os.readlink(f'/proc/self/fd/{fd}')}")
+            except OSError:
+                targets.append(str(fd))
+        problems.append("fds left open: " + ", ".join(targets))
+    if problems:
+        pytest.fail("; ".join(problems), pytrace=False)
+
+
+@pytest.fixture
+def shared_data() -> Path:
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"shared data not found at {SHARED_DATA}")
+    return SHARED_DATA
