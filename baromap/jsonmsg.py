@@ -1,0 +1,145 @@
+"""baromap messages as JSON objects: the payload of MCAP JSON channels and of Zenoh samples.
+
+One mapping for both so a floor event looks the same in a recording and on the wire. Every
+object carries ``schema`` (this format's version), so a reader can refuse what it does not
+understand instead of misreading it. Laser scans are not here: they travel as Foxglove's
+standard ``foxglove.LaserScan`` so recordings open in Foxglove without a plugin.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import functools
+import json
+import types
+import typing
+from collections.abc import Mapping
+from typing import Any
+
+from baromap import messages
+from baromap.errors import InputFormatError
+
+SCHEMA_VERSION = 1
+
+#: JSON message types by their schema name (``baromap.<ClassName>``).
+JSON_TYPES: dict[str, type] = {
+    f"baromap.{cls.__name__}": cls
+    for cls in (
+        messages.PressureSample,
+        messages.Odometry,
+        messages.FloorEvent,
+        messages.FloorState,
+        messages.DeviceHealth,
+        messages.TruthPose,
+        messages.TruthFloor,
+    )
+}
+
+
+def schema_name(cls: type) -> str:
+    return f"baromap.{cls.__name__}"
+
+
+@functools.cache
+def _field_types(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def _base_type(annotation: Any) -> tuple[Any, bool]:
+    """(type without None, whether None is allowed)."""
+    if isinstance(annotation, types.UnionType) or typing.get_origin(annotation) is typing.Union:
+        args = [a for a in typing.get_args(annotation) if a is not type(None)]
+        return (args[0] if len(args) == 1 else annotation), True
+    return annotation, False
+
+
+def to_dict(message: Any) -> dict[str, Any]:
+    """A message as a JSON-ready dict (enums by value, mappings as objects)."""
+    out: dict[str, Any] = {"schema": SCHEMA_VERSION}
+    for f in dataclasses.fields(message):
+        value = getattr(message, f.name)
+        if isinstance(value, enum.Enum):
+            value = value.value
+        elif isinstance(value, Mapping):
+            value = dict(value)
+        out[f.name] = value
+    return out
+
+
+def from_dict(cls: type, data: Mapping[str, Any]) -> Any:
+    """Rebuild a message; unknown keys are ignored so newer writers stay readable."""
+    version = data.get("schema", SCHEMA_VERSION)
+    if not isinstance(version, int) or version > SCHEMA_VERSION:
+        raise InputFormatError(f"{cls.__name__}: unsupported schema version {version!r}")
+    kwargs: dict[str, Any] = {}
+    hints = _field_types(cls)
+    for f in dataclasses.fields(cls):
+        if f.name not in data:
+            continue
+        value = data[f.name]
+        base, _ = _base_type(hints[f.name])
+        if value is not None and isinstance(base, type) and issubclass(base, enum.Enum):
+            value = base(value)
+        kwargs[f.name] = value
+    try:
+        return cls(**kwargs)
+    except TypeError as exc:
+        raise InputFormatError(f"{cls.__name__}: {exc}") from exc
+
+
+def dumps(message: Any) -> bytes:
+    return json.dumps(to_dict(message), separators=(",", ":")).encode()
+
+
+def loads(cls: type, payload: bytes | str) -> Any:
+    try:
+        data = json.loads(payload)
+    except json.JSONDecodeError as exc:
+        raise InputFormatError(f"{cls.__name__}: not JSON: {exc}") from exc
+    if not isinstance(data, dict):
+        raise InputFormatError(f"{cls.__name__}: expected a JSON object")
+    return from_dict(cls, data)
+
+
+def _json_type(annotation: Any) -> dict[str, Any]:
+    base, nullable = _base_type(annotation)
+    if isinstance(base, type) and issubclass(base, enum.Enum):
+        spec: dict[str, Any] = {"type": "string", "enum": [m.value for m in base]}
+    elif base is bool:
+        spec = {"type": "boolean"}
+    elif base is int:
+        spec = {"type": "integer"}
+    elif base is float:
+        spec = {"type": "number"}
+    elif base is str:
+        spec = {"type": "string"}
+    elif typing.get_origin(base) in (Mapping, dict) or base in (Mapping, dict):
+        spec = {"type": "object", "additionalProperties": {"type": "integer"}}
+    else:
+        raise TypeError(f"no JSON schema for {annotation!r}")
+    if nullable:
+        spec["type"] = [spec["type"], "null"]
+    return spec
+
+
+@functools.cache
+def json_schema(cls: type) -> bytes:
+    """JSON Schema of a message type, as MCAP schema data."""
+    hints = _field_types(cls)
+    properties = {"schema": {"type": "integer", "const": SCHEMA_VERSION}}
+    properties.update({f.name: _json_type(hints[f.name]) for f in dataclasses.fields(cls)})
+    required = [
+        f.name
+        for f in dataclasses.fields(cls)
+        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    ]
+    schema = {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": schema_name(cls),
+        "description": (cls.__doc__ or "").strip().split("\n\n")[0],
+        "type": "object",
+        "properties": properties,
+        "required": required,
+    }
+    return json.dumps(schema, indent=1).encode()

@@ -1,0 +1,19 @@
+"""MCAP recordings of a run: topics, writer, reader, importers."""
+
+from baromap.recording.reader import (
+    PressureSeries,
+    Record,
+    load_pressure,
+    read_messages,
+    read_metadata,
+)
+from baromap.recording.writer import RecordingWriter
+
+__all__ = [
+    "PressureSeries",
+    "Record",
+    "RecordingWriter",
+    "load_pressure",
+    "read_messages",
+    "read_metadata",
+]

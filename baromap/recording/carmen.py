@@ -1,0 +1,387 @@
+"""CARMEN log import: public laser datasets (Intel, FR079, ...) become baromap recordings.
+
+CARMEN logs are text, one message per line. Three messages matter for mapping:
+
+- ``FLASER n r_1..r_n laser_x laser_y laser_theta robot_x robot_y robot_theta ipc_t host log_t``
+  (old front-laser format; CARMEN's reader assumes a 180 degree field of view starting at -90
+  degrees, one beam per degree for 180/181 beams, half a degree for 360/361);
+- ``ROBOTLASER1 type start_angle fov resolution max_range accuracy remission_mode n r_1..r_n
+  m e_1..e_m laser_x laser_y laser_theta robot_x robot_y robot_theta tv rv fwd side turn
+  ipc_t host log_t`` (carries its own geometry);
+- ``ODOM x y theta tv rv accel ipc_t host log_t``.
+
+The robot pose on laser lines is the best pose the log's producer had: raw odometry in a raw
+log, a SLAM solution in a "corrected" log. Corrected logs often carry no usable ``ODOM`` (the
+Intel log's are all zeros), so :func:`synthesize_odometry` degrades the reference poses with a
+seeded error model to give a SLAM front end something realistic to correct.
+
+Malformed lines are skipped and counted (a long public log always has a few); a file with no
+laser line at all is an :class:`~baromap.errors.InputFormatError`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import math
+from collections import Counter
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+import numpy.typing as npt
+import structlog
+
+from baromap.errors import ConfigError, InputFormatError
+from baromap.messages import NS_PER_S, BeamFlag, LaserScan, Odometry
+
+log = structlog.get_logger(__name__)
+
+#: Longest scan accepted (an LMS at 0.25 deg over 190 deg is 761 beams; leave headroom).
+MAX_BEAMS = 4096
+#: Ranges at or above this are "no return" markers (the Intel log uses 81.83 m).
+NO_RETURN_M = 80.0
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True)
+class CarmenScan:
+    """One laser line: geometry, ranges, and the poses the log's producer attached."""
+
+    t_ns: int
+    angle_min_rad: float
+    angle_increment_rad: float
+    range_max_m: float
+    ranges_m: FloatArray
+    laser_pose: tuple[float, float, float]
+    robot_pose: tuple[float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class CarmenOdom:
+    t_ns: int
+    x_m: float
+    y_m: float
+    theta_rad: float
+    v_mps: float
+    omega_radps: float
+
+
+@dataclass(slots=True)
+class CarmenLog:
+    """What a CARMEN log holds that baromap can use, in file order."""
+
+    scans: list[CarmenScan] = field(default_factory=list)
+    odometry: list[CarmenOdom] = field(default_factory=list)
+    params: dict[str, str] = field(default_factory=dict)
+    skipped: Counter[str] = field(default_factory=Counter)
+
+    def reference_poses(self) -> FloatArray:
+        """(N, 3) robot poses attached to the scans."""
+        return np.array([s.robot_pose for s in self.scans], dtype=np.float64).reshape(-1, 3)
+
+    def scan_times_ns(self) -> npt.NDArray[np.int64]:
+        return np.array([s.t_ns for s in self.scans], dtype=np.int64)
+
+    def has_odometry(self) -> bool:
+        """True when the ODOM lines actually move (corrected logs carry only zeros)."""
+        return any(o.x_m != 0.0 or o.y_m != 0.0 or o.theta_rad != 0.0 for o in self.odometry)
+
+
+def parse_time_ns(text: str) -> int:
+    """Decimal seconds to integer ns without float rounding (stamps must match relations)."""
+    sign = -1 if text.startswith("-") else 1
+    whole, _, frac = text.lstrip("+-").partition(".")
+    if not whole.isdigit() and whole != "":
+        raise ValueError(f"bad time {text!r}")
+    if frac and not frac.isdigit():
+        raise ValueError(f"bad time {text!r}")
+    frac_ns = int((frac + "000000000")[:9]) if frac else 0
+    return sign * (int(whole or "0") * NS_PER_S + frac_ns)
+
+
+def flaser_geometry(n: int) -> tuple[float, float]:
+    """Start angle and increment CARMEN assumes for an FLASER line of ``n`` beams."""
+    if n in (180, 181):
+        return -math.pi / 2, math.radians(1.0)
+    if n in (360, 361):
+        return -math.pi / 2, math.radians(0.5)
+    if n in (720, 721):
+        return -math.pi / 2, math.radians(0.25)
+    return -math.pi / 2, math.pi / max(n - 1, 1)
+
+
+def _ranges(tokens: list[str], start: int, n: int) -> FloatArray:
+    if not 0 < n <= MAX_BEAMS:
+        raise ValueError(f"beam count {n} outside 1..{MAX_BEAMS}")
+    if len(tokens) < start + n:
+        raise ValueError("line shorter than its beam count")
+    return np.array(tokens[start : start + n], dtype=np.float64)
+
+
+def _pose(tokens: list[str], start: int) -> tuple[float, float, float]:
+    return float(tokens[start]), float(tokens[start + 1]), float(tokens[start + 2])
+
+
+def _parse_flaser(tokens: list[str]) -> CarmenScan:
+    n = int(tokens[1])
+    ranges = _ranges(tokens, 2, n)
+    rest = 2 + n
+    if len(tokens) < rest + 7:
+        raise ValueError("FLASER line too short")
+    angle_min, increment = flaser_geometry(n)
+    return CarmenScan(
+        t_ns=parse_time_ns(tokens[rest + 6]),
+        angle_min_rad=angle_min,
+        angle_increment_rad=increment,
+        range_max_m=NO_RETURN_M,
+        ranges_m=ranges,
+        laser_pose=_pose(tokens, rest),
+        robot_pose=_pose(tokens, rest + 3),
+    )
+
+
+def _parse_robotlaser1(tokens: list[str]) -> CarmenScan:
+    start_angle, _fov, resolution, max_range = (float(v) for v in tokens[2:6])
+    n = int(tokens[8])
+    ranges = _ranges(tokens, 9, n)
+    k = 9 + n
+    m = int(tokens[k])
+    if not 0 <= m <= MAX_BEAMS:
+        raise ValueError(f"remission count {m} outside 0..{MAX_BEAMS}")
+    k += 1 + m
+    if len(tokens) < k + 12:
+        raise ValueError("ROBOTLASER1 line too short")
+    return CarmenScan(
+        t_ns=parse_time_ns(tokens[k + 11]),
+        angle_min_rad=start_angle,
+        angle_increment_rad=resolution,
+        range_max_m=min(max_range, NO_RETURN_M) if max_range > 0 else NO_RETURN_M,
+        ranges_m=ranges,
+        laser_pose=_pose(tokens, k),
+        robot_pose=_pose(tokens, k + 3),
+    )
+
+
+def _parse_odom(tokens: list[str]) -> CarmenOdom:
+    if len(tokens) < 8:
+        raise ValueError("ODOM line too short")
+    x, y, theta, tv, rv = (float(v) for v in tokens[1:6])
+    return CarmenOdom(parse_time_ns(tokens[7]), x, y, theta, tv, rv)
+
+
+def _open_text(path: Path) -> TextIO:
+    if path.suffix == ".gz":
+        return gzip.open(path, "rt", encoding="ascii", errors="replace")
+    return path.open("r", encoding="ascii", errors="replace")
+
+
+def parse_lines(lines: Iterator[str] | list[str]) -> CarmenLog:
+    """Parse CARMEN text lines; unknown messages and malformed lines are counted, not fatal."""
+    result = CarmenLog()
+    for line in lines:
+        tokens = line.split()
+        if not tokens or tokens[0].startswith("#"):
+            continue
+        kind = tokens[0]
+        try:
+            if kind == "FLASER":
+                result.scans.append(_parse_flaser(tokens))
+            elif kind == "ROBOTLASER1":
+                result.scans.append(_parse_robotlaser1(tokens))
+            elif kind == "ODOM":
+                result.odometry.append(_parse_odom(tokens))
+            elif kind == "PARAM" and len(tokens) >= 3:
+                result.params[tokens[1]] = tokens[2]
+            else:
+                result.skipped[f"unused {kind}"] += 1
+        except (ValueError, IndexError):
+            result.skipped[f"malformed {kind}"] += 1
+    result.scans.sort(key=lambda s: s.t_ns)
+    result.odometry.sort(key=lambda o: o.t_ns)
+    return result
+
+
+def read_carmen(path: str | Path) -> CarmenLog:
+    """Read a CARMEN log (plain or .gz)."""
+    path = Path(path)
+    try:
+        with _open_text(path) as handle:
+            result = parse_lines(handle)
+    except OSError as exc:
+        raise InputFormatError(f"cannot read CARMEN log {path}: {exc}") from exc
+    if not result.scans:
+        raise InputFormatError(f"{path}: no FLASER or ROBOTLASER1 line")
+    log.info(
+        "carmen log read",
+        path=str(path),
+        scans=len(result.scans),
+        odometry=len(result.odometry),
+        skipped=dict(result.skipped),
+    )
+    return result
+
+
+@dataclass(frozen=True, slots=True)
+class OdometryErrorModel:
+    """How wheel odometry goes wrong, per step of motion between two poses.
+
+    Systematic: the distance travelled is over-read by ``scale_error`` (tyre radius off by a few
+    percent) and the heading creeps by ``drift_rad_per_m`` per metre travelled (unequal wheel
+    radii, skidding of a four-wheel skid-steer base such as the P3-AT). Random: zero-mean
+    Gaussian noise whose standard deviation grows with the step (``sigma_*_per_m`` times the
+    distance, ``sigma_rot_per_rad`` times the rotation), the usual odometry motion model.
+    """
+
+    scale_error: float = 0.05
+    drift_rad_per_m: float = math.radians(2.0)
+    sigma_trans_per_m: float = 0.02
+    sigma_rot_per_m: float = math.radians(0.5)
+    sigma_rot_per_rad: float = 0.02
+
+
+def synthesize_odometry(
+    reference: FloatArray, seed: int, model: OdometryErrorModel | None = None
+) -> FloatArray:
+    """Odometry poses (N, 3) made from reference poses (N, 3) by a seeded error model.
+
+    Each step's motion (expressed in the robot frame of the previous pose) is degraded and
+    integrated from the first reference pose, so errors accumulate the way odometry does.
+    """
+    model = model or OdometryErrorModel()
+    ref = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
+    out = np.empty_like(ref)
+    if len(ref) == 0:
+        return out
+    rng = np.random.default_rng(seed)
+    dx_w = np.diff(ref[:, 0])
+    dy_w = np.diff(ref[:, 1])
+    c, s = np.cos(ref[:-1, 2]), np.sin(ref[:-1, 2])
+    fwd = c * dx_w + s * dy_w
+    side = -s * dx_w + c * dy_w
+    dtheta = np.angle(np.exp(1j * np.diff(ref[:, 2])))
+    dist = np.hypot(fwd, side)
+    k = len(dist)
+    gain = 1.0 + model.scale_error
+    fwd_o = fwd * gain + rng.normal(size=k) * model.sigma_trans_per_m * dist
+    side_o = side * gain + rng.normal(size=k) * model.sigma_trans_per_m * dist
+    rot_sigma = model.sigma_rot_per_m * dist + model.sigma_rot_per_rad * np.abs(dtheta)
+    dtheta_o = dtheta + model.drift_rad_per_m * dist + rng.normal(size=k) * rot_sigma
+    out[0] = ref[0]
+    x, y, theta = ref[0]
+    for i in range(k):
+        ci, si = math.cos(theta), math.sin(theta)
+        x += ci * fwd_o[i] - si * side_o[i]
+        y += si * fwd_o[i] + ci * side_o[i]
+        theta = math.remainder(theta + dtheta_o[i], math.tau)
+        out[i + 1] = (x, y, theta)
+    return out
+
+
+def to_laser_scan(scan: CarmenScan, index: int) -> LaserScan:
+    """CARMEN ranges as a baromap scan: no-return markers become NaN flagged OVER_RANGE."""
+    ranges = scan.ranges_m.astype(np.float32)
+    bad = ~np.isfinite(ranges) | (ranges >= scan.range_max_m) | (ranges <= 0.0)
+    flags = np.where(bad, np.uint16(BeamFlag.OVER_RANGE), np.uint16(0)).astype(np.uint16)
+    ranges = np.where(bad, np.float32(np.nan), ranges)
+    return LaserScan(
+        t_ns=scan.t_ns,
+        angle_min_rad=scan.angle_min_rad,
+        angle_increment_rad=scan.angle_increment_rad,
+        range_max_m=scan.range_max_m,
+        ranges_m=ranges,
+        flags=flags,
+        scan_index=index,
+    )
+
+
+def odometry_messages(carmen: CarmenLog, synth_seed: int | None) -> list[Odometry]:
+    """The log's own odometry, or odometry synthesised from its reference poses."""
+    if synth_seed is not None:
+        poses = synthesize_odometry(carmen.reference_poses(), synth_seed)
+        times = carmen.scan_times_ns()
+        return [
+            Odometry(t_ns=int(t), x_m=float(p[0]), y_m=float(p[1]), theta_rad=float(p[2]))
+            for t, p in zip(times, poses, strict=True)
+        ]
+    if not carmen.has_odometry():
+        raise ConfigError(
+            "this log carries no raw odometry (its ODOM lines are missing or all zero); "
+            "pass --synth-odometry SEED to synthesise it from the reference poses"
+        )
+    return [
+        Odometry(
+            t_ns=o.t_ns,
+            x_m=o.x_m,
+            y_m=o.y_m,
+            theta_rad=o.theta_rad,
+            v_mps=o.v_mps,
+            omega_radps=o.omega_radps,
+        )
+        for o in carmen.odometry
+    ]
+
+
+def laser_offset(carmen: CarmenLog) -> tuple[float, float, float]:
+    """Mounting of the laser on the robot, from the first scan's two poses."""
+    first = carmen.scans[0]
+    rx, ry, rt = first.robot_pose
+    lx, ly, lt = first.laser_pose
+    c, s = math.cos(rt), math.sin(rt)
+    dx, dy = lx - rx, ly - ry
+    return c * dx + s * dy, -s * dx + c * dy, math.remainder(lt - rt, math.tau)
+
+
+def import_carmen(
+    log_path: str | Path, out_path: str | Path, synth_seed: int | None = None
+) -> dict[str, Any]:
+    """Write a CARMEN log as a baromap recording; returns counts for the caller to print."""
+    from baromap.recording import RecordingWriter
+
+    carmen = read_carmen(log_path)
+    odometry = odometry_messages(carmen, synth_seed)
+    offset = laser_offset(carmen)
+    metadata = {
+        "source": str(log_path),
+        "odometry": "synthesised" if synth_seed is not None else "recorded",
+        "synth_seed": "" if synth_seed is None else str(synth_seed),
+        "laser_offset": " ".join(f"{v:.6f}" for v in offset),
+    }
+    scans = [to_laser_scan(s, i) for i, s in enumerate(carmen.scans)]
+    merged: list[LaserScan | Odometry] = [*scans, *odometry]
+    merged.sort(key=lambda m: (m.t_ns, 0 if isinstance(m, Odometry) else 1))
+    with RecordingWriter(out_path, robot="carmen") as writer:
+        writer.write_metadata("baromap.carmen", metadata)
+        for message in merged:
+            writer.write(message)
+    return {"scans": len(scans), "odometry": len(odometry), "skipped": dict(carmen.skipped)}
+
+
+def register_import(import_subparsers: Any) -> None:
+    """Add ``carmen`` under the lead's ``baromap import`` group."""
+    parser = import_subparsers.add_parser(
+        "carmen", help="import a CARMEN log (FLASER, ROBOTLASER1, ODOM) as a recording"
+    )
+    parser.add_argument("log", help="CARMEN log, plain or .gz")
+    parser.add_argument("-o", "--output", required=True, help="recording to write (.mcap)")
+    parser.add_argument(
+        "--synth-odometry",
+        type=int,
+        default=None,
+        metavar="SEED",
+        help="replace missing odometry by the reference poses degraded with a seeded error "
+        "model (5 %% scale, 2 deg/m heading drift, random noise)",
+    )
+    parser.set_defaults(run=_run_import)
+
+
+def _run_import(args: argparse.Namespace) -> int:
+    counts = import_carmen(args.log, args.output, args.synth_odometry)
+    print(
+        f"wrote {args.output}: {counts['scans']} scans, {counts['odometry']} odometry poses"
+        + (f", skipped {counts['skipped']}" if counts["skipped"] else "")
+    )
+    return 0
