@@ -17,9 +17,10 @@ from baromap import messages as m
 from baromap.errors import InputFormatError, RecordingError
 from baromap.recording import RecordingWriter, load_pressure, read_messages, read_metadata
 from baromap.recording import topics as t
+from baromap.recording.writer import MAX_T_NS
 
 T0 = 1_763_700_000_000_000_000
-stamps = st.integers(min_value=0, max_value=2**63 - 1)
+stamps = st.integers(min_value=0, max_value=MAX_T_NS)
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 maybe_int = st.none() | st.integers(min_value=0, max_value=2**32)
 
@@ -208,6 +209,8 @@ def test_clear_errors_for_bad_paths_and_inputs(tmp_path: Path) -> None:
             writer.write_metadata("bad", {"n": 1})  # type: ignore[dict-item]
         with pytest.raises(RecordingError):
             writer.write(object())  # type: ignore[arg-type]
+        with pytest.raises(RecordingError):
+            writer.write(m.PressureSample(-1, 1.0))
     with pytest.raises(RecordingError):
         RecordingWriter(tmp_path / "ok.mcap", robot="r")
 

@@ -48,6 +48,10 @@ DEFAULT_TOPICS: dict[type, str] = {
 }
 
 
+#: Foxglove time stamps hold unsigned 32-bit seconds: the Unix epoch to early 2106.
+MAX_T_NS = 2**32 * 1_000_000_000 - 1
+
+
 def stamp(t_ns: int) -> Timestamp:
     sec, nsec = divmod(t_ns, 1_000_000_000)
     return Timestamp(sec=sec, nsec=nsec)
@@ -126,11 +130,11 @@ class RecordingWriter:
     def write(self, message: messages.Message, topic: str | None = None) -> None:
         """Record one message at its own time stamp, on its default topic unless given."""
         cls = type(message)
-        if topic is None:
-            try:
-                topic = DEFAULT_TOPICS[cls]
-            except KeyError:
-                raise RecordingError(f"no topic for message type {cls.__name__}") from None
+        if cls not in DEFAULT_TOPICS:
+            raise RecordingError(f"cannot record a {cls.__name__}")
+        if not 0 <= message.t_ns <= MAX_T_NS:
+            raise RecordingError(f"{cls.__name__} time {message.t_ns} ns is outside 1970..2106")
+        topic = topic or DEFAULT_TOPICS[cls]
         if isinstance(message, messages.LaserScan):
             self._write_scan(topic, message)
         else:
