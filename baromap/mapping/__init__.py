@@ -1,0 +1,1 @@
+"""Post-run mapping: floor-aware 2D graph SLAM, occupancy grids per floor, building model."""

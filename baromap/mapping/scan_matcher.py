@@ -1,0 +1,279 @@
+"""Correlative scan matching (Olson 2009) with a Gauss-Newton finish.
+
+A scan is matched against a likelihood field: each cell holds how plausible it is that a laser
+endpoint lands there, exp(-d^2 / 2 sigma^2) with d the distance to the nearest endpoint of the
+reference points. The search evaluates every pose of a window (rotations x translations) at
+once with numpy gathers, which is robust to the bad starting guesses odometry gives after a
+turn; Gauss-Newton on the bilinearly interpolated field then takes the pose below the grid's
+quantisation. For the wide windows of loop closure the same search runs first on a
+max-filtered copy of the field at a coarser translation step (an upper bound of the fine score,
+Olson's multi-resolution trick), and only the best coarse cells are searched finely.
+
+The score of a pose is the mean field value over the scan's points, in [0, 1]: a fraction of
+points explained, comparable between scans and so usable as an acceptance threshold.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy import ndimage
+
+from baromap.mapping import se2
+
+FloatArray = npt.NDArray[np.float64]
+Float32Array = npt.NDArray[np.float32]
+
+
+@dataclass(frozen=True, slots=True)
+class LikelihoodField:
+    """Endpoint likelihood on a grid; cell (row i, col j) is centred at origin + res * (j, i)."""
+
+    data: Float32Array
+    origin_xy: tuple[float, float]
+    resolution: float
+
+    @classmethod
+    def from_points(
+        cls,
+        points: FloatArray,
+        resolution: float,
+        sigma: float,
+        bounds: tuple[float, float, float, float] | None = None,
+    ) -> LikelihoodField:
+        """Stamp a Gaussian kernel on every occupied cell (vectorised per kernel offset).
+
+        ``bounds`` (xmin, ymin, xmax, ymax) limits the grid to where a scan can land; points
+        outside it are dropped.
+        """
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        radius = max(1, math.ceil(3.0 * sigma / resolution))
+        if bounds is None:
+            if len(pts) == 0:
+                bounds = (0.0, 0.0, 1.0, 1.0)
+            else:
+                lo = pts.min(axis=0)
+                hi = pts.max(axis=0)
+                bounds = (lo[0], lo[1], hi[0], hi[1])
+        pad = (radius + 2) * resolution
+        x0, y0 = bounds[0] - pad, bounds[1] - pad
+        width = math.ceil((bounds[2] - bounds[0] + 2 * pad) / resolution) + 1
+        height = math.ceil((bounds[3] - bounds[1] + 2 * pad) / resolution) + 1
+        data = np.zeros((height, width), dtype=np.float32)
+        if len(pts):
+            cols = np.rint((pts[:, 0] - x0) / resolution).astype(np.int64)
+            rows = np.rint((pts[:, 1] - y0) / resolution).astype(np.int64)
+            keep = (
+                (cols >= radius)
+                & (cols < width - radius)
+                & (rows >= radius)
+                & (rows < height - radius)
+            )
+            flat = np.unique(rows[keep] * width + cols[keep])
+            offsets = np.arange(-radius, radius + 1)
+            for di in offsets:
+                for dj in offsets:
+                    value = math.exp(-((di * di + dj * dj) * resolution**2) / (2 * sigma**2))
+                    if value < 1e-3:
+                        continue
+                    target = flat + di * width + dj
+                    flat_data = data.reshape(-1)
+                    flat_data[target] = np.maximum(flat_data[target], np.float32(value))
+        return cls(data=data, origin_xy=(x0, y0), resolution=resolution)
+
+    def max_filtered(self, step: int) -> LikelihoodField:
+        """Upper bound of the field over any shift of less than ``step`` cells."""
+        data = ndimage.maximum_filter(self.data, size=2 * step - 1, mode="constant", cval=0.0)
+        return LikelihoodField(data=data, origin_xy=self.origin_xy, resolution=self.resolution)
+
+    def cell_coords(self, xy: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Continuous (col, row) coordinates of world points."""
+        return (
+            (xy[..., 0] - self.origin_xy[0]) / self.resolution,
+            (xy[..., 1] - self.origin_xy[1]) / self.resolution,
+        )
+
+    def interpolate(self, xy: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Bilinear value and its world-frame gradient at points (N, 2); zero outside."""
+        u, v = self.cell_coords(xy)
+        j0 = np.floor(u).astype(np.int64)
+        i0 = np.floor(v).astype(np.int64)
+        fu = u - j0
+        fv = v - i0
+        h, w = self.data.shape
+        inside = (j0 >= 0) & (j0 < w - 1) & (i0 >= 0) & (i0 < h - 1)
+        j0 = np.where(inside, j0, 0)
+        i0 = np.where(inside, i0, 0)
+        d = self.data
+        v00 = d[i0, j0].astype(np.float64)
+        v01 = d[i0, j0 + 1].astype(np.float64)
+        v10 = d[i0 + 1, j0].astype(np.float64)
+        v11 = d[i0 + 1, j0 + 1].astype(np.float64)
+        value = (v00 * (1 - fu) + v01 * fu) * (1 - fv) + (v10 * (1 - fu) + v11 * fu) * fv
+        du = ((v01 - v00) * (1 - fv) + (v11 - v10) * fv) / self.resolution
+        dv = ((v10 - v00) * (1 - fu) + (v11 - v01) * fu) / self.resolution
+        zero = ~inside
+        value[zero] = 0.0
+        du[zero] = 0.0
+        dv[zero] = 0.0
+        return value, du, dv
+
+
+@dataclass(frozen=True, slots=True)
+class MatchResult:
+    pose: FloatArray  # (3,) world pose of the scan's frame
+    score: float  # mean field value over the points at ``pose``, in [0, 1]
+    information: FloatArray  # (3, 3) Gauss-Newton information of the fit, world frame
+
+
+@dataclass(frozen=True, slots=True)
+class SearchWindow:
+    """Half-widths of the search around the initial guess, and its steps."""
+
+    linear_m: float
+    angular_rad: float
+    angle_step_rad: float
+    coarse_step_cells: int = 1
+
+
+def _score_grid(
+    field: LikelihoodField,
+    points: FloatArray,
+    center: FloatArray,
+    angles: FloatArray,
+    offsets: npt.NDArray[np.int64],
+) -> Float32Array:
+    """Mean field value for every (angle, dy, dx) of the window: shape (A, T, T)."""
+    c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
+    x = center[0] + c * points[None, :, 0] - s * points[None, :, 1]
+    y = center[1] + s * points[None, :, 0] + c * points[None, :, 1]
+    cols = np.rint((x - field.origin_xy[0]) / field.resolution).astype(np.int64)
+    rows = np.rint((y - field.origin_xy[1]) / field.resolution).astype(np.int64)
+    h, w = field.data.shape
+    # pad the field once so shifted indices never leave it
+    pad = int(np.abs(offsets).max()) + 1
+    padded = np.pad(field.data, pad)
+    # beyond the field a point sits on the zero border, which shifts cannot cross
+    cols = np.clip(cols, -1, w) + pad
+    rows = np.clip(rows, -1, h) + pad
+    padded_w = w + 2 * pad
+    flat = rows * padded_w + cols  # (A, N)
+    shift = offsets[:, None] * padded_w + offsets[None, :]  # (T, T): dy rows, dx cols
+    values = padded.reshape(-1)[flat[:, :, None, None] + shift[None, None, :, :]]
+    scores: Float32Array = values.mean(axis=1, dtype=np.float32)
+    return scores
+
+
+def correlative_search(
+    field: LikelihoodField,
+    points: FloatArray,
+    guess: FloatArray,
+    window: SearchWindow,
+    *,
+    coarse_field: LikelihoodField | None = None,
+    keep: int = 4,
+) -> tuple[FloatArray, float]:
+    """Best pose on the window's lattice, and its score."""
+    res = field.resolution
+    half_angles = max(0, round(window.angular_rad / window.angle_step_rad))
+    angles = guess[2] + window.angle_step_rad * np.arange(-half_angles, half_angles + 1)
+    step = max(1, window.coarse_step_cells)
+    half_cells = max(0, math.ceil(window.linear_m / res))
+    if step == 1 or coarse_field is None:
+        offsets = np.arange(-half_cells, half_cells + 1)
+        scores = _score_grid(field, points, guess, angles, offsets)
+        a, iy, ix = np.unravel_index(int(np.argmax(scores)), scores.shape)
+        pose = np.array([guess[0] + offsets[ix] * res, guess[1] + offsets[iy] * res, angles[a]])
+        return pose, float(scores[a, iy, ix])
+    coarse_half = math.ceil(half_cells / step)
+    coarse_offsets = np.arange(-coarse_half, coarse_half + 1) * step
+    coarse = _score_grid(coarse_field, points, guess, angles, coarse_offsets)
+    order = np.argsort(coarse.reshape(-1))[::-1][:keep]
+    fine_offsets = np.arange(-(step // 2), step // 2 + 1)
+    best_pose = np.asarray(guess, dtype=np.float64).copy()
+    best_score = -1.0
+    for flat in order:
+        a, iy, ix = np.unravel_index(int(flat), coarse.shape)
+        if coarse[a, iy, ix] <= best_score:
+            break  # an upper bound below the best fine score cannot win
+        center = np.array(
+            [guess[0] + coarse_offsets[ix] * res, guess[1] + coarse_offsets[iy] * res, angles[a]]
+        )
+        fine_angles = angles[a] + window.angle_step_rad * np.array([-0.5, 0.0, 0.5])
+        scores = _score_grid(field, points, center, fine_angles, fine_offsets)
+        fa, fy, fx = np.unravel_index(int(np.argmax(scores)), scores.shape)
+        if scores[fa, fy, fx] > best_score:
+            best_score = float(scores[fa, fy, fx])
+            best_pose = np.array(
+                [
+                    center[0] + fine_offsets[fx] * res,
+                    center[1] + fine_offsets[fy] * res,
+                    fine_angles[fa],
+                ]
+            )
+    return best_pose, best_score
+
+
+def refine(
+    field: LikelihoodField, points: FloatArray, pose: FloatArray, iterations: int = 12
+) -> tuple[FloatArray, float, FloatArray]:
+    """Gauss-Newton on sum (1 - M(T p))^2; returns pose, score and the information J^T J."""
+    current = np.asarray(pose, dtype=np.float64).copy()
+    lam = 1e-3
+    hessian = np.eye(3)
+
+    def evaluate(p: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        world = se2.transform_points(p, points)
+        value, gx, gy = field.interpolate(world)
+        c, s = math.cos(p[2]), math.sin(p[2])
+        dxdt = -s * points[:, 0] - c * points[:, 1]
+        dydt = c * points[:, 0] - s * points[:, 1]
+        jac = np.stack([gx, gy, gx * dxdt + gy * dydt], axis=1)
+        return 1.0 - value, jac, value
+
+    residual, jac, value = evaluate(current)
+    cost = float(residual @ residual)
+    for _ in range(iterations):
+        hessian = jac.T @ jac
+        grad = jac.T @ residual
+        try:
+            delta = np.linalg.solve(hessian + lam * np.diag(np.diag(hessian) + 1e-9), grad)
+        except np.linalg.LinAlgError:
+            break
+        candidate = current + delta
+        r2, j2, v2 = evaluate(candidate)
+        c2 = float(r2 @ r2)
+        if c2 < cost:
+            current, residual, jac, value, cost = candidate, r2, j2, v2, c2
+            lam = max(lam / 10, 1e-7)
+            if np.abs(delta[:2]).max() < 1e-4 and abs(delta[2]) < 1e-5:
+                break
+        else:
+            lam *= 10
+            if lam > 1e3:
+                break
+    hessian = jac.T @ jac
+    current[2] = float(se2.wrap(current[2]))
+    return current, float(value.mean()) if len(value) else 0.0, hessian
+
+
+def match(
+    field: LikelihoodField,
+    points: FloatArray,
+    guess: FloatArray,
+    window: SearchWindow,
+    coarse_field: LikelihoodField | None = None,
+) -> MatchResult:
+    """Search the window, then refine; the refined pose is kept only if it scores better."""
+    lattice_pose, lattice_score = correlative_search(
+        field, points, guess, window, coarse_field=coarse_field
+    )
+    pose, score, info = refine(field, points, lattice_pose)
+    moved = np.hypot(*(pose[:2] - lattice_pose[:2]))
+    if score < lattice_score or moved > 2 * field.resolution:
+        _, score, info = refine(field, points, lattice_pose, iterations=0)
+        pose = lattice_pose
+    return MatchResult(pose=pose, score=score, information=info)

@@ -1,0 +1,295 @@
+"""Floor-aware graph SLAM over a whole run.
+
+Front end: keyframes (every ``keyframe_m`` metres or ``keyframe_rad`` of odometric motion, and
+the first scan of every floor visit) are matched against a local submap made of the previous
+keyframes of the same visit; the match becomes the sequential edge, or plain odometry when the
+match is poor. Loop closures: each keyframe looks for keyframes of the *same floor* (the
+barometer's verdict) that are near in the current estimate but not in its local submap, and
+matches against the submap around the nearest with a wide multi-resolution search; accepted
+closures enter the pose graph with a Cauchy kernel. Different floors never close against each
+other: their geometry can be identical (stacked offices), and only the barometer tells them
+apart. Floors are joined by the odometry edge across each elevator ride, so all floors share
+one frame and align at the lobby.
+
+Scans that are not keyframes get the pose of the nearest keyframe composed with the odometry
+motion between them: within a keyframe spacing odometry is good to a centimetre or two.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+import structlog
+
+from baromap.mapping import se2
+from baromap.mapping.pose_graph import Edge, PoseGraph
+from baromap.mapping.scan_matcher import LikelihoodField, SearchWindow, match
+from baromap.mapping.scans import ScanBlock, voxel_filter
+
+log = structlog.get_logger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+#: Floor label of scans taken while the barometer says the robot is between floors.
+BETWEEN_FLOORS = -1
+
+
+@dataclass(frozen=True, slots=True)
+class SlamConfig:
+    keyframe_m: float = 0.3
+    keyframe_rad: float = math.radians(15.0)
+    max_range_m: float = 20.0
+    voxel_m: float = 0.05
+    resolution_m: float = 0.05
+    sigma_m: float = 0.06
+    submap_keyframes: int = 20
+    front_window: SearchWindow = field(
+        default_factory=lambda: SearchWindow(
+            linear_m=0.3, angular_rad=math.radians(6.0), angle_step_rad=math.radians(0.5)
+        )
+    )
+    front_min_score: float = 0.3
+    match_sigma_xy: float = 0.02
+    match_sigma_theta: float = math.radians(0.5)
+    odom_sigma_xy_per_m: float = 0.1
+    odom_sigma_theta_per_m: float = math.radians(5.0)
+    loop_every: int = 1
+    loop_radius_m: float = 3.0
+    loop_min_separation: int = 30
+    loop_submap_half: int = 10
+    loop_window: SearchWindow = field(
+        default_factory=lambda: SearchWindow(
+            linear_m=1.5,
+            angular_rad=math.radians(20.0),
+            angle_step_rad=math.radians(1.0),
+            coarse_step_cells=4,
+        )
+    )
+    loop_min_score: float = 0.55
+    loop_sigma_xy: float = 0.05
+    loop_sigma_theta: float = math.radians(1.0)
+    loop_robust_c: float = 3.0
+    optimize_every: int = 10
+
+
+@dataclass(slots=True)
+class SlamResult:
+    keyframes: IntArray  # scan index of each keyframe
+    keyframe_poses: FloatArray  # (K, 3)
+    scan_poses: FloatArray  # (S, 3), every scan
+    graph: PoseGraph
+    loop_edges: list[tuple[int, int]] = field(default_factory=list)  # keyframe ids
+    stats: dict[str, float] = field(default_factory=dict)
+
+
+def select_keyframes(
+    odom: FloatArray, visit: IntArray, floor: IntArray, config: SlamConfig
+) -> IntArray:
+    """Scans where the robot has moved enough since the last keyframe of the same visit."""
+    chosen: list[int] = []
+    last = -1
+    for s in range(len(odom)):
+        if floor[s] == BETWEEN_FLOORS:
+            continue
+        if last < 0 or visit[s] != visit[last]:
+            chosen.append(s)
+            last = s
+            continue
+        d = se2.between(odom[last], odom[s])
+        if math.hypot(d[0], d[1]) >= config.keyframe_m or abs(d[2]) >= config.keyframe_rad:
+            chosen.append(s)
+            last = s
+    return np.array(chosen, dtype=np.int64)
+
+
+class _Keyframes:
+    """Per-keyframe point clouds, filtered once."""
+
+    def __init__(self, scans: ScanBlock, indices: IntArray, config: SlamConfig) -> None:
+        self.points = [
+            voxel_filter(scans.endpoints(int(s), config.max_range_m), config.voxel_m)
+            for s in indices
+        ]
+
+    def world_points(self, ids: list[int] | IntArray, poses: FloatArray) -> FloatArray:
+        clouds = [se2.transform_points(poses[k], self.points[k]) for k in ids]
+        return np.concatenate(clouds) if clouds else np.zeros((0, 2))
+
+
+def _field_around(
+    points: FloatArray, center: FloatArray, config: SlamConfig, margin: float
+) -> LikelihoodField:
+    reach = config.max_range_m + margin
+    bounds = (center[0] - reach, center[1] - reach, center[0] + reach, center[1] + reach)
+    if len(points):
+        lo = np.maximum(points.min(axis=0), [bounds[0], bounds[1]])
+        hi = np.minimum(points.max(axis=0), [bounds[2], bounds[3]])
+        bounds = (lo[0], lo[1], max(hi[0], lo[0]), max(hi[1], lo[1]))
+    return LikelihoodField.from_points(points, config.resolution_m, config.sigma_m, bounds)
+
+
+def _info(sigma_xy: float, sigma_theta: float) -> FloatArray:
+    return np.diag([1 / sigma_xy**2, 1 / sigma_xy**2, 1 / sigma_theta**2])
+
+
+def run_slam(
+    scans: ScanBlock,
+    odom: FloatArray,
+    floor: IntArray,
+    visit: IntArray,
+    *,
+    config: SlamConfig | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> SlamResult:
+    """SLAM over a run: scans, odometry poses at the scan times, floor and visit per scan."""
+    config = config or SlamConfig()
+    kf_scan = select_keyframes(odom, visit, floor, config)
+    if len(kf_scan) == 0:
+        raise ValueError("no scan is on a floor: nothing to map")
+    clouds = _Keyframes(scans, kf_scan, config)
+    kf_floor = floor[kf_scan]
+    kf_visit = visit[kf_scan]
+    graph = PoseGraph()
+    graph.add_node(odom[kf_scan[0]])
+    loops: list[tuple[int, int]] = []
+    stats: dict[str, float] = {
+        "front_matches": 0,
+        "front_failures": 0,
+        "loop_attempts": 0,
+        "loops": 0,
+    }
+    visit_start = 0
+    pending_loops = 0
+    last_loop_target = -(10**9)
+    for k in range(1, len(kf_scan)):
+        step = se2.between(odom[kf_scan[k - 1]], odom[kf_scan[k]])
+        guess = se2.compose(graph.poses[k - 1], step)
+        graph.add_node(guess)
+        if kf_visit[k] != kf_visit[k - 1]:
+            visit_start = k
+        dist = math.hypot(step[0], step[1])
+        odom_info = _info(
+            0.02 + config.odom_sigma_xy_per_m * dist,
+            math.radians(0.5) + config.odom_sigma_theta_per_m * dist + 0.05 * abs(step[2]),
+        )
+        edge = Edge(k - 1, k, step, odom_info, "odometry")
+        if k > visit_start and len(clouds.points[k]) >= 10:
+            ids = list(range(max(visit_start, k - config.submap_keyframes), k))
+            ref = clouds.world_points(ids, graph.poses)
+            fld = _field_around(ref, guess, config, config.front_window.linear_m + 1.0)
+            result = match(fld, clouds.points[k], guess, config.front_window)
+            if result.score >= config.front_min_score:
+                graph.poses[k] = result.pose
+                edge = Edge(
+                    k - 1,
+                    k,
+                    se2.between(graph.poses[k - 1], result.pose),
+                    _info(config.match_sigma_xy, config.match_sigma_theta),
+                    "match",
+                )
+                stats["front_matches"] += 1
+            else:
+                stats["front_failures"] += 1
+        graph.add_edge(edge)
+        if k % config.loop_every == 0 and k - last_loop_target > 0:
+            target = _try_loop(
+                k,
+                graph=graph,
+                clouds=clouds,
+                kf_floor=kf_floor,
+                kf_visit=kf_visit,
+                config=config,
+                stats=stats,
+            )
+            if target is not None:
+                loops.append((target, k))
+                pending_loops += 1
+        if pending_loops and (pending_loops >= 3 or k % config.optimize_every == 0):
+            graph.optimize(iterations=10)
+            pending_loops = 0
+        if progress is not None:
+            progress(int(kf_scan[k]))
+    graph.optimize(iterations=30)
+    stats["keyframes"] = len(kf_scan)
+    stats["loops"] = len(loops)
+    scan_poses = _all_scan_poses(odom, kf_scan, graph.poses, floor)
+    return SlamResult(kf_scan, graph.poses.copy(), scan_poses, graph, loops, stats)
+
+
+def _try_loop(
+    k: int,
+    *,
+    graph: PoseGraph,
+    clouds: _Keyframes,
+    kf_floor: IntArray,
+    kf_visit: IntArray,
+    config: SlamConfig,
+    stats: dict[str, float],
+) -> int | None:
+    """Match keyframe k against the nearest old keyframe of its floor; add the edge if good."""
+    poses = graph.poses
+    old = np.arange(0, k - config.loop_min_separation)
+    if len(old) == 0:
+        return None
+    old = old[(kf_floor[old] == kf_floor[k])]
+    if len(old) == 0:
+        return None
+    dist = np.hypot(poses[old, 0] - poses[k, 0], poses[old, 1] - poses[k, 1])
+    near = dist < config.loop_radius_m
+    if not near.any():
+        return None
+    target = int(old[near][np.argmin(dist[near])])
+    lo = target
+    while lo > 0 and target - lo < config.loop_submap_half and kf_visit[lo - 1] == kf_visit[target]:
+        lo -= 1
+    hi = target
+    while (
+        hi < k - config.loop_min_separation
+        and hi - target < config.loop_submap_half
+        and kf_visit[hi + 1] == kf_visit[target]
+    ):
+        hi += 1
+    ref = clouds.world_points(list(range(lo, hi + 1)), poses)
+    if len(ref) < 50 or len(clouds.points[k]) < 30:
+        return None
+    stats["loop_attempts"] += 1
+    window = config.loop_window
+    fld = _field_around(ref, poses[k], config, window.linear_m + 1.0)
+    coarse = fld.max_filtered(window.coarse_step_cells)
+    result = match(fld, clouds.points[k], poses[k], window, coarse)
+    if result.score < config.loop_min_score:
+        return None
+    graph.add_edge(
+        Edge(
+            target,
+            k,
+            se2.between(poses[target], result.pose),
+            _info(config.loop_sigma_xy, config.loop_sigma_theta),
+            "loop",
+            robust_c=config.loop_robust_c,
+        )
+    )
+    log.debug("loop closure", frm=target, to=k, score=round(result.score, 3))
+    return target
+
+
+def _all_scan_poses(
+    odom: FloatArray, kf_scan: IntArray, kf_poses: FloatArray, floor: IntArray
+) -> FloatArray:
+    """Every scan's pose: the nearest keyframe's pose plus odometry from it."""
+    s = np.arange(len(odom))
+    pos = np.clip(np.searchsorted(kf_scan, s), 1, len(kf_scan) - 1) if len(kf_scan) > 1 else None
+    if pos is None:
+        nearest = np.zeros(len(odom), dtype=np.int64)
+    else:
+        left, right = kf_scan[pos - 1], kf_scan[pos]
+        nearest = np.where(np.abs(s - left) <= np.abs(right - s), pos - 1, pos)
+    anchor = kf_scan[nearest]
+    rel = se2.between(odom[anchor], odom)
+    poses: FloatArray = se2.compose(kf_poses[nearest], rel)
+    return poses
