@@ -1,0 +1,294 @@
+"""``build-maps``: a recorded run in, one aligned map per floor and a building model out.
+
+Order of work: load the run, cut it into floors from the barometer, run floor-aware graph
+SLAM over the whole run (one frame for all floors), rasterise each floor's keyframes into an
+occupancy grid, then write the files DESIGN.md promises. Everything in one place here so the
+CLI, the demo, tests and the benchmark produce identical outputs.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import structlog
+
+from baromap.errors import ConfigError
+from baromap.mapping import export, figures
+from baromap.mapping.foxglove_maps import write_maps_mcap
+from baromap.mapping.occupancy import OccupancyGrid, build_grid
+from baromap.mapping.run_data import RunData, load_run
+from baromap.mapping.segmentation import Segmentation, segment_run
+from baromap.mapping.slam import BETWEEN_FLOORS, SlamConfig, SlamResult, run_slam
+
+log = structlog.get_logger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(slots=True)
+class BuildResult:
+    run: RunData
+    segmentation: Segmentation
+    slam: SlamResult
+    grids: dict[int, OccupancyGrid]
+    files: list[Path] = field(default_factory=list)
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def cross_floor_closures(self) -> int:
+        kf_floor = self.segmentation.scan_floor[self.slam.keyframes]
+        return sum(1 for i, j in self.slam.loop_edges if kf_floor[i] != kf_floor[j])
+
+
+def _progress_bar(total: int, enabled: bool) -> tuple[Callable[[int], None] | None, Any]:
+    if not enabled or not sys.stderr.isatty():
+        return None, None
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, unit="scan", desc="SLAM", leave=False)
+    state = {"last": 0}
+
+    def update(scan_index: int) -> None:
+        bar.update(scan_index + 1 - state["last"])
+        state["last"] = scan_index + 1
+
+    return update, bar
+
+
+def map_floors(
+    run: RunData,
+    segmentation: Segmentation,
+    *,
+    config: SlamConfig | None = None,
+    resolution: float = 0.05,
+    progress: bool = False,
+) -> tuple[SlamResult, dict[int, OccupancyGrid]]:
+    """SLAM over the run and one grid per floor, in one frame."""
+    update, bar = _progress_bar(len(run.scans), progress)
+    try:
+        slam = run_slam(
+            run.scans,
+            run.odom,
+            segmentation.scan_floor,
+            segmentation.scan_visit,
+            config=config,
+            progress=update,
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    kf_floor = segmentation.scan_floor[slam.keyframes]
+    grids: dict[int, OccupancyGrid] = {}
+    max_range = (config or SlamConfig()).max_range_m
+    for info in segmentation.floors:
+        mine = np.nonzero(kf_floor == info.index)[0]
+        if len(mine) == 0:
+            continue
+        grids[info.index] = build_grid(
+            run.scans,
+            slam.keyframes[mine],
+            slam.keyframe_poses[mine],
+            resolution=resolution,
+            max_range_m=max_range,
+        )
+    return slam, grids
+
+
+def build_maps(
+    recording: str | Path,
+    out_dir: str | Path,
+    *,
+    resolution: float = 0.05,
+    method: str = "paper",
+    progress: bool = False,
+    config: SlamConfig | None = None,
+) -> BuildResult:
+    """Run the whole pipeline and write every output file into ``out_dir``."""
+    import time
+
+    if not 0.005 <= resolution <= 1.0:
+        raise ConfigError(f"resolution {resolution} m is outside 0.005..1")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    run = load_run(recording)
+    timings["load"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    segmentation = segment_run(
+        run.scans.t_ns, run.pressure_t_ns, run.pressure_pa, run.temperature_c, method=method
+    )
+    timings["segmentation"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    slam, grids = map_floors(
+        run, segmentation, config=config, resolution=resolution, progress=progress
+    )
+    timings["slam_and_grids"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    result = BuildResult(run, segmentation, slam, grids, timings_s=timings)
+    result.files = write_outputs(result, Path(recording), out)
+    timings["outputs"] = time.perf_counter() - t0
+    log.info(
+        "maps built",
+        floors=len(grids),
+        keyframes=len(slam.keyframes),
+        loops=len(slam.loop_edges),
+        cross_floor_loops=result.cross_floor_closures,
+        **{f"t_{k}": round(v, 2) for k, v in timings.items()},
+    )
+    return result
+
+
+def scan_elevations(result: BuildResult) -> FloatArray:
+    """Elevation of each scan's floor; transitions interpolate between their two floors."""
+    seg = result.segmentation
+    elevation = {f.index: f.elevation_m for f in seg.floors}
+    z = np.array([elevation.get(int(f), np.nan) for f in seg.scan_floor])
+    known = np.isfinite(z)
+    if known.any() and not known.all():
+        idx = np.arange(len(z))
+        z[~known] = np.interp(idx[~known], idx[known], z[known])
+    out: FloatArray = np.nan_to_num(z)
+    return out
+
+
+def write_outputs(result: BuildResult, recording: Path, out: Path) -> list[Path]:
+    seg = result.segmentation
+    files: list[Path] = []
+    floor_entries = []
+    kf_floor = seg.scan_floor[result.slam.keyframes]
+    for info in seg.floors:
+        grid = result.grids.get(info.index)
+        entry: dict[str, Any] = {
+            "index": info.index,
+            "elevation_m": round(info.elevation_m, 3),
+            "mean_pressure_pa": None if info.level_pa is None else round(info.level_pa, 2),
+            "visits": info.visits,
+            "keyframes": int(np.sum(kf_floor == info.index)),
+            "scans": int(np.sum(seg.scan_floor == info.index)),
+        }
+        if grid is not None:
+            stem = f"floor_{info.index}"
+            pgm, yml = export.write_map_server(grid, out, stem)
+            png = out / f"{stem}.png"
+            export.write_png(grid, png, f"floor {info.index} ({info.elevation_m:+.2f} m)")
+            files += [pgm, yml, png]
+            entry.update({"map": yml.name, "image": pgm.name, "png": png.name})
+        floor_entries.append(entry)
+    z = scan_elevations(result)
+    tum = out / "trajectory.tum"
+    export.write_tum(tum, result.run.scans.t_ns, result.slam.scan_poses, z)
+    files.append(tum)
+    building = {
+        "source": str(recording),
+        "frame": "one frame for all floors: the robot's start pose on its first floor",
+        "resolution_m": next(iter(result.grids.values())).resolution if result.grids else None,
+        "segmentation": seg.source,
+        "floors": floor_entries,
+        "loop_closures": {
+            "total": len(result.slam.loop_edges),
+            "cross_floor": result.cross_floor_closures,
+        },
+        "keyframes": len(result.slam.keyframes),
+        "scans": len(result.run.scans),
+    }
+    building_yaml = out / "building.yaml"
+    export.write_building_yaml(building_yaml, building)
+    files.append(building_yaml)
+    files.append(_write_pressure_png(result, out / "pressure.png"))
+    order = [f for f in seg.floors if f.index in result.grids]
+    paths = [result.slam.scan_poses[seg.scan_floor == f.index, :2] for f in order]
+    building_png = out / "building.png"
+    figures.building_figure(
+        building_png,
+        [result.grids[f.index] for f in order],
+        [f.elevation_m for f in order],
+        paths,
+        [f"floor {f.index}" for f in order],
+    )
+    files.append(building_png)
+    maps = out / "maps.mcap"
+    write_maps_mcap(
+        maps,
+        int(result.run.scans.t_ns[-1]),
+        grids=[result.grids[f.index] for f in order],
+        elevations_m=[f.elevation_m for f in order],
+        scan_poses=result.slam.scan_poses,
+        scan_z_m=z,
+        scan_floor=np.where(seg.scan_floor == BETWEEN_FLOORS, -1, seg.scan_floor),
+    )
+    files.append(maps)
+    return files
+
+
+def _write_pressure_png(result: BuildResult, path: Path) -> Path:
+    run = result.run
+    det = result.segmentation.detection
+    if len(run.pressure_t_ns) == 0:
+        t = run.scans.t_ns
+        figures.pressure_figure(
+            path,
+            (t - t[0]) / 1e9,
+            np.full(len(t), np.nan),
+            smoothed_pa=None,
+            rate_pa_per_s=None,
+            transitions=[],
+        )
+        return path
+    t0 = run.pressure_t_ns[0]
+    t_s = (run.pressure_t_ns - t0) / 1e9
+    smoothed = rate = threshold = None
+    transitions: list[figures.Transition] = []
+    if det is not None:
+        smoothed = np.asarray(det.smoothed_pa, dtype=np.float64)
+        rate = np.asarray(det.rate_pa_per_s, dtype=np.float64)
+        threshold = getattr(det, "threshold_pa_per_s", None)
+        for tr in det.transitions:
+            transitions.append(
+                figures.Transition(
+                    (tr.t_start_ns - t0) / 1e9,
+                    (tr.t_end_ns - t0) / 1e9,
+                    f"{tr.from_floor}\u2192{tr.to_floor}",
+                )
+            )
+    figures.pressure_figure(
+        path,
+        t_s,
+        run.pressure_pa,
+        smoothed_pa=smoothed,
+        rate_pa_per_s=rate,
+        transitions=transitions,
+        threshold_pa_per_s=threshold,
+    )
+    return path
+
+
+def summary_lines(result: BuildResult, out: Path) -> list[str]:
+    """What the CLI prints: one line per floor and the run's totals."""
+    lines = [f"maps of {len(result.grids)} floor(s) in {out} ({result.segmentation.source})"]
+    for info in result.segmentation.floors:
+        grid = result.grids.get(info.index)
+        size = "" if grid is None else f"{grid.shape[1]}x{grid.shape[0]} cells"
+        pressure = "" if info.level_pa is None else f", {info.level_pa:.1f} Pa"
+        lines.append(
+            f"  floor {info.index}: {info.elevation_m:+.2f} m{pressure}, "
+            f"{info.visits} visit(s), {size}"
+        )
+    slam = result.slam
+    lines.append(
+        f"  {len(result.run.scans)} scans, {len(slam.keyframes)} keyframes, "
+        f"{len(slam.loop_edges)} loop closures ({result.cross_floor_closures} across floors)"
+    )
+    total = sum(result.timings_s.values())
+    lines.append(
+        "  time "
+        + ", ".join(f"{k} {v:.1f} s" for k, v in result.timings_s.items())
+        + f" (total {total:.1f} s)"
+    )
+    return lines

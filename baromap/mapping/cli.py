@@ -1,0 +1,43 @@
+"""``baromap build-maps RUN.mcap -o OUT``: per-floor maps and the building model of a run."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    parser = subparsers.add_parser(
+        "build-maps",
+        help="per-floor occupancy maps, trajectory and building model from a recorded run",
+    )
+    parser.add_argument("recording", help="run recording (.mcap)")
+    parser.add_argument("-o", "--output", required=True, help="output directory")
+    parser.add_argument(
+        "--resolution", type=float, default=0.05, help="map cell size in metres (default 0.05)"
+    )
+    parser.add_argument(
+        "--method",
+        choices=("paper", "online"),
+        default="paper",
+        help="floor detection used to cut the run (default: paper, offline batch)",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from baromap.mapping.build import build_maps, summary_lines
+
+    out = Path(args.output)
+    result = build_maps(
+        args.recording,
+        out,
+        resolution=args.resolution,
+        method=args.method,
+        progress=not args.no_progress,
+    )
+    for line in summary_lines(result, out):
+        print(line)
+    return 0

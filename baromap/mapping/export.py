@@ -1,0 +1,127 @@
+"""Files a finished mapping run leaves behind, in formats other tools read.
+
+- ROS map_server maps: a binary PGM (P5) whose first row is the top of the map, and a YAML
+  with ``image, resolution, origin, negate, occupied_thresh, free_thresh, mode``; ``mode:
+  trinary`` with 0 = occupied, 254 = free, 205 = unknown, as map_saver writes them.
+- TUM trajectories (``t x y z qx qy qz qw``, seconds), read by evo and the TUM tools.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import yaml
+
+from baromap.errors import InputFormatError
+from baromap.mapping.occupancy import FREE_THRESH, OCCUPIED_THRESH, OccupancyGrid
+
+FREE_VALUE = 254
+OCCUPIED_VALUE = 0
+UNKNOWN_VALUE = 205
+
+
+def map_image(grid: OccupancyGrid) -> npt.NDArray[np.uint8]:
+    """Trinary image, top row = highest y (image convention)."""
+    image = np.full(grid.shape, UNKNOWN_VALUE, dtype=np.uint8)
+    image[grid.free()] = FREE_VALUE
+    image[grid.occupied()] = OCCUPIED_VALUE
+    flipped: npt.NDArray[np.uint8] = np.ascontiguousarray(image[::-1])
+    return flipped
+
+
+def write_pgm(path: Path, image: npt.NDArray[np.uint8]) -> None:
+    h, w = image.shape
+    with path.open("wb") as handle:
+        handle.write(f"P5\n{w} {h}\n255\n".encode("ascii"))
+        handle.write(np.ascontiguousarray(image, dtype=np.uint8).tobytes())
+
+
+def read_pgm(path: Path) -> npt.NDArray[np.uint8]:
+    """Read a binary PGM (for tests and tools that check what we wrote)."""
+    data = Path(path).read_bytes()
+    fields: list[bytes] = []
+    pos = 0
+    while len(fields) < 4:
+        while pos < len(data) and data[pos : pos + 1].isspace():
+            pos += 1
+        if data[pos : pos + 1] == b"#":
+            pos = data.index(b"\n", pos) + 1
+            continue
+        end = pos
+        while end < len(data) and not data[end : end + 1].isspace():
+            end += 1
+        fields.append(data[pos:end])
+        pos = end
+    if fields[0] != b"P5" or int(fields[3]) > 255:
+        raise InputFormatError(f"{path}: not an 8-bit binary PGM")
+    w, h = int(fields[1]), int(fields[2])
+    pixels = np.frombuffer(data, dtype=np.uint8, count=w * h, offset=pos + 1)
+    return pixels.reshape(h, w)
+
+
+def write_map_server(grid: OccupancyGrid, directory: Path, stem: str) -> tuple[Path, Path]:
+    """``stem.pgm`` + ``stem.yaml`` loadable by ROS map_server / nav2 map_server."""
+    pgm = directory / f"{stem}.pgm"
+    write_pgm(pgm, map_image(grid))
+    meta = {
+        "image": pgm.name,
+        "resolution": float(grid.resolution),
+        "origin": [float(grid.origin_xy[0]), float(grid.origin_xy[1]), 0.0],
+        "negate": 0,
+        "occupied_thresh": OCCUPIED_THRESH,
+        "free_thresh": FREE_THRESH,
+        "mode": "trinary",
+    }
+    yml = directory / f"{stem}.yaml"
+    yml.write_text(yaml.safe_dump(meta, sort_keys=False), encoding="utf-8")
+    return pgm, yml
+
+
+def write_png(grid: OccupancyGrid, path: Path, title: str | None = None) -> None:
+    """A picture of the map with a metric frame, for people."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    h, w = grid.shape
+    extent = (
+        grid.origin_xy[0],
+        grid.origin_xy[0] + w * grid.resolution,
+        grid.origin_xy[1],
+        grid.origin_xy[1] + h * grid.resolution,
+    )
+    scale = max(w, h) * grid.resolution
+    size = min(12.0, max(5.0, scale / 4))
+    fig, ax = plt.subplots(figsize=(size, size * h / max(w, 1) + 0.6))
+    ax.imshow(map_image(grid), cmap="gray", vmin=0, vmax=255, extent=extent, origin="upper")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def write_tum(
+    path: Path,
+    t_ns: npt.NDArray[np.int64],
+    poses: npt.NDArray[np.float64],
+    z_m: npt.NDArray[np.float64] | None = None,
+) -> None:
+    """TUM trajectory: one line per pose; z is the floor's elevation when known."""
+    z = np.zeros(len(poses)) if z_m is None else np.asarray(z_m, dtype=np.float64)
+    with path.open("w", encoding="ascii") as handle:
+        for t, (x, y, theta), zz in zip(t_ns, poses, z, strict=True):
+            sec, nsec = divmod(int(t), 1_000_000_000)
+            qz, qw = math.sin(theta / 2), math.cos(theta / 2)
+            handle.write(f"{sec}.{nsec:09d} {x:.6f} {y:.6f} {zz:.4f} 0 0 {qz:.9f} {qw:.9f}\n")
+
+
+def write_building_yaml(path: Path, building: dict[str, Any]) -> None:
+    path.write_text(yaml.safe_dump(building, sort_keys=False), encoding="utf-8")

@@ -1,0 +1,102 @@
+"""Which floor each scan was taken on, from the barometer.
+
+The cut is recomputed offline from the whole pressure series (``baromap.floors.detect_floors``):
+after the run nothing forces causality, and the batch detector sees both sides of every
+transition. Scans inside a transition (the elevator moving) belong to no floor: they are
+neither mapped nor used for loop closure, only their odometry joins the floors. A run without
+a barometer (a public laser log) is one floor.
+
+A *visit* is one uninterrupted stay on a floor; the SLAM front end never matches across a
+visit boundary (the submap behind the robot is the floor it just left).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from baromap.mapping.slam import BETWEEN_FLOORS
+
+IntArray = npt.NDArray[np.int64]
+
+#: Fewest pressure samples worth running a detector on.
+MIN_PRESSURE_SAMPLES = 10
+
+
+@dataclass(frozen=True, slots=True)
+class FloorInfo:
+    index: int
+    elevation_m: float
+    level_pa: float | None
+    visits: int
+
+
+@dataclass(frozen=True, slots=True)
+class Segmentation:
+    scan_floor: IntArray  # floor index per scan, BETWEEN_FLOORS inside transitions
+    scan_visit: IntArray  # visit number per scan (-1 inside transitions)
+    floors: tuple[FloorInfo, ...]
+    source: str
+    detection: Any = field(default=None, repr=False)  # FloorDetection, for the figure
+
+
+def single_floor(n_scans: int, source: str = "no barometer: one floor") -> Segmentation:
+    return Segmentation(
+        scan_floor=np.zeros(n_scans, dtype=np.int64),
+        scan_visit=np.zeros(n_scans, dtype=np.int64),
+        floors=(FloorInfo(0, 0.0, None, 1),),
+        source=source,
+    )
+
+
+def label_scans(
+    scan_t_ns: IntArray, segments: list[tuple[int, int, int]]
+) -> tuple[IntArray, IntArray]:
+    """Floor and visit of each scan from (t_start_ns, t_end_ns, floor) segments in time order.
+
+    Scans before the first segment belong to it, scans after the last to the last (the robot
+    was on a floor before the barometer's first sample); scans between two segments are in a
+    transition.
+    """
+    floor = np.full(len(scan_t_ns), BETWEEN_FLOORS, dtype=np.int64)
+    visit = np.full(len(scan_t_ns), -1, dtype=np.int64)
+    if not segments:
+        return np.zeros_like(floor), np.zeros_like(visit)
+    for k, (t0, t1, f) in enumerate(segments):
+        lo = -np.inf if k == 0 else t0
+        hi = np.inf if k == len(segments) - 1 else t1
+        inside = (scan_t_ns >= lo) & (scan_t_ns <= hi)
+        floor[inside] = f
+        visit[inside] = k
+    return floor, visit
+
+
+def segment_run(
+    scan_t_ns: IntArray,
+    pressure_t_ns: IntArray,
+    pressure_pa: npt.NDArray[np.float64],
+    temperature_c: npt.NDArray[np.float64] | None = None,
+    method: str = "paper",
+) -> Segmentation:
+    """Offline floor segmentation of a run's scans."""
+    if len(pressure_t_ns) < MIN_PRESSURE_SAMPLES:
+        return single_floor(len(scan_t_ns))
+    from baromap.floors import detect_floors
+
+    temps = None
+    if temperature_c is not None and np.isfinite(temperature_c).all():
+        temps = temperature_c
+    detection = detect_floors(pressure_t_ns, pressure_pa, temps, method=method)
+    segments = [(int(s.t_start_ns), int(s.t_end_ns), int(s.floor)) for s in detection.segments]
+    floor, visit = label_scans(scan_t_ns, segments)
+    visits = {f.index: 0 for f in detection.floors}
+    for _, _, f in segments:
+        visits[f] = visits.get(f, 0) + 1
+    floors = tuple(
+        FloorInfo(int(f.index), float(f.elevation_m), float(f.level_pa), visits.get(f.index, 0))
+        for f in detection.floors
+    )
+    return Segmentation(floor, visit, floors, f"barometer ({method})", detection)
