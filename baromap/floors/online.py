@@ -144,7 +144,7 @@ class OnlineFloorDetector:
         if self._n == 0:
             return self._first(t, p)
         dt_ns = t - self._t
-        if dt_ns <= 0 or p != p:
+        if dt_ns <= 0 or not math.isfinite(p):
             self.ignored_samples += 1
             return []
         if dt_ns > self._gap_ns:
@@ -257,7 +257,7 @@ class OnlineFloorDetector:
     # -- decisions -----------------------------------------------------------------------
 
     def _first(self, t: int, p: float) -> list[FloorEvent]:
-        if p != p:
+        if not math.isfinite(p):
             self.ignored_samples += 1
             return []
         self._n = 1
@@ -369,6 +369,7 @@ class OnlineFloorDetector:
             and last.to_id == self._floor
             and self._change_start - last.t_end_ns <= self._landing_ns
             and step * last.delta_pa > 0.0
+            and abs(step) >= self._start_pa
         ):
             # A first visit decided on a landing: the trip went on, the floor is where it
             # ended. Only once, and only for a floor never seen before (a known floor's

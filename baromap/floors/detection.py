@@ -1,0 +1,428 @@
+"""Batch entry point: a whole run's pressure in, floors, transitions and segments out.
+
+Both methods end in the same :class:`FloorDetection`, so the mapping step, the plots and the
+evaluation treat them alike. Floor indices are ranked by height, 0 = lowest visited.
+
+Elevations differ by method on purpose: the paper's method takes them from the mean pressure
+of each floor's segments (as the paper does, and as drift spoils); the online method's come
+from the steps across transitions combined by least squares (:mod:`baromap.floors.elevation`).
+"""
+
+from __future__ import annotations
+
+import bisect
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from baromap.errors import ConfigError, InputFormatError
+from baromap.floors.config import FloorDetectorConfig
+from baromap.floors.elevation import STEP_WINDOW_S, Step, measure_step, solve_levels
+from baromap.floors.height import height_difference_m, pressure_drop_pa
+from baromap.messages import NS_PER_S, PressureSample
+
+Method = Literal["online", "paper"]
+METHODS: tuple[str, ...] = ("online", "paper")
+
+
+@dataclass(frozen=True, slots=True)
+class Floor:
+    """One floor: ``level_pa`` is its pressure referred to the start of the run."""
+
+    index: int
+    level_pa: float
+    elevation_m: float
+    visits: int
+
+
+@dataclass(frozen=True, slots=True)
+class Transition:
+    """A change of floor. ``t_detect_ns`` is when the method knew (the end, for batch)."""
+
+    t_start_ns: int
+    t_end_ns: int
+    t_detect_ns: int
+    from_floor: int
+    to_floor: int
+    delta_pa: float
+    delta_m: float
+    at_end: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class Segment:
+    """A stretch of the run spent on one floor."""
+
+    t_start_ns: int
+    t_end_ns: int
+    floor: int
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FloorDetection:
+    method: str
+    floors: tuple[Floor, ...]
+    transitions: tuple[Transition, ...]
+    segments: tuple[Segment, ...]
+    t_ns: npt.NDArray[np.int64]
+    smoothed_pa: npt.NDArray[np.float64]
+    rate_pa_per_s: npt.NDArray[np.float64]
+
+    def floor_of(self, t_ns: int) -> int | None:
+        """Floor at a time, None between segments (during a transition) or outside the run."""
+        starts = [s.t_start_ns for s in self.segments]
+        k = bisect.bisect_right(starts, t_ns) - 1
+        if k < 0:
+            return None
+        segment = self.segments[k]
+        return segment.floor if t_ns <= segment.t_end_ns else None
+
+    def floor_array(self, t_ns: npt.NDArray[np.int64]) -> npt.NDArray[np.float64]:
+        """:meth:`floor_of` for many times at once (NaN for None)."""
+        out = np.full(np.shape(t_ns), np.nan)
+        for segment in self.segments:
+            inside = (t_ns >= segment.t_start_ns) & (t_ns <= segment.t_end_ns)
+            out[inside] = segment.floor
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON of ``baromap detect --json`` (times in seconds of the input's clock)."""
+
+        def s(t: int) -> float:
+            return round(t / NS_PER_S, 3)
+
+        return {
+            "method": self.method,
+            "floors": [
+                {
+                    "index": f.index,
+                    "level_pa": round(f.level_pa, 2),
+                    "elevation_m": round(f.elevation_m, 3),
+                    "visits": f.visits,
+                }
+                for f in self.floors
+            ],
+            "transitions": [
+                {
+                    "t_start": s(tr.t_start_ns),
+                    "t_end": s(tr.t_end_ns),
+                    "t_detect": s(tr.t_detect_ns),
+                    "from": tr.from_floor,
+                    "to": tr.to_floor,
+                    "delta_pa": round(tr.delta_pa, 2),
+                    "delta_m": round(tr.delta_m, 3),
+                }
+                for tr in self.transitions
+            ],
+            "segments": [
+                {"t_start": s(sg.t_start_ns), "t_end": s(sg.t_end_ns), "floor": sg.floor}
+                for sg in self.segments
+            ],
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class _Raw:
+    """A transition by floor id, before indices and heights are settled."""
+
+    t_start_ns: int
+    t_end_ns: int
+    t_detect_ns: int
+    from_id: int
+    to_id: int
+    delta_pa: float
+    at_end: bool = False
+
+
+def detect_floors(
+    t_ns: npt.ArrayLike,
+    pressure_pa: npt.ArrayLike,
+    temperature_c: npt.ArrayLike | None = None,
+    *,
+    method: str = "online",
+    reference: tuple[npt.ArrayLike, npt.ArrayLike] | None = None,
+    config: FloorDetectorConfig | None = None,
+) -> FloorDetection:
+    """Detect floors in a whole run.
+
+    ``reference`` is ``(t_ns, pressure_pa)`` of a reference station (a barometer that stays
+    put), which removes weather drift when present.
+    """
+    config = config or FloorDetectorConfig()
+    if method not in METHODS:
+        raise ConfigError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+    t = np.asarray(t_ns, dtype=np.int64)
+    p = np.asarray(pressure_pa, dtype=np.float64)
+    if t.ndim != 1 or t.shape != p.shape:
+        raise InputFormatError("time and pressure must be 1-D arrays of equal length")
+    if t.size == 0:
+        raise InputFormatError("no pressure samples")
+    if np.any(np.diff(t) <= 0):
+        order = np.argsort(t, kind="stable")
+        t, p = t[order], p[order]
+        keep = np.concatenate(([True], np.diff(t) > 0))
+        t, p = t[keep], p[keep]
+        if temperature_c is not None:
+            temperature_c = np.asarray(temperature_c, dtype=np.float64)[order][keep]
+    temp = (
+        np.full(t.shape, np.nan)
+        if temperature_c is None
+        else np.asarray(temperature_c, dtype=np.float64)
+    )
+    if temp.shape != t.shape:
+        raise InputFormatError("temperature must match the pressure samples")
+    if method == "online":
+        return _online(t, p, temp, reference, config)
+    return _paper(t, p, temp, reference, config)
+
+
+def _online(
+    t: npt.NDArray[np.int64],
+    p: npt.NDArray[np.float64],
+    temp: npt.NDArray[np.float64],
+    reference: tuple[npt.ArrayLike, npt.ArrayLike] | None,
+    config: FloorDetectorConfig,
+) -> FloorDetection:
+    from baromap.floors.online import OnlineFloorDetector
+
+    detector = OnlineFloorDetector(config)
+    smoothed = np.empty(t.size)
+    rate = np.empty(t.size)
+    ref_t: list[int] = []
+    ref_p: list[float] = []
+    if reference is not None:
+        ref_t = np.asarray(reference[0], dtype=np.int64).tolist()
+        ref_p = np.asarray(reference[1], dtype=np.float64).tolist()
+    r = 0
+    temps = temp.tolist()
+    for i, (ti, pi) in enumerate(zip(t.tolist(), p.tolist(), strict=True)):
+        while r < len(ref_t) and ref_t[r] <= ti:
+            detector.update_reference(PressureSample(ref_t[r], ref_p[r]))
+            r += 1
+        ci = temps[i]
+        detector.update(PressureSample(ti, pi, None if math.isnan(ci) else ci))
+        smoothed[i] = detector.level
+        rate[i] = detector.rate
+    detector.finish()
+    raw = [
+        _Raw(
+            rec.t_start_ns, rec.t_end_ns, rec.t_ns, rec.from_id, rec.to_id, rec.delta_pa, rec.at_end
+        )
+        for rec in detector.transitions
+    ]
+    corrected = p
+    if reference is not None and len(ref_t) > 1:
+        corrected = p - _reference_change(t, np.asarray(ref_t), np.asarray(ref_p))
+    return _assemble(
+        "online",
+        t,
+        corrected,
+        temp,
+        smoothed,
+        rate=rate,
+        raw=raw,
+        n_ids=len(detector.registry),
+        config=config,
+    )
+
+
+def _paper(
+    t: npt.NDArray[np.int64],
+    p: npt.NDArray[np.float64],
+    temp: npt.NDArray[np.float64],
+    reference: tuple[npt.ArrayLike, npt.ArrayLike] | None,
+    config: FloorDetectorConfig,
+) -> FloorDetection:
+    from baromap.floors.paper import segment_paper
+
+    if reference is not None:
+        ref_t = np.asarray(reference[0], dtype=np.int64)
+        if ref_t.size > 1:
+            p = p - _reference_change(t, ref_t, np.asarray(reference[1], dtype=np.float64))
+    seg = segment_paper(t, p, config)
+    raw: list[_Raw] = []
+    for before, after in zip(seg.pieces, seg.pieces[1:], strict=False):
+        t_start, t_end = int(t[before[1] - 1]), int(t[after[0]])
+        delta = seg.floor_means[after[2]] - seg.floor_means[before[2]]
+        raw.append(_Raw(t_start, t_end, t_end, before[2], after[2], delta))
+    levels = np.asarray(seg.floor_means)
+    return _assemble(
+        "paper",
+        t,
+        p,
+        temp,
+        seg.smoothed_pa,
+        rate=seg.rate_pa_per_s,
+        raw=raw,
+        n_ids=len(levels),
+        config=config,
+        segment_levels=levels,
+    )
+
+
+def _reference_change(
+    t: npt.NDArray[np.int64], ref_t: npt.NDArray[np.int64], ref_p: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """Weather at the robot's sample times: the reference's change since its first reading."""
+    change: npt.NDArray[np.float64] = (
+        np.interp(t.astype(np.float64), ref_t.astype(np.float64), ref_p) - ref_p[0]
+    )
+    return change
+
+
+def _assemble(
+    method: str,
+    t: npt.NDArray[np.int64],
+    p: npt.NDArray[np.float64],
+    temp: npt.NDArray[np.float64],
+    smoothed: npt.NDArray[np.float64],
+    *,
+    rate: npt.NDArray[np.float64],
+    raw: Sequence[_Raw],
+    n_ids: int,
+    config: FloorDetectorConfig,
+    segment_levels: npt.NDArray[np.float64] | None = None,
+) -> FloorDetection:
+    valid_temp = temp[np.isfinite(temp)]
+    temperature = float(np.median(valid_temp)) if valid_temp.size else config.default_temperature_c
+    # Floor visits: the stretches between transitions.
+    bounds: list[tuple[int, int, int]] = []
+    start = int(t[0])
+    first_id = raw[0].from_id if raw else 0
+    current = first_id
+    for tr in raw:
+        bounds.append((start, tr.t_start_ns, current))
+        start, current = tr.t_end_ns, tr.to_id
+    bounds.append((start, int(t[-1]), current))
+    n_ids = max(n_ids, 1)
+    if segment_levels is not None:
+        # The paper: levels are segment means; heights from those, as the paper does.
+        reference_level = segment_levels[first_id]
+        relative_pa = segment_levels - reference_level
+        heights = np.array(
+            [height_difference_m(reference_level, level, temperature) for level in segment_levels]
+        )
+        base_level = reference_level
+    else:
+        steps, levels = _steps(t, p, temp, raw, bounds, default_temperature=temperature)
+        raw, bounds = _sharpen(t, smoothed, raw, bounds, levels, config=config)
+        relative_pa = solve_levels(steps, n_ids, "delta_pa")
+        heights = solve_levels(steps, n_ids, "height_m")
+        base_level = _level_at_start(t, p, bounds[0])
+    order = sorted(range(n_ids), key=lambda i: (heights[i], i))
+    index_of = {floor_id: rank for rank, floor_id in enumerate(order)}
+    lowest = np.nanmin(heights) if np.isfinite(heights).any() else 0.0
+    visits = [0] * n_ids
+    for _, _, floor_id in bounds:
+        visits[floor_id] += 1
+    floors = tuple(
+        Floor(
+            index=index_of[i],
+            level_pa=float(base_level + relative_pa[i]),
+            elevation_m=float(heights[i] - lowest),
+            visits=visits[i],
+        )
+        for i in order
+    )
+    transitions = tuple(
+        Transition(
+            t_start_ns=tr.t_start_ns,
+            t_end_ns=tr.t_end_ns,
+            t_detect_ns=tr.t_detect_ns,
+            from_floor=index_of[tr.from_id],
+            to_floor=index_of[tr.to_id],
+            delta_pa=float(relative_pa[tr.to_id] - relative_pa[tr.from_id]),
+            delta_m=float(heights[tr.to_id] - heights[tr.from_id]),
+            at_end=tr.at_end,
+        )
+        for tr in raw
+    )
+    segments = tuple(Segment(a, b, index_of[i]) for a, b, i in bounds if b >= a)
+    return FloorDetection(method, floors, transitions, segments, t, smoothed, rate)
+
+
+def _steps(
+    t: npt.NDArray[np.int64],
+    p: npt.NDArray[np.float64],
+    temp: npt.NDArray[np.float64],
+    raw: Sequence[_Raw],
+    bounds: Sequence[tuple[int, int, int]],
+    *,
+    default_temperature: float,
+) -> tuple[list[Step], list[tuple[float, float]]]:
+    """Steps by floor id, and the (before, after) levels each was measured between."""
+    window = round(STEP_WINDOW_S * NS_PER_S)
+    steps = []
+    measured = []
+    for k, tr in enumerate(raw):
+        before_start = max(bounds[k][0], tr.t_start_ns - window)
+        after_end = min(bounds[k + 1][1], tr.t_end_ns + window)
+        levels = measure_step(t, p, (before_start, tr.t_start_ns), (tr.t_end_ns, after_end))
+        if levels is None:
+            level_before = float(np.interp(tr.t_start_ns, t, p))
+            levels = (level_before, level_before + tr.delta_pa)
+        measured.append(levels)
+        delta = levels[1] - levels[0]
+        i0, i1 = np.searchsorted(t, (before_start, after_end))
+        local = temp[i0:i1]
+        local = local[np.isfinite(local)]
+        temperature = float(np.median(local)) if local.size else default_temperature
+        steps.append(
+            Step(
+                tr.from_id, tr.to_id, delta, height_difference_m(levels[0], levels[1], temperature)
+            )
+        )
+    return steps, measured
+
+
+def _sharpen(
+    t: npt.NDArray[np.int64],
+    smoothed: npt.NDArray[np.float64],
+    raw: Sequence[_Raw],
+    bounds: Sequence[tuple[int, int, int]],
+    levels: Sequence[tuple[float, float]],
+    *,
+    config: FloorDetectorConfig,
+) -> tuple[list[_Raw], list[tuple[int, int, int]]]:
+    """Tighten each transition to where the pressure actually left and reached the floors.
+
+    The online detector dates a change causally: its start is the last calm moment it saw and
+    its end the start of the quiet stretch that confirmed it, which on a walker's jittery
+    phone can be seconds late. With the whole run at hand, the transition is where the
+    smoothed pressure is more than ``start_m`` away from both floors' levels. Decision times
+    are kept as they were.
+    """
+    out_raw: list[_Raw] = []
+    out_bounds = list(bounds)
+    for k, (tr, (before, after)) in enumerate(zip(raw, levels, strict=True)):
+        margin = pressure_drop_pa(config.start_m, before, config.default_temperature_c)
+        lo, hi = np.searchsorted(t, (out_bounds[k][0], bounds[k + 1][1]))
+        i0, i1 = np.searchsorted(t, (tr.t_start_ns, tr.t_end_ns))
+        i1 = max(i1, i0 + 1)
+        away = np.abs(smoothed[i0:i1] - before) > margin
+        left = np.flatnonzero(away)
+        if left.size == 0:
+            out_raw.append(tr)
+            continue
+        start = i0 + int(left[0])
+        arrived = np.flatnonzero(np.abs(smoothed[start:hi] - after) <= margin)
+        end = start + int(arrived[0]) if arrived.size else i1
+        t_start = int(t[max(start - 1, lo)])
+        t_end = max(int(t[min(end, hi - 1)]), t_start)
+        out_raw.append(dataclasses.replace(tr, t_start_ns=t_start, t_end_ns=t_end))
+        out_bounds[k] = (out_bounds[k][0], t_start, out_bounds[k][2])
+        out_bounds[k + 1] = (t_end, out_bounds[k + 1][1], out_bounds[k + 1][2])
+    return out_raw, out_bounds
+
+
+def _level_at_start(
+    t: npt.NDArray[np.int64], p: npt.NDArray[np.float64], first: tuple[int, int, int]
+) -> float:
+    """Pressure of the first floor near the start of the run."""
+    i0, i1 = np.searchsorted(t, (first[0], min(first[1], first[0] + 10 * NS_PER_S)))
+    return float(p[i0 : max(i1, i0 + 1)].mean())

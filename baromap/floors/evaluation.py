@@ -1,0 +1,223 @@
+"""Scoring a floor detection against ground truth.
+
+Truth is a list of true transitions, each a *window* ``[t_begin, t_end]`` during which the
+change happened between two known floors, plus the true floor as a step function (None while
+in transition or unknown).
+
+- Simulator truth: the window is exactly the ride (``/truth/floor`` is None while riding).
+- IPIN waypoints: the walker was on floor a at waypoint i and on floor b at waypoint i+1, so
+  the change happened somewhere in between; the window is the span between the two
+  waypoints. Outside the first and last waypoint nothing is known and nothing is scored
+  per sample (transitions detected there still count as false).
+
+Matching, one to one in time order: a detected transition matches a true one when its
+interval ``[t_start, t_end]`` overlaps the true window widened by ``tolerance_s`` (the
+smoothing and the start estimate blur the edges by a second or two) and it was decided no
+later than ``max_delay_s`` after the window ended. Everything unmatched is missed or false.
+
+Direction and storey count compare ``to - from`` of the detected indices (ranked by height
+over the floors the run visited) with the true floor numbers. Per-sample accuracy aligns the
+detected indices to the true floor numbers by the one constant offset that fits best (a
+detector cannot know that the lowest floor it saw is called -2). Delay is decision time minus
+the end of the true window: for IPIN the window ends at the next waypoint, after the real end
+of the stairs, so those delays are lower bounds.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from baromap.floors.detection import FloorDetection
+from baromap.messages import NS_PER_S
+
+TOLERANCE_S = 2.0
+MAX_DELAY_S = 15.0
+
+
+@dataclass(frozen=True, slots=True)
+class TrueTransition:
+    t_begin_ns: int
+    t_end_ns: int
+    from_floor: int
+    to_floor: int
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FloorTruth:
+    """True transitions and the true floor at given times (NaN = in transition/unknown)."""
+
+    transitions: tuple[TrueTransition, ...]
+    t_ns: npt.NDArray[np.int64]
+    floor: npt.NDArray[np.float64]
+    heights_m: dict[int, float] | None = None
+
+    def floor_at(self, t_ns: npt.NDArray[np.int64]) -> npt.NDArray[np.float64]:
+        """Step function: the truth holding at each time (NaN outside the known span)."""
+        k = np.searchsorted(self.t_ns, t_ns, side="right") - 1
+        out = np.where(k >= 0, self.floor[np.clip(k, 0, None)], np.nan)
+        out[(t_ns > self.t_ns[-1]) | (t_ns < self.t_ns[0])] = np.nan
+        return out
+
+
+def truth_from_waypoints(waypoints: Sequence[tuple[int, int]]) -> FloorTruth:
+    """Truth from ``(t_ns, floor)`` waypoints (IPIN ``POSI`` lines)."""
+    points = sorted(waypoints)
+    if not points:
+        raise ValueError("no waypoints")
+    transitions = []
+    times = []
+    floors = []
+    for (t0, f0), (t1, f1) in itertools.pairwise(points):
+        times.append(t0)
+        if f0 == f1:
+            floors.append(float(f0))
+        else:
+            floors.append(np.nan)
+            transitions.append(TrueTransition(t0, t1, f0, f1))
+    times.append(points[-1][0])
+    floors.append(float(points[-1][1]))
+    return FloorTruth(
+        tuple(transitions), np.asarray(times, dtype=np.int64), np.asarray(floors, dtype=float)
+    )
+
+
+def truth_from_series(
+    t_ns: npt.ArrayLike, floor: npt.ArrayLike, z_m: npt.ArrayLike | None = None
+) -> FloorTruth:
+    """Truth from a sampled true floor (NaN while between floors), e.g. ``/truth/floor``.
+
+    A stretch in between that starts and ends on the same floor is no transition; the true
+    height of each floor is the median of ``z_m`` over its samples when given.
+    """
+    t = np.asarray(t_ns, dtype=np.int64)
+    f = np.asarray(floor, dtype=np.float64)
+    known = np.flatnonzero(np.isfinite(f))
+    transitions = []
+    for a, b in itertools.pairwise(known):
+        if f[a] != f[b]:
+            transitions.append(TrueTransition(int(t[a]), int(t[b]), int(f[a]), int(f[b])))
+    heights = None
+    if z_m is not None:
+        z = np.asarray(z_m, dtype=np.float64)
+        heights = {int(k): float(np.median(z[f == k])) for k in np.unique(f[known])}
+    return FloorTruth(tuple(transitions), t, f, heights)
+
+
+@dataclass(frozen=True, slots=True)
+class Score:
+    true: int
+    found: int
+    missed: int
+    false: int
+    direction_right: int
+    storeys_right: int
+    accuracy: float
+    offset: int
+    delays_s: tuple[float, ...]
+    height_error_m: float | None
+    flushed: int
+
+    @property
+    def recall(self) -> float:
+        return self.found / self.true if self.true else 1.0
+
+    @property
+    def precision(self) -> float:
+        detected = self.found + self.false
+        return self.found / detected if detected else 1.0
+
+    @property
+    def median_delay_s(self) -> float:
+        return float(np.median(self.delays_s)) if self.delays_s else float("nan")
+
+    @property
+    def max_delay_s(self) -> float:
+        return float(np.max(self.delays_s)) if self.delays_s else float("nan")
+
+
+def score(
+    detection: FloorDetection,
+    truth: FloorTruth,
+    tolerance_s: float = TOLERANCE_S,
+    max_delay_s: float = MAX_DELAY_S,
+) -> Score:
+    tol = round(tolerance_s * NS_PER_S)
+    late = round(max_delay_s * NS_PER_S)
+    detected = list(detection.transitions)
+    used = [False] * len(detected)
+    matches = []
+    for true in truth.transitions:
+        for j, det in enumerate(detected):
+            if used[j]:
+                continue
+            overlaps = (
+                det.t_start_ns <= true.t_end_ns + tol and det.t_end_ns >= true.t_begin_ns - tol
+            )
+            if overlaps and det.t_detect_ns <= true.t_end_ns + late:
+                used[j] = True
+                matches.append((true, det))
+                break
+    direction = sum(
+        1
+        for true, det in matches
+        if np.sign(det.to_floor - det.from_floor) == np.sign(true.to_floor - true.from_floor)
+    )
+    storeys = sum(
+        1
+        for true, det in matches
+        if det.to_floor - det.from_floor == true.to_floor - true.from_floor
+    )
+    delays = tuple((det.t_detect_ns - true.t_end_ns) / NS_PER_S for true, det in matches)
+    accuracy, offset = _accuracy(detection, truth)
+    height_error = _height_error(detection, truth, offset)
+    return Score(
+        true=len(truth.transitions),
+        found=len(matches),
+        missed=len(truth.transitions) - len(matches),
+        false=len(detected) - len(matches),
+        direction_right=direction,
+        storeys_right=storeys,
+        accuracy=accuracy,
+        offset=offset,
+        delays_s=delays,
+        height_error_m=height_error,
+        flushed=sum(1 for _, det in matches if det.at_end),
+    )
+
+
+def _accuracy(detection: FloorDetection, truth: FloorTruth) -> tuple[float, int]:
+    t = detection.t_ns
+    true_floor = truth.floor_at(t)
+    scored = np.isfinite(true_floor)
+    if not scored.any():
+        return float("nan"), 0
+    found = detection.floor_array(t)[scored]
+    expected = true_floor[scored]
+    offsets = (expected - found)[np.isfinite(found)]
+    if offsets.size == 0:
+        return 0.0, 0
+    values, counts = np.unique(offsets, return_counts=True)
+    offset = int(values[np.argmax(counts)])
+    return float(np.mean(found + offset == expected)), offset
+
+
+def _height_error(detection: FloorDetection, truth: FloorTruth, offset: int) -> float | None:
+    """Largest error of floor elevations relative to the lowest floor both know."""
+    if truth.heights_m is None:
+        return None
+    pairs = [
+        (floor.elevation_m, truth.heights_m[floor.index + offset])
+        for floor in detection.floors
+        if floor.index + offset in truth.heights_m
+    ]
+    if len(pairs) < 2:
+        return None
+    found = np.array([a for a, _ in pairs])
+    true = np.array([b for _, b in pairs])
+    base = int(np.argmin(true))
+    return float(np.max(np.abs((found - found[base]) - (true - true[base]))))

@@ -1,0 +1,97 @@
+"""Pressure inputs for detection and evaluation, by sniffing the file: MCAP recording, IPIN log
+or CSV. Each comes with the ground truth it carries, if any (simulator truth topics, IPIN
+waypoints) and a reference station's pressure when a recording has one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from baromap.errors import InputFormatError
+from baromap.floors.evaluation import FloorTruth, truth_from_series, truth_from_waypoints
+from baromap.recording.reader import PressureSeries
+
+MCAP_MAGIC = b"\x89MCAP"
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FloorInput:
+    kind: str
+    series: PressureSeries
+    truth: FloorTruth | None = None
+    reference: PressureSeries | None = None
+
+
+def sniff(path: str | Path) -> str:
+    """``"mcap"``, ``"ipin"`` or ``"csv"``."""
+    from baromap.recording.ipin import looks_like_ipin
+
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(8192)
+    except OSError as exc:
+        raise InputFormatError(f"cannot read {path}: {exc}") from exc
+    if head.startswith(MCAP_MAGIC):
+        return "mcap"
+    if looks_like_ipin(head.decode("utf-8", errors="replace")):
+        return "ipin"
+    return "csv"
+
+
+def load_input(path: str | Path) -> FloorInput:
+    kind = sniff(path)
+    if kind == "ipin":
+        from baromap.recording.ipin import read_ipin
+
+        log = read_ipin(path)
+        series = PressureSeries(log.t_ns, log.pressure_pa, np.full(log.t_ns.shape, np.nan))
+        truth = (
+            truth_from_waypoints([(w.t_ns, w.floor) for w in log.waypoints])
+            if log.waypoints
+            else None
+        )
+        return FloorInput(kind, series, truth)
+    if kind == "csv":
+        from baromap.recording.csv_pressure import read_csv_pressure
+
+        return FloorInput(kind, read_csv_pressure(path))
+    return _load_mcap(path)
+
+
+def _load_mcap(path: str | Path) -> FloorInput:
+    from baromap.messages import TruthFloor
+    from baromap.recording import load_pressure, read_messages, topics
+
+    series = load_pressure(path)
+    if series.t_ns.size == 0:
+        raise InputFormatError(f"{path}: no pressure samples on {topics.BARO}")
+    reference = load_pressure(path, topics.REFERENCE_PRESSURE)
+    t: list[int] = []
+    floors: list[float] = []
+    z: list[float] = []
+    for rec in read_messages(path, [topics.TRUTH_FLOOR]):
+        msg = rec.message
+        if isinstance(msg, TruthFloor):
+            t.append(msg.t_ns)
+            floors.append(math.nan if msg.floor is None else float(msg.floor))
+            z.append(msg.z_m)
+    truth = truth_from_series(t, floors, z) if t else None
+    return FloorInput("mcap", series, truth, reference if reference.t_ns.size else None)
+
+
+def load_reference(path: str | Path) -> PressureSeries:
+    """A reference station's pressure: a CSV, or /reference/pressure of a recording."""
+    if sniff(path) == "mcap":
+        from baromap.recording import load_pressure, topics
+
+        series = load_pressure(path, topics.REFERENCE_PRESSURE)
+        if series.t_ns.size == 0:
+            raise InputFormatError(f"{path}: no {topics.REFERENCE_PRESSURE} samples")
+        return series
+    from baromap.recording.csv_pressure import read_csv_pressure
+
+    return read_csv_pressure(path)

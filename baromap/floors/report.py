@@ -1,0 +1,181 @@
+"""The side-by-side evaluation report: both methods over the real IPIN logs and simulated runs.
+
+Each case is a pressure series with its truth; each method is scored on it
+(:mod:`baromap.floors.evaluation`) and one line per case and method is printed, then totals
+over the simulated seeds and a verdict against the bars of the floor-detection issue.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from baromap.floors.config import FloorDetectorConfig
+from baromap.floors.detection import FloorDetection, detect_floors
+from baromap.floors.evaluation import FloorTruth, Score, score, truth_from_series
+
+Print = Callable[[str], None]
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Case:
+    name: str
+    kind: str  # "real" or "sim"
+    t_ns: npt.NDArray[np.int64]
+    pressure_pa: npt.NDArray[np.float64]
+    temperature_c: npt.NDArray[np.float64] | None
+    truth: FloorTruth
+    reference: tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]] | None = None
+
+
+def real_cases(directory: str | Path) -> Iterator[Case]:
+    from baromap.floors.inputs import load_input
+
+    for path in sorted(Path(directory).glob("*.txt")):
+        data = load_input(path)
+        if data.truth is None:
+            continue
+        yield Case(path.stem, "real", data.series.t_ns, data.series.pressure_pa, None, data.truth)
+
+
+def sim_case(
+    seed: int,
+    *,
+    drift_hpa_per_h: float = 1.5,
+    minutes: float = 46.0,
+    use_reference: bool = False,
+) -> Case:
+    from baromap.sim.scenario import pressure_run
+
+    run = pressure_run(seed, minutes=minutes, drift_hpa_per_h=drift_hpa_per_h)
+    floor = np.where(np.asarray(run.truth_floor) < 0, np.nan, np.asarray(run.truth_floor))
+    truth = truth_from_series(run.t_ns, floor, run.truth_z_m)
+    reference = (run.t_ns, np.asarray(run.reference_pa)) if use_reference else None
+    return Case(
+        f"sim seed {seed}",
+        "sim",
+        np.asarray(run.t_ns),
+        np.asarray(run.pressure_pa),
+        np.asarray(run.temperature_c),
+        truth,
+        reference,
+    )
+
+
+def evaluate(
+    case: Case, method: str, config: FloorDetectorConfig | None = None
+) -> tuple[FloorDetection, Score]:
+    detection = detect_floors(
+        case.t_ns,
+        case.pressure_pa,
+        case.temperature_c,
+        method=method,
+        reference=case.reference,
+        config=config,
+    )
+    return detection, score(detection, case.truth)
+
+
+HEADER = (
+    f"{'case':34s} {'method':6s} {'true':>4s} {'found':>5s} {'miss':>4s} {'false':>5s} "
+    f"{'dir':>4s} {'stor':>4s} {'acc%':>6s} {'delay med/max s':>16s} {'height err m':>12s}"
+)
+
+
+def line(name: str, method: str, s: Score) -> str:
+    delay = f"{s.median_delay_s:6.1f}/{s.max_delay_s:6.1f}" if s.delays_s else f"{'-':>13s}"
+    height = f"{s.height_error_m:12.2f}" if s.height_error_m is not None else f"{'-':>12s}"
+    accuracy = f"{100 * s.accuracy:6.1f}" if np.isfinite(s.accuracy) else f"{'-':>6s}"
+    flushed = " (last at end of log)" if s.flushed else ""
+    return (
+        f"{name:34s} {method:6s} {s.true:4d} {s.found:5d} {s.missed:4d} {s.false:5d} "
+        f"{s.direction_right:4d} {s.storeys_right:4d} {accuracy} {delay:>16s} {height}{flushed}"
+    )
+
+
+@dataclass
+class Totals:
+    true: int = 0
+    found: int = 0
+    false: int = 0
+    direction: int = 0
+    storeys: int = 0
+    cases: int = 0
+    accuracy_sum: float = 0.0
+    height_max: float = 0.0
+    heights: int = 0
+
+    def __post_init__(self) -> None:
+        self.delays: list[float] = []
+
+    def add(self, s: Score) -> None:
+        self.true += s.true
+        self.found += s.found
+        self.false += s.false
+        self.direction += s.direction_right
+        self.storeys += s.storeys_right
+        self.cases += 1
+        self.accuracy_sum += s.accuracy if np.isfinite(s.accuracy) else 0.0
+        self.delays.extend(s.delays_s)
+        if s.height_error_m is not None:
+            self.heights += 1
+            self.height_max = max(self.height_max, s.height_error_m)
+
+    def summary(self, method: str) -> str:
+        recall = self.found / self.true if self.true else 1.0
+        detected = self.found + self.false
+        precision = self.found / detected if detected else 1.0
+        median = float(np.median(self.delays)) if self.delays else float("nan")
+        return (
+            f"  {method:6s} recall {100 * recall:5.1f} %  precision {100 * precision:5.1f} %  "
+            f"({self.found}/{self.true} found, {self.false} false)  direction right "
+            f"{self.direction}/{self.found}  storeys right {self.storeys}/{self.found}  "
+            f"mean accuracy {100 * self.accuracy_sum / max(self.cases, 1):5.1f} %  "
+            f"median delay {median:4.1f} s  worst height error {self.height_max:.2f} m"
+        )
+
+
+def run_report(
+    real_dir: str | Path | None,
+    seeds: Sequence[int],
+    methods: Sequence[str] = ("online", "paper"),
+    *,
+    drift_hpa_per_h: float = 1.5,
+    minutes: float = 46.0,
+    use_reference: bool = False,
+    config: FloorDetectorConfig | None = None,
+    out: Print = print,
+    progress: bool = False,
+) -> dict[str, Totals]:
+    """Print the report; returns the simulated totals per method."""
+    out(HEADER)
+    if real_dir is not None:
+        for case in real_cases(real_dir):
+            for method in methods:
+                out(line(case.name[-34:], method, evaluate(case, method, config)[1]))
+    totals = {method: Totals() for method in methods}
+    iterator: Iterable[int] = seeds
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(seeds, desc="simulated runs", unit="run", leave=False)
+    for seed in iterator:
+        case = sim_case(
+            seed, drift_hpa_per_h=drift_hpa_per_h, minutes=minutes, use_reference=use_reference
+        )
+        for method in methods:
+            s = evaluate(case, method, config)[1]
+            totals[method].add(s)
+            out(line(case.name, method, s))
+    if seeds:
+        out(
+            f"simulated: {len(seeds)} seeds x {minutes:g} min, drift {drift_hpa_per_h:g} hPa/h"
+            + (", reference station used" if use_reference else ", no reference station")
+        )
+        for method in methods:
+            out(totals[method].summary(method))
+    return totals
