@@ -44,7 +44,7 @@ class LikelihoodField:
         sigma: float,
         bounds: tuple[float, float, float, float] | None = None,
     ) -> LikelihoodField:
-        """Stamp a Gaussian kernel on every occupied cell (vectorised per kernel offset).
+        """Stamp a Gaussian kernel around every point (cells keep the largest value).
 
         ``bounds`` (xmin, ymin, xmax, ymax) limits the grid to where a scan can land; points
         outside it are dropped.
@@ -64,24 +64,26 @@ class LikelihoodField:
         height = math.ceil((bounds[3] - bounds[1] + 2 * pad) / resolution) + 1
         data = np.zeros((height, width), dtype=np.float32)
         if len(pts):
-            cols = np.rint((pts[:, 0] - x0) / resolution).astype(np.int64)
-            rows = np.rint((pts[:, 1] - y0) / resolution).astype(np.int64)
+            # exact distances from each cell centre to each point, so the field keeps the
+            # points' sub-cell positions (quantising them would cost up to half a cell)
+            u = (pts[:, 0] - x0) / resolution
+            v = (pts[:, 1] - y0) / resolution
+            cols = np.rint(u).astype(np.int64)
+            rows = np.rint(v).astype(np.int64)
             keep = (
                 (cols >= radius)
                 & (cols < width - radius)
                 & (rows >= radius)
                 & (rows < height - radius)
             )
-            flat = np.unique(rows[keep] * width + cols[keep])
+            cols, rows, u, v = cols[keep], rows[keep], u[keep], v[keep]
             offsets = np.arange(-radius, radius + 1)
-            for di in offsets:
-                for dj in offsets:
-                    value = math.exp(-((di * di + dj * dj) * resolution**2) / (2 * sigma**2))
-                    if value < 1e-3:
-                        continue
-                    target = flat + di * width + dj
-                    flat_data = data.reshape(-1)
-                    flat_data[target] = np.maximum(flat_data[target], np.float32(value))
+            di, dj = (a.ravel() for a in np.meshgrid(offsets, offsets, indexing="ij"))
+            target_r = rows[:, None] + di[None, :]
+            target_c = cols[:, None] + dj[None, :]
+            d2 = ((target_c - u[:, None]) ** 2 + (target_r - v[:, None]) ** 2) * resolution**2
+            values = np.exp(-d2 / (2 * sigma**2)).astype(np.float32)
+            np.maximum.at(data.reshape(-1), (target_r * width + target_c).ravel(), values.ravel())
         return cls(data=data, origin_xy=(x0, y0), resolution=resolution)
 
     def max_filtered(self, step: int) -> LikelihoodField:
@@ -268,12 +270,11 @@ def match(
     coarse_field: LikelihoodField | None = None,
 ) -> MatchResult:
     """Search the window, then refine; the refined pose is kept only if it scores better."""
-    lattice_pose, lattice_score = correlative_search(
-        field, points, guess, window, coarse_field=coarse_field
-    )
+    lattice_pose, _ = correlative_search(field, points, guess, window, coarse_field=coarse_field)
+    # compare like with like: the interpolated score at the lattice pose, not the cell lookup
+    _, lattice_score, lattice_info = refine(field, points, lattice_pose, iterations=0)
     pose, score, info = refine(field, points, lattice_pose)
     moved = np.hypot(*(pose[:2] - lattice_pose[:2]))
     if score < lattice_score or moved > 2 * field.resolution:
-        _, score, info = refine(field, points, lattice_pose, iterations=0)
-        pose = lattice_pose
+        return MatchResult(pose=lattice_pose, score=lattice_score, information=lattice_info)
     return MatchResult(pose=pose, score=score, information=info)

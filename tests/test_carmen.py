@@ -1,0 +1,183 @@
+"""CARMEN import: parsing, the odometry error model, and the recording it writes."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from baromap.errors import ConfigError, InputFormatError
+from baromap.mapping import se2
+from baromap.messages import BeamFlag, LaserScan, Odometry
+from baromap.recording import read_messages, read_metadata
+from baromap.recording.carmen import (
+    OdometryErrorModel,
+    import_carmen,
+    parse_lines,
+    parse_time_ns,
+    read_carmen,
+    synthesize_odometry,
+    to_laser_scan,
+)
+
+RANGES = " ".join(["1.5"] * 178 + ["81.83", "2.25"])
+FLASER = f"FLASER 180 {RANGES} 1.0 2.0 0.5 1.1 2.1 0.5 976052890.244111 pippo 976052890.244111"
+ROBOTLASER1 = (
+    "ROBOTLASER1 0 -1.5708 3.14159 0.0174533 81.9 0.01 0 3 1.0 2.0 3.0 0 "
+    "0.1 0.2 0.3 0.0 0.0 0.3 0.5 0.1 0.5 0.5 0.5 12.5 host 12.5"
+)
+ODOM = "ODOM 1.5 -2.5 0.25 0.3 0.1 0 10.000001 host 10.000001"
+
+
+@pytest.mark.parametrize(
+    ("text", "ns"),
+    [
+        ("976052890.244111", 976052890_244111000),
+        ("0.000246", 246000),
+        ("12", 12_000_000_000),
+        ("1.1234567891", 1_123456789),
+        ("-0.5", -500_000_000),
+    ],
+)
+def test_parse_time_is_exact(text: str, ns: int) -> None:
+    assert parse_time_ns(text) == ns
+
+
+@pytest.mark.parametrize("text", ["1.08e-42", "abc", "1.2.3", "1.x"])
+def test_parse_time_rejects_non_decimal(text: str) -> None:
+    with pytest.raises(ValueError):
+        parse_time_ns(text)
+
+
+def test_flaser_fields() -> None:
+    log = parse_lines([FLASER])
+    (scan,) = log.scans
+    assert scan.t_ns == 976052890_244111000
+    assert scan.laser_pose == (1.0, 2.0, 0.5)
+    assert scan.robot_pose == (1.1, 2.1, 0.5)
+    assert scan.angle_min_rad == pytest.approx(-math.pi / 2)
+    assert scan.angle_increment_rad == pytest.approx(math.radians(1.0))
+    assert len(scan.ranges_m) == 180
+    assert scan.ranges_m[-1] == 2.25
+
+
+def test_robotlaser1_fields() -> None:
+    (scan,) = parse_lines([ROBOTLASER1]).scans
+    assert scan.angle_min_rad == pytest.approx(-1.5708)
+    assert scan.angle_increment_rad == pytest.approx(0.0174533)
+    np.testing.assert_allclose(scan.ranges_m, [1.0, 2.0, 3.0])
+    assert scan.laser_pose == (0.1, 0.2, 0.3)
+    assert scan.robot_pose == (0.0, 0.0, 0.3)
+    assert scan.t_ns == 12_500_000_000
+
+
+def test_odom_fields() -> None:
+    (odom,) = parse_lines([ODOM]).odometry
+    assert (odom.x_m, odom.y_m, odom.theta_rad) == (1.5, -2.5, 0.25)
+    assert odom.t_ns == 10_000_001_000
+
+
+@pytest.mark.parametrize(
+    "line",
+    [
+        "FLASER 180 1 2 3",  # shorter than its beam count
+        "FLASER 99999 1 2",  # beam count out of bounds
+        "FLASER x",
+        "ODOM 1 2",
+        "ODOM 1 2 3 0 0 0 1.08e-42 host 1.08e-42",
+        "ROBOTLASER1 0 -1.5 3.1 0.01 81 0.01 0 2 1 2 1",
+    ],
+)
+def test_malformed_lines_are_counted_not_fatal(line: str) -> None:
+    log = parse_lines([line, FLASER, "# comment", "", "NEFF 15"])
+    assert len(log.scans) == 1
+    assert sum(v for k, v in log.skipped.items() if k.startswith("malformed")) == 1
+    assert log.skipped["unused NEFF"] == 1
+
+
+def test_no_return_becomes_flagged_nan() -> None:
+    (scan,) = parse_lines([FLASER]).scans
+    msg = to_laser_scan(scan, 0)
+    assert np.isnan(msg.ranges_m[178])
+    assert msg.flags[178] & BeamFlag.OVER_RANGE
+    assert msg.valid().sum() == 179
+
+
+def test_file_without_laser_is_an_input_error(tmp_path: Path) -> None:
+    path = tmp_path / "odom.log"
+    path.write_text(ODOM + "\n")
+    with pytest.raises(InputFormatError):
+        read_carmen(path)
+
+
+def _reference_path(n: int = 400) -> np.ndarray:
+    rng = np.random.default_rng(5)
+    poses = [np.zeros(3)]
+    for _ in range(n):
+        step = np.array([rng.uniform(0.2, 0.8), 0.0, rng.uniform(-0.4, 0.4)])
+        poses.append(se2.compose(poses[-1], step))
+    return np.array(poses)
+
+
+def test_synth_odometry_error_model_statistics() -> None:
+    ref = _reference_path()
+    odo = synthesize_odometry(ref, seed=3)
+    step_ref = se2.between(ref[:-1], ref[1:])
+    step_odo = se2.between(odo[:-1], odo[1:])
+    dist = np.hypot(step_ref[:, 0], step_ref[:, 1])
+    scale = np.hypot(step_odo[:, 0], step_odo[:, 1]).sum() / dist.sum()
+    drift = se2.wrap(step_odo[:, 2] - step_ref[:, 2]).sum() / dist.sum()
+    assert scale == pytest.approx(1.05, abs=0.005)
+    assert math.degrees(drift) == pytest.approx(2.0, abs=0.25)
+    residual = (
+        se2.wrap(step_odo[:, 2] - step_ref[:, 2]) - OdometryErrorModel().drift_rad_per_m * dist
+    )
+    assert residual.std() > 0  # there is random noise on top of the systematic error
+    np.testing.assert_array_equal(odo[0], ref[0])
+
+
+def test_synth_odometry_is_seeded() -> None:
+    ref = _reference_path(50)
+    np.testing.assert_array_equal(synthesize_odometry(ref, 7), synthesize_odometry(ref, 7))
+    assert not np.array_equal(synthesize_odometry(ref, 7), synthesize_odometry(ref, 8))
+
+
+@given(st.integers(0, 2**32 - 1))
+def test_synth_odometry_without_error_is_the_reference(seed: int) -> None:
+    ref = _reference_path(20)
+    model = OdometryErrorModel(0.0, 0.0, 0.0, 0.0, 0.0)
+    np.testing.assert_allclose(synthesize_odometry(ref, seed, model), ref, atol=1e-9)
+
+
+def test_import_writes_scans_and_odometry(tmp_path: Path) -> None:
+    log = tmp_path / "run.log"
+    lines = [
+        FLASER.replace("976052890.244111", f"{100 + k}.5").replace("1.1 2.1 0.5", f"{k} 0 0")
+        for k in range(5)
+    ]
+    log.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "run.mcap"
+    with pytest.raises(ConfigError):
+        import_carmen(log, out)  # no odometry and none asked for
+    counts = import_carmen(log, out, synth_seed=1)
+    assert counts["scans"] == 5
+    records = list(read_messages(out))
+    scans = [r.message for r in records if isinstance(r.message, LaserScan)]
+    odom = [r.message for r in records if isinstance(r.message, Odometry)]
+    assert [s.t_ns for s in scans] == [(100 + k) * 10**9 + 500_000_000 for k in range(5)]
+    assert len(odom) == 5
+    assert odom[-1].x_m == pytest.approx(4 * 1.05, abs=0.3)
+    assert read_metadata(out)["baromap.carmen"]["odometry"] == "synthesised"
+
+
+def test_intel_log_parses(shared_data: Path) -> None:
+    log = read_carmen(shared_data / "laser" / "intel-corrected-abstime.log.gz")
+    assert len(log.scans) == 910
+    assert not log.skipped
+    assert all(len(s.ranges_m) == 180 for s in log.scans)
+    times = log.scan_times_ns()
+    assert np.all(np.diff(times) > 0)

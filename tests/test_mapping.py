@@ -1,0 +1,279 @@
+"""Mapping units: rigid motions, scan matcher, pose graph, occupancy grid, file formats."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import given
+from hypothesis import strategies as st
+
+from baromap.mapping import se2
+from baromap.mapping.export import (
+    FREE_VALUE,
+    OCCUPIED_VALUE,
+    UNKNOWN_VALUE,
+    read_pgm,
+    write_map_server,
+    write_tum,
+)
+from baromap.mapping.occupancy import build_grid
+from baromap.mapping.pose_graph import Edge, PoseGraph
+from baromap.mapping.relations import Relations, relation_errors
+from baromap.mapping.scan_matcher import LikelihoodField, SearchWindow, match
+from baromap.mapping.scans import ScanBlock
+from baromap.mapping.segmentation import label_scans
+from baromap.mapping.slam import BETWEEN_FLOORS
+
+# an L-shaped room with a pillar: walls as segments (x0, y0, x1, y1)
+ROOM = np.array(
+    [
+        [0, 0, 10, 0],
+        [10, 0, 10, 4],
+        [10, 4, 4, 4],
+        [4, 4, 4, 8],
+        [4, 8, 0, 8],
+        [0, 8, 0, 0],
+        [6, 1.5, 7, 1.5],
+        [7, 1.5, 7, 2.2],
+        [7, 2.2, 6, 2.2],
+        [6, 2.2, 6, 1.5],
+    ],
+    dtype=np.float64,
+)
+ANGLES = np.radians(np.arange(-90, 90, 1.0))
+
+
+def cast(pose: np.ndarray, walls: np.ndarray = ROOM, angles: np.ndarray = ANGLES) -> np.ndarray:
+    """Ranges from ``pose`` to the nearest wall along each beam (NaN when none)."""
+    ang = pose[2] + angles
+    d = np.stack([np.cos(ang), np.sin(ang)], axis=1)[:, None, :]
+    a = walls[None, :, :2]
+    e = (walls[:, 2:] - walls[:, :2])[None, :, :]
+    o = pose[None, None, :2]
+    denom = d[..., 0] * e[..., 1] - d[..., 1] * e[..., 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = ((a - o)[..., 0] * e[..., 1] - (a - o)[..., 1] * e[..., 0]) / denom
+        u = ((a - o)[..., 0] * d[..., 1] - (a - o)[..., 1] * d[..., 0]) / denom
+    t = np.where((t > 0) & (u >= 0) & (u <= 1), t, np.inf)
+    r = t.min(axis=1)
+    return np.where(np.isfinite(r), r, np.nan)
+
+
+def block(poses: list[np.ndarray]) -> ScanBlock:
+    ranges = np.array([cast(p) for p in poses], dtype=np.float32)
+    return ScanBlock(
+        t_ns=np.arange(len(poses), dtype=np.int64),
+        ranges_m=ranges,
+        angles_rad=ANGLES,
+        range_max_m=30.0,
+        laser_offset=np.zeros(3),
+    )
+
+
+poses_st = st.tuples(
+    st.floats(-50, 50), st.floats(-50, 50), st.floats(-math.pi + 1e-6, math.pi - 1e-6)
+).map(np.array)
+
+
+@given(poses_st, poses_st)
+def test_between_inverts_compose(a: np.ndarray, b: np.ndarray) -> None:
+    np.testing.assert_allclose(se2.between(a, se2.compose(a, b)), b, atol=1e-8)
+    np.testing.assert_allclose(se2.compose(a, se2.inverse(a)), np.zeros(3), atol=1e-8)
+
+
+@given(poses_st)
+def test_transform_points_matches_compose(a: np.ndarray) -> None:
+    pts = np.array([[1.0, 2.0], [-3.0, 0.5]])
+    moved = se2.transform_points(a, pts)
+    for p, m in zip(pts, moved, strict=True):
+        np.testing.assert_allclose(se2.compose(a, [p[0], p[1], 0.0])[:2], m, atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    "offset",
+    [
+        (0.12, -0.08, math.radians(3.0)),
+        (-0.25, 0.2, math.radians(-5.0)),
+        (0.0, 0.0, 0.0),
+        (0.21, 0.17, math.radians(5.5)),
+    ],
+)
+def test_scan_matcher_recovers_known_offset(offset: tuple[float, float, float]) -> None:
+    truth = np.array([2.5, 2.0, 0.3])
+    ref_poses = [np.array([2.0, 2.0, 0.0]), np.array([3.0, 1.5, 1.2])]
+    refs = block(ref_poses)
+    world = np.concatenate(
+        [se2.transform_points(p, refs.endpoints(k, 30.0)) for k, p in enumerate(ref_poses)]
+    )
+    field = LikelihoodField.from_points(world, 0.05, 0.06)
+    scan = block([truth]).endpoints(0, 30.0)
+    guess = se2.compose(truth, np.array(offset))
+    window = SearchWindow(0.3, math.radians(6), math.radians(0.5))
+    result = match(field, scan, guess, window)
+    assert np.hypot(*(result.pose[:2] - truth[:2])) < 0.02
+    assert abs(se2.wrap(result.pose[2] - truth[2])) < math.radians(0.3)
+    assert result.score > 0.8
+
+
+def test_wide_multiresolution_search_finds_a_far_offset() -> None:
+    truth = np.array([2.5, 2.0, 0.3])
+    world = se2.transform_points(truth, block([truth]).endpoints(0, 30.0))
+    field = LikelihoodField.from_points(world, 0.05, 0.06)
+    window = SearchWindow(1.5, math.radians(20), math.radians(1.0), coarse_step_cells=4)
+    guess = se2.compose(truth, np.array([0.9, -0.7, math.radians(12)]))
+    result = match(field, block([truth]).endpoints(0, 30.0), guess, window, field.max_filtered(4))
+    assert np.hypot(*(result.pose[:2] - truth[:2])) < 0.03
+    assert abs(se2.wrap(result.pose[2] - truth[2])) < math.radians(0.5)
+
+
+def _square_world() -> tuple[np.ndarray, PoseGraph]:
+    rng = np.random.default_rng(1)
+    truth = [np.zeros(3)]
+    for k in range(40):
+        turn = math.pi / 2 if k % 10 == 9 else 0.0
+        truth.append(se2.compose(truth[-1], [1.0, 0.0, turn]))
+    truth_arr = np.array(truth)
+    graph = PoseGraph()
+    graph.add_node(truth_arr[0])
+    info = np.diag([400.0, 400.0, 1000.0])
+    for k in range(1, len(truth_arr)):
+        z = se2.between(truth_arr[k - 1], truth_arr[k]) + rng.normal(0, [0.03, 0.03, 0.02])
+        graph.add_node(se2.compose(graph.poses[-1], z))
+        graph.add_edge(Edge(k - 1, k, z, info))
+    for a, b in [(0, 40), (5, 35), (2, 22), (12, 32)]:
+        graph.add_edge(
+            Edge(a, b, se2.between(truth_arr[a], truth_arr[b]), info * 4, "loop", robust_c=3.0)
+        )
+    return truth_arr, graph
+
+
+def test_pose_graph_closes_the_loop() -> None:
+    truth, graph = _square_world()
+    before = np.abs(graph.poses[:, :2] - truth[:, :2]).max()
+    graph.optimize()
+    after = np.abs(graph.poses[:, :2] - truth[:, :2]).max()
+    assert before > 0.5
+    assert after < 0.2
+
+
+def test_wrong_closure_cannot_wreck_the_map() -> None:
+    _, good = _square_world()
+    _, bad = _square_world()
+    bad.add_edge(
+        Edge(
+            3,
+            30,
+            np.array([2.0, 1.0, 1.0]),
+            np.diag([1600.0, 1600.0, 4000.0]),
+            "loop",
+            robust_c=3.0,
+        )
+    )
+    good.optimize()
+    bad.optimize()
+    assert np.abs(bad.poses[:, :2] - good.poses[:, :2]).max() < 0.05
+    _, chi2 = bad.edge_errors()
+    assert chi2[-1] > 1000  # the wrong closure is left unsatisfied
+
+
+def test_without_kernel_the_wrong_closure_does_bend_the_map() -> None:
+    """The control for the test above: the kernel is what saves the map."""
+    _, good = _square_world()
+    _, bad = _square_world()
+    bad.add_edge(Edge(3, 30, np.array([2.0, 1.0, 1.0]), np.diag([1600.0, 1600.0, 4000.0])))
+    good.optimize()
+    bad.optimize()
+    assert np.abs(bad.poses[:, :2] - good.poses[:, :2]).max() > 0.5
+
+
+def test_grid_ray_casting_marks_walls_free_and_unknown() -> None:
+    # the robot drives a metre east, then looks back west: every cell is seen a few times
+    poses = np.array([[x, 3.02, h] for h in (0.0, math.pi) for x in np.linspace(1.5, 2.5, 6)])
+    scans = block(list(poses))
+    grid = build_grid(scans, np.arange(len(poses)), poses, resolution=0.05)
+    xs, ys = grid.cell_centers()
+
+    def cell(x: float, y: float) -> tuple[int, int]:
+        return int(np.argmin(np.abs(ys - y))), int(np.argmin(np.abs(xs - x)))
+
+    occupied, free = grid.occupied(), grid.free()
+    assert occupied[cell(9.99, 3.02)] or occupied[cell(10.01, 3.02)]  # east wall ahead
+    assert occupied[cell(0.01, 3.02)] or occupied[cell(-0.01, 3.02)]  # west wall behind
+    assert free[cell(5.0, 3.02)] and free[cell(1.0, 3.02)]
+    assert not free[cell(6.5, 1.85)]  # inside the pillar: never seen
+    assert not occupied[cell(12.0, 3.0)] and not free[cell(12.0, 3.0)]
+    # the north wall of the east wing (y = 4, seen at a grazing angle): occupied where hit
+    rows, cols = np.nonzero(occupied)
+    on_wall = (np.abs(ys[rows] - 4.0) < 0.05) & (xs[cols] > 5.0) & (xs[cols] < 9.0)
+    assert len(np.unique(cols[on_wall])) > 0.25 * (4.0 / grid.resolution)
+    near_wall = (np.abs(ys[rows] - 4.0) < 0.5) & (xs[cols] > 5.0) & (xs[cols] < 9.0)
+    assert on_wall.sum() >= 0.9 * near_wall.sum()
+
+
+def test_map_server_files(tmp_path: Path) -> None:
+    pose = np.array([2.0, 2.0, 0.0])
+    grid = build_grid(block([pose]), np.array([0]), pose[None, :], resolution=0.1)
+    pgm, yml = write_map_server(grid, tmp_path, "floor_0")
+    meta = yaml.safe_load(yml.read_text())
+    assert set(meta) == {
+        "image",
+        "resolution",
+        "origin",
+        "negate",
+        "occupied_thresh",
+        "free_thresh",
+        "mode",
+    }
+    assert meta["image"] == "floor_0.pgm" and meta["resolution"] == 0.1
+    assert meta["origin"] == [
+        pytest.approx(grid.origin_xy[0]),
+        pytest.approx(grid.origin_xy[1]),
+        0.0,
+    ]
+    assert pgm.read_bytes().startswith(b"P5\n")
+    image = read_pgm(pgm)
+    assert image.shape == grid.shape
+    assert set(np.unique(image)) <= {FREE_VALUE, OCCUPIED_VALUE, UNKNOWN_VALUE}
+    # first image row is the top of the map (highest y)
+    np.testing.assert_array_equal(image[-1] == OCCUPIED_VALUE, grid.occupied()[0])
+
+
+def test_tum_format(tmp_path: Path) -> None:
+    path = tmp_path / "t.tum"
+    write_tum(
+        path,
+        np.array([1_500_000_001, 2_000_000_000]),
+        np.array([[1, 2, 0], [3, 4, math.pi / 2]]),
+        np.array([0.0, 3.5]),
+    )
+    lines = path.read_text().splitlines()
+    assert lines[0].split()[0] == "1.500000001"
+    fields = [float(v) for v in lines[1].split()]
+    assert fields[1:4] == [3.0, 4.0, 3.5]
+    assert fields[6] == pytest.approx(math.sin(math.pi / 4))
+    assert fields[7] == pytest.approx(math.cos(math.pi / 4))
+
+
+def test_relation_errors() -> None:
+    times = np.array([10, 20, 30], dtype=np.int64) * 10**9
+    poses = np.array([[0, 0, 0], [1, 0, 0], [1, 1, math.pi / 2]], dtype=np.float64)
+    rel = Relations(
+        t1_ns=np.array([10, 20, 15]) * 10**9,
+        t2_ns=np.array([20, 30, 30]) * 10**9,
+        motion=np.array([[1.0, 0.0, 0.0], [0.0, 1.1, math.radians(89)], [0, 0, 0]]),
+    )
+    err = relation_errors(times, poses, rel)
+    assert err.used == 2 and err.unused == 1
+    np.testing.assert_allclose(err.trans_m, [0.0, math.hypot(0.1, 0.0)], atol=0.02)
+    np.testing.assert_allclose(err.rot_deg, [0.0, 1.0], atol=1e-9)
+
+
+def test_label_scans_by_segments() -> None:
+    t = np.array([0, 5, 10, 15, 20, 25, 30, 35], dtype=np.int64)
+    floor, visit = label_scans(t, [(2, 12, 0), (18, 28, 1), (32, 40, 0)])
+    assert floor.tolist() == [0, 0, 0, BETWEEN_FLOORS, 1, 1, BETWEEN_FLOORS, 0]
+    assert visit.tolist() == [0, 0, 0, -1, 1, 1, -1, 2]
