@@ -7,6 +7,15 @@
 """
 
 from baromap.floors.config import FloorDetectorConfig
+from baromap.floors.detection import Floor, FloorDetection, Segment, Transition, detect_floors
 from baromap.floors.online import OnlineFloorDetector
 
-__all__ = ["FloorDetectorConfig", "OnlineFloorDetector"]
+__all__ = [
+    "Floor",
+    "FloorDetection",
+    "FloorDetectorConfig",
+    "OnlineFloorDetector",
+    "Segment",
+    "Transition",
+    "detect_floors",
+]

@@ -13,11 +13,13 @@ Why the defaults are what they are:
 - ``start_m = 0.5`` and ``start_rate_m_s = 0.15``: a change begins when the smoothed pressure
   leaves the floor's level by half a metre, or moves faster than a slow walk up a ramp. Either
   is far above sensor noise (a few tenths of a pascal for a BMP280 filtered over a second).
-- ``settle_rate_m_s = 0.1`` held for ``settle_s = 2.0``: "settled" means vertical speed below
-  10 cm/s for two seconds. An elevator moves at 0.5-2 m/s and stairs at 0.1-0.3 m/s, and the
-  two seconds keep the decision within about three seconds of the end of the motion.
-- ``level_tau_s = 0.7`` / ``trend_tau_s = 1.5``: the smoother's time constants. Shorter makes
-  the rate noisy; longer delays the decision.
+- ``settle_rate_m_s = 0.1`` held for ``settle_s = 1.5``: "settled" means vertical speed below
+  10 cm/s for a second and a half. An elevator moves at 0.5-2 m/s and stairs at 0.1-0.3 m/s;
+  the short hold keeps the decision within a few seconds of the pressure settling. A person
+  carrying a phone is never still for long (the IPIN logs fail with a 3 s hold).
+- ``level_tau_s = 0.5`` / ``trend_tau_s = 1.5``: the smoother's time constants. A shorter
+  trend constant makes the rate noisy enough to miss settles on a hand-held phone; longer
+  ones delay the decision.
 - ``drift_tau_s = 60``: while the robot stays on a floor, slow changes are weather (up to
   ~3 hPa/h, i.e. 0.08 Pa/s) and the floor's level follows them with this time constant; the
   drift rate itself is averaged over ``drift_rate_tau_s``.
@@ -45,8 +47,8 @@ class FloorDetectorConfig:
     start_m: float = 0.5
     start_rate_m_s: float = 0.15
     settle_rate_m_s: float = 0.1
-    settle_s: float = 2.0
-    level_tau_s: float = 0.7
+    settle_s: float = 1.5
+    level_tau_s: float = 0.5
     trend_tau_s: float = 1.5
     drift_tau_s: float = 60.0
     drift_rate_tau_s: float = 300.0

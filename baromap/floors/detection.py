@@ -22,7 +22,14 @@ import numpy.typing as npt
 
 from baromap.errors import ConfigError, InputFormatError
 from baromap.floors.config import FloorDetectorConfig
-from baromap.floors.elevation import STEP_WINDOW_S, Step, measure_step, solve_levels
+from baromap.floors.elevation import (
+    STEP_GUARD_AFTER_S,
+    STEP_GUARD_S,
+    STEP_WINDOW_S,
+    Step,
+    measure_step,
+    solve_levels,
+)
 from baromap.floors.height import height_difference_m, pressure_drop_pa
 from baromap.messages import NS_PER_S, PressureSample
 
@@ -357,12 +364,16 @@ def _steps(
 ) -> tuple[list[Step], list[tuple[float, float]]]:
     """Steps by floor id, and the (before, after) levels each was measured between."""
     window = round(STEP_WINDOW_S * NS_PER_S)
+    guard = round(STEP_GUARD_S * NS_PER_S)
+    guard_after = round(STEP_GUARD_AFTER_S * NS_PER_S)
     steps = []
     measured = []
     for k, tr in enumerate(raw):
-        before_start = max(bounds[k][0], tr.t_start_ns - window)
-        after_end = min(bounds[k + 1][1], tr.t_end_ns + window)
-        levels = measure_step(t, p, (before_start, tr.t_start_ns), (tr.t_end_ns, after_end))
+        before_end = max(bounds[k][0], tr.t_start_ns - guard)
+        before_start = max(bounds[k][0], before_end - window)
+        after_start = min(bounds[k + 1][1], tr.t_end_ns + guard_after)
+        after_end = min(bounds[k + 1][1], after_start + window)
+        levels = measure_step(t, p, (before_start, before_end), (after_start, after_end))
         if levels is None:
             level_before = float(np.interp(tr.t_start_ns, t, p))
             levels = (level_before, level_before + tr.delta_pa)

@@ -21,8 +21,16 @@ import numpy.typing as npt
 from baromap.floors.height import height_difference_m
 from baromap.messages import NS_PER_S
 
-#: How much floor time on each side of a transition the step fit uses.
+#: How much floor time on each side of a transition the step fit uses: long enough to average
+#: gusts and estimate the drift slope, short next to the minutes over which the sensor's own
+#: temperature offset (BMP280: 1.5 Pa/K) creeps in after arriving on a warmer or colder floor.
 STEP_WINDOW_S = 30.0
+#: Left out before the transition: elevator doors closing seal the car (a few pascals of
+#: overpressure) several seconds before it moves, and the detector notices the departure only
+#: once the pressure has moved. After it, the detector's end is the start of a quiet stretch,
+#: but the last door and ventilation transients may still be fading.
+STEP_GUARD_S = 8.0
+STEP_GUARD_AFTER_S = 5.0
 #: Fewer samples than this on a side and the step is taken from the detector's own estimate.
 MIN_SIDE_SAMPLES = 5
 

@@ -53,7 +53,13 @@ def sim_case(
 
     run = pressure_run(seed, minutes=minutes, drift_hpa_per_h=drift_hpa_per_h)
     floor = np.where(np.asarray(run.truth_floor) < 0, np.nan, np.asarray(run.truth_floor))
-    truth = truth_from_series(run.t_ns, floor, run.truth_z_m)
+    truth = truth_from_series(run.t_ns, floor)
+    truth = FloorTruth(
+        truth.transitions,
+        truth.t_ns,
+        truth.floor,
+        {k: float(z) for k, z in enumerate(np.asarray(run.elevations_m))},
+    )
     reference = (run.t_ns, np.asarray(run.reference_pa)) if use_reference else None
     return Case(
         f"sim seed {seed}",
