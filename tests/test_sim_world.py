@@ -216,7 +216,8 @@ def test_pressure_run_contract(run) -> None:  # type: ignore[no-untyped-def]
 def test_pressure_is_bmp280_like(run) -> None:  # type: ignore[no-untyped-def]
     # Quantised to the 20-bit step; noise after the IIR filter about 0.2 Pa.
     steps = np.round(run.pressure_pa / 0.16)
-    assert np.allclose(steps * 0.16, run.pressure_pa)
+    assert np.allclose(steps * 0.16, run.pressure_pa, rtol=0, atol=1 / 512 + 1e-9)
+    assert np.array_equal(np.round(run.pressure_pa * 256) / 256, run.pressure_pa)
     still = run.truth_floor >= 0
     resid = (run.pressure_pa - run.true_pressure_pa)[still]
     hf = np.diff(resid)[:20000]

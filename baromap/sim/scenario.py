@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from baromap.errors import ConfigError
 from baromap.messages import NS_PER_S
+from baromap.protocols.baro import Q24_8
 from baromap.sim.atmosphere import AirTemperature, Ventilation, Weather, hydrostatic_pa
 from baromap.sim.bmp280 import Bmp280
 from baromap.sim.building import Building, make_building
@@ -227,6 +228,8 @@ def pressure_run(
     true_p = sc.true_pressure_pa(t, truth)
     robot = Bmp280.random(sc.rng(STREAM_ROBOT_BARO), rate_hz)
     pressure, temperature = robot.measure(true_p, sc.air.at(truth.z))
+    # The firmware sends Q24.8 pascals: the run holds exactly what crosses the wire.
+    pressure = np.round(pressure * Q24_8) / Q24_8
     station = Bmp280.random(sc.rng(STREAM_REFERENCE_BARO), rate_hz, heated=False)
     ref_p, ref_t = station.measure(sc.reference_true_pa(t), sc.air.floor_c[0])
     return PressureRun(

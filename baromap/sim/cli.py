@@ -1,0 +1,116 @@
+"""``baromap sim``: simulated devices on pseudo-terminals, and ``baromap sim record``.
+
+register() stays cheap; the simulator (numpy, scipy, the codecs) is imported by the command.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+
+def _common(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
+    parser.add_argument("--floors", type=int, default=6, help="storeys (default 6)")
+    parser.add_argument(
+        "--drift",
+        type=float,
+        default=1.5,
+        metavar="HPA_PER_H",
+        help="largest weather drift rate (default 1.5 hPa/h)",
+    )
+    parser.add_argument(
+        "--route",
+        default=None,
+        help="floors to visit, 0-based, comma separated (default: the paper's 4,5,3,2,1,0,2)",
+    )
+
+
+def register(subparsers: Any) -> None:
+    sim = subparsers.add_parser(
+        "sim",
+        help="simulated LMS200, P3-AT and barometer on pseudo-terminals",
+        description="Start the simulated devices on pseudo-terminals and print their paths; "
+        "runs until Ctrl-C. `baromap sim record` writes a simulated run to MCAP instead.",
+    )
+    _common(sim)
+    sim.add_argument("--minutes", type=float, default=46.0, help="length of the route")
+    sim.add_argument("--speed", type=float, default=1.0, help="time factor (default 1x)")
+    sim.add_argument(
+        "--link-dir",
+        default=None,
+        help="also create stable symlinks lms200, p3at, baro in this directory",
+    )
+    sim.add_argument("--json", action="store_true", help="print the paths as one JSON object")
+    sim.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    sim.set_defaults(run=run_twins)
+    actions = sim.add_subparsers(dest="sim_command", metavar="ACTION")
+    rec = actions.add_parser(
+        "record",
+        help="write a simulated run (with truth topics) to MCAP, faster than real time",
+    )
+    rec.add_argument("-o", "--output", required=True, help="MCAP file to write")
+    _common(rec)
+    rec.add_argument("--minutes", type=float, default=46.0, help="run length (default 46)")
+    rec.add_argument("--rate", type=float, default=25.0, help="barometer rate in Hz (default 25)")
+    rec.add_argument(
+        "--laser-resolution",
+        type=float,
+        choices=(1.0, 0.5),
+        default=1.0,
+        help="LMS200 angular resolution in degrees (180 deg field; default 1)",
+    )
+    rec.add_argument("--laser-units", choices=("mm", "cm"), default="mm")
+    rec.add_argument("--laser-baud", type=int, default=38400, choices=(9600, 19200, 38400, 500000))
+    rec.add_argument("--force", action="store_true", help="overwrite an existing file")
+    rec.set_defaults(run=run_record)
+
+
+def parse_route(text: str | None) -> list[int] | None:
+    from baromap.errors import ConfigError
+
+    if text is None:
+        return None
+    try:
+        return [int(part) for part in text.split(",") if part.strip()]
+    except ValueError as exc:
+        raise ConfigError(f"--route takes comma-separated floor numbers, not {text!r}") from exc
+
+
+def run_record(args: argparse.Namespace) -> int:
+    from baromap.sim.laser import LaserConfig
+    from baromap.sim.record import record_run
+
+    laser = LaserConfig(
+        angle_deg=180,
+        resolution_cdeg=round(args.laser_resolution * 100),
+        units=args.laser_units,
+        baud=args.laser_baud,
+    )
+    summary = record_run(
+        args.output,
+        seed=args.seed,
+        floors=args.floors,
+        minutes=args.minutes,
+        drift_hpa_per_h=args.drift,
+        route=parse_route(args.route),
+        laser=laser,
+        rate_hz=args.rate,
+        overwrite=args.force,
+    )
+    total = sum(summary.counts.values())
+    print(
+        f"wrote {summary.path}: {summary.simulated_s / 60:.1f} simulated minutes in "
+        f"{summary.wall_s:.1f} s ({summary.simulated_s / summary.wall_s:.0f}x real time), "
+        f"{total} messages"
+    )
+    for topic, count in sorted(summary.counts.items()):
+        print(f"  {topic}: {count}")
+    return 0
+
+
+def run_twins(args: argparse.Namespace) -> int:
+    from baromap.sim.twins.runner import run_from_args
+
+    code: int = run_from_args(args)
+    return code

@@ -1,0 +1,159 @@
+"""What a P3-AT believes about its own motion, and the SIPs it reports it in.
+
+A skid-steered P3-AT misjudges distance a little (tyre wear, load: a translation scale error
+of a percent or two) and rotation a lot (the wheels slip sideways when it turns in place: a
+rotation scale error of a few percent), and it drifts in heading while driving straight
+(uneven tyres: a fraction of a degree per metre). On top comes random slip that grows with
+the square root of the distance. These are what the odometry of a real run looks like and
+what scan matching has to correct.
+
+The robot integrates its belief in its own units and reports it every SIP cycle (100 ms) as
+15-bit position counters (wrapping at 0x8000, about every 15 m on a P3-AT) and a 12-bit
+heading; the host unwraps them (``baromap.protocols.p2os.OdometryIntegrator``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from baromap.protocols import p2os
+from baromap.protocols.robot_models import P3AT, RobotModel
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+SIP_PERIOD_S = 0.1
+
+
+@dataclass(frozen=True, slots=True)
+class OdometryErrors:
+    """Systematic and random odometry errors of one robot."""
+
+    scale: float
+    rotation_scale: float
+    heading_bias_rad_per_m: float
+    translation_noise_m_per_sqrt_m: float
+    rotation_noise_rad_per_sqrt_rad: float
+
+    @classmethod
+    def random(cls, rng: np.random.Generator) -> OdometryErrors:
+        def signed(lo: float, hi: float) -> float:
+            return float(rng.choice([-1.0, 1.0]) * rng.uniform(lo, hi))
+
+        return cls(
+            scale=signed(0.005, 0.02),
+            rotation_scale=signed(0.01, 0.04),
+            heading_bias_rad_per_m=signed(math.radians(0.2), math.radians(0.8)),
+            translation_noise_m_per_sqrt_m=0.01,
+            rotation_noise_rad_per_sqrt_rad=math.radians(1.0),
+        )
+
+    def as_dict(self) -> dict[str, float]:
+        return {
+            "scale": self.scale,
+            "rotation_scale": self.rotation_scale,
+            "heading_bias_deg_per_m": math.degrees(self.heading_bias_rad_per_m),
+            "translation_noise_m_per_sqrt_m": self.translation_noise_m_per_sqrt_m,
+            "rotation_noise_deg_per_sqrt_rad": math.degrees(self.rotation_noise_rad_per_sqrt_rad),
+        }
+
+
+class OdometryModel:
+    """The robot's dead reckoning: true increments in, believed pose out (stateful, chunked)."""
+
+    def __init__(
+        self,
+        errors: OdometryErrors,
+        rng: np.random.Generator,
+        model: RobotModel = P3AT,
+    ) -> None:
+        self.errors = errors
+        self.rng = rng
+        self.model = model
+        self.x_m = 0.0
+        self.y_m = 0.0
+        self.theta = 0.0
+
+    def step(self, ds: FloatArray, dtheta: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Believed poses after each of the true increments (forward metres, radians)."""
+        e = self.errors
+        ds = np.asarray(ds, dtype=np.float64)
+        dtheta = np.asarray(dtheta, dtype=np.float64)
+        n = ds.shape[0]
+        noise = self.rng.standard_normal((2, n))
+        ds_o = ds * (1.0 + e.scale) + noise[0] * e.translation_noise_m_per_sqrt_m * np.sqrt(
+            np.abs(ds)
+        )
+        dth_o = (
+            dtheta * (1.0 + e.rotation_scale)
+            + e.heading_bias_rad_per_m * np.abs(ds)
+            + noise[1] * e.rotation_noise_rad_per_sqrt_rad * np.sqrt(np.abs(dtheta))
+        )
+        theta = self.theta + np.cumsum(dth_o)
+        mid = theta - dth_o / 2.0
+        x = self.x_m + np.cumsum(ds_o * np.cos(mid))
+        y = self.y_m + np.cumsum(ds_o * np.sin(mid))
+        if n:
+            self.x_m, self.y_m, self.theta = float(x[-1]), float(y[-1]), float(theta[-1])
+        return x, y, theta
+
+
+def true_increments(
+    x: FloatArray, y: FloatArray, theta: FloatArray, prev: tuple[float, float, float]
+) -> tuple[FloatArray, FloatArray]:
+    """Forward distance and heading change between consecutive true poses (after ``prev``)."""
+    xs = np.concatenate([[prev[0]], x])
+    ys = np.concatenate([[prev[1]], y])
+    ths = np.concatenate([[prev[2]], theta])
+    dx, dy = np.diff(xs), np.diff(ys)
+    heading = ths[:-1]
+    ds = dx * np.cos(heading) + dy * np.sin(heading)
+    dth = np.angle(np.exp(1j * np.diff(ths)))
+    return ds, dth
+
+
+def counters(
+    model: RobotModel, x_m: FloatArray, y_m: FloatArray, theta: FloatArray
+) -> tuple[IntArray, IntArray, IntArray]:
+    """The SIP's wrapped 15-bit position counters and its heading in 1/4096 turn (signed)."""
+    units = model.dist_conv_factor / 1000.0
+    cx = np.round(np.asarray(x_m) / units).astype(np.int64) & p2os.POSITION_MASK
+    cy = np.round(np.asarray(y_m) / units).astype(np.int64) & p2os.POSITION_MASK
+    th = np.round(np.asarray(theta) / model.angle_conv_factor).astype(np.int64)
+    th = (th + 2048) % 4096 - 2048
+    return cx, cy, th
+
+
+def sip(
+    model: RobotModel,
+    *,
+    x: int,
+    y: int,
+    theta: int,
+    v_mps: float,
+    omega_radps: float,
+    motors: bool,
+    battery_dv: int = 128,
+) -> p2os.StandardSip:
+    """One standard SIP with wheel speeds from the believed velocities."""
+    v_mm = v_mps * 1000.0 / model.vel_conv_factor
+    half_diff = omega_radps / model.diff_conv_factor / model.vel_conv_factor
+    left = round(v_mm - half_diff)
+    right = round(v_mm + half_diff)
+    return p2os.StandardSip(
+        moving=bool(left or right),
+        x=int(x),
+        y=int(y),
+        theta=int(theta),
+        left_vel=int(left),
+        right_vel=int(right),
+        battery_dv=battery_dv,
+        stall_bumpers=0,
+        control=int(theta),
+        flags=0x01 if motors else 0x00,
+        compass=0,
+    )
