@@ -25,6 +25,7 @@ of the stairs, so those delays are lower bounds.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -41,10 +42,13 @@ MAX_DELAY_S = 15.0
 
 @dataclass(frozen=True, slots=True)
 class TrueTransition:
+    """``t_settled_ns``: when the air pressure itself came to rest (simulator only)."""
+
     t_begin_ns: int
     t_end_ns: int
     from_floor: int
     to_floor: int
+    t_settled_ns: int | None = None
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -121,6 +125,7 @@ class Score:
     delays_s: tuple[float, ...]
     height_error_m: float | None
     flushed: int
+    settled_delays_s: tuple[float, ...] = ()
 
     @property
     def recall(self) -> float:
@@ -173,6 +178,11 @@ def score(
         if det.to_floor - det.from_floor == true.to_floor - true.from_floor
     )
     delays = tuple((det.t_detect_ns - true.t_end_ns) / NS_PER_S for true, det in matches)
+    settled = tuple(
+        (det.t_detect_ns - true.t_settled_ns) / NS_PER_S
+        for true, det in matches
+        if true.t_settled_ns is not None
+    )
     accuracy, offset = _accuracy(detection, truth)
     height_error = _height_error(detection, truth, offset)
     return Score(
@@ -187,7 +197,47 @@ def score(
         delays_s=delays,
         height_error_m=height_error,
         flushed=sum(1 for _, det in matches if det.at_end),
+        settled_delays_s=settled,
     )
+
+
+#: "At rest" for the air pressure: within this of its later course (0.1 m of height).
+SETTLED_BAND_PA = 1.2
+#: How long after a ride the settling is looked for, and how much of its end defines "later".
+SETTLE_SEARCH_S = 30.0
+SETTLE_TAIL_S = 10.0
+
+
+def with_settle_times(
+    truth: FloorTruth, t_ns: npt.NDArray[np.int64], true_pressure_pa: npt.NDArray[np.float64]
+) -> FloorTruth:
+    """Add when the noise-free pressure settled after each true transition.
+
+    The car stopping is not the pressure settling: the doors are still shut (the car is
+    slightly pressurised) and ventilation spikes fade over a second or two after they open.
+    ``true_pressure_pa`` should be free of weather (the simulator's noise-free pressure at the
+    robot minus the reference station's reading: gusts, about 1.5 Pa RMS, would otherwise
+    hide any settling). Settled is the first moment from which it stays within ``SETTLED_BAND_PA`` of
+    a line fitted to its last ``SETTLE_TAIL_S`` (the weather keeps drifting) up to
+    ``SETTLE_SEARCH_S`` after the stop, or the next transition.
+    """
+    out = []
+    for k, true in enumerate(truth.transitions):
+        limit = true.t_end_ns + round(SETTLE_SEARCH_S * NS_PER_S)
+        if k + 1 < len(truth.transitions):
+            limit = min(limit, truth.transitions[k + 1].t_begin_ns)
+        i0, i1 = np.searchsorted(t_ns, (true.t_end_ns, limit))
+        j0 = np.searchsorted(t_ns, limit - round(SETTLE_TAIL_S * NS_PER_S))
+        if i1 - i0 < 3 or i1 - j0 < 3:
+            out.append(true)
+            continue
+        tail_t = (t_ns[j0:i1] - t_ns[i0]) / NS_PER_S
+        slope, intercept = np.polyfit(tail_t, true_pressure_pa[j0:i1], 1)
+        course = intercept + slope * (t_ns[i0:i1] - t_ns[i0]) / NS_PER_S
+        outside = np.flatnonzero(np.abs(true_pressure_pa[i0:i1] - course) > SETTLED_BAND_PA)
+        settled = int(t_ns[i0 + outside[-1] + 1]) if outside.size else true.t_end_ns
+        out.append(dataclasses.replace(true, t_settled_ns=settled))
+    return dataclasses.replace(truth, transitions=tuple(out))
 
 
 def _accuracy(detection: FloorDetection, truth: FloorTruth) -> tuple[float, int]:
