@@ -217,9 +217,9 @@ def with_settle_times(
     slightly pressurised) and ventilation spikes fade over a second or two after they open.
     ``true_pressure_pa`` should be free of weather (the simulator's noise-free pressure at the
     robot minus the reference station's reading: gusts, about 1.5 Pa RMS, would otherwise
-    hide any settling). Settled is the first moment from which it stays within ``SETTLED_BAND_PA`` of
-    a line fitted to its last ``SETTLE_TAIL_S`` (the weather keeps drifting) up to
-    ``SETTLE_SEARCH_S`` after the stop, or the next transition.
+    hide any settling). Settled is the first moment from which it stays within
+    ``SETTLED_BAND_PA`` of a line fitted to its last ``SETTLE_TAIL_S`` (the weather keeps
+    drifting) up to ``SETTLE_SEARCH_S`` after the stop, or the next transition.
     """
     out = []
     for k, true in enumerate(truth.transitions):
