@@ -36,10 +36,11 @@ ADDRESSES: Final = frozenset({HOST_ADDRESS, SENSOR_ADDRESS})
 HEADER_BYTES: Final = 4
 CRC_BYTES: Final = 2
 
-#: The largest LMS2xx telegram: a B0 scan of 401 values (100 deg at 0.25 deg), 812 bytes.
-MAX_TELEGRAM_BYTES: Final = 812
-#: LEN of that telegram; anything longer is a corrupted header, never a real telegram.
-MAX_LEN: Final = MAX_TELEGRAM_BYTES - HEADER_BYTES - CRC_BYTES
+#: Largest LEN an LMS2xx telegram carries (sicktoolbox's maximum payload, 812 bytes); the
+#: biggest B0 scan, 401 values with a real-time index, has LEN 807. A larger LEN is a
+#: corrupted header, never a real telegram.
+MAX_LEN: Final = 812
+MAX_TELEGRAM_BYTES: Final = HEADER_BYTES + MAX_LEN + CRC_BYTES
 
 #: Status byte healthy sensors send in every reply.
 STATUS_OK: Final = 0x10
@@ -805,8 +806,29 @@ class Decoder:
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[LmsMessage]:
         self.stats.bytes_in += len(data)
+        self._buf += data
+        return self._process()
+
+    def flush(self) -> list[LmsMessage]:
+        """End of stream (or of a line setting): settle everything still pending.
+
+        An unfinished frame can no longer complete, so its first byte is discarded as
+        ``truncated`` and the bytes after it are searched again: a complete frame that a
+        bogus length was holding up still decodes. Then the pending discard run is reported.
+        """
+        out: list[LmsMessage] = []
+        while self._buf:
+            if self._run_reason != "truncated":
+                self._end_run(out)
+                self._run_reason = "truncated"
+            self._absorb(self._buf, 0, 1, out)
+            del self._buf[0]
+            out += self._process()
+        self._end_run(out)
+        return out
+
+    def _process(self) -> list[LmsMessage]:
         buf = self._buf
-        buf += data
         out: list[LmsMessage] = []
         pos = 0
         end = len(buf)
@@ -833,15 +855,6 @@ class Decoder:
                 break
             pos = next_pos
         del buf[:pos]
-        return out
-
-    def flush(self) -> list[LmsMessage]:
-        """End of stream: report pending discarded bytes and an unfinished telegram."""
-        out: list[LmsMessage] = []
-        self._end_run(out)
-        if self._buf:
-            out.append(self.stats.count_bad(BadFrame.of("truncated", self._buf)))
-            self._buf.clear()
         return out
 
     # -- discarded-byte runs ---------------------------------------------------------------

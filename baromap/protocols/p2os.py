@@ -597,8 +597,29 @@ class Decoder:
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[P2osMessage]:
         self.stats.bytes_in += len(data)
+        self._buf += data
+        return self._process()
+
+    def flush(self) -> list[P2osMessage]:
+        """End of stream (or of a line setting): settle everything still pending.
+
+        An unfinished frame can no longer complete, so its first byte is discarded as
+        ``truncated`` and the bytes after it are searched again: a complete frame that a
+        bogus length was holding up still decodes. Then the pending discard run is reported.
+        """
+        out: list[P2osMessage] = []
+        while self._buf:
+            if self._run_reason != "truncated":
+                self._end_run(out)
+                self._run_reason = "truncated"
+            self._absorb(self._buf, 0, 1, out)
+            del self._buf[0]
+            out += self._process()
+        self._end_run(out)
+        return out
+
+    def _process(self) -> list[P2osMessage]:
         buf = self._buf
-        buf += data
         out: list[P2osMessage] = []
         pos = 0
         end = len(buf)
@@ -635,15 +656,6 @@ class Decoder:
                 out.append(message)
             pos = stop
         del buf[:pos]
-        return out
-
-    def flush(self) -> list[P2osMessage]:
-        """End of stream: report pending discarded bytes and an unfinished packet."""
-        out: list[P2osMessage] = []
-        self._end_run(out)
-        if self._buf:
-            out.append(self.stats.count_bad(BadFrame.of("truncated", self._buf)))
-            self._buf.clear()
         return out
 
     def _decode(self, body: bytes) -> RobotMessage | CommandPacket | None:

@@ -1,0 +1,462 @@
+"""P2OS codec: protocols.md vectors, round trips, resynchronisation, odometry across the wrap."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from baromap.errors import ConfigError, EncodeError
+from baromap.protocols import p2os as P
+from baromap.protocols.framing import BadFrame
+from baromap.protocols.robot_models import MODELS, P2AT, P3AT, P3DX, robot_model
+
+VECTORS = [
+    ("SYNC0", lambda: P.sync(0), "FA FB 03 00 00 00", P.CommandPacket(0)),
+    ("PULSE", P.pulse, "FA FB 03 00 00 00", P.CommandPacket(0)),
+    ("SYNC1", lambda: P.sync(1), "FA FB 03 01 00 01", P.CommandPacket(1)),
+    ("OPEN", P.open_controller, "FA FB 03 01 00 01", P.CommandPacket(1)),
+    ("SYNC2", lambda: P.sync(2), "FA FB 03 02 00 02", P.CommandPacket(2)),
+    ("CLOSE", P.close_controller, "FA FB 03 02 00 02", P.CommandPacket(2)),
+    ("ENABLE 1", P.enable_motors, "FA FB 06 04 3B 01 00 05 3B", P.CommandPacket(4, 1)),
+    ("VEL +300", lambda: P.vel(300), "FA FB 06 0B 3B 2C 01 37 3C", P.CommandPacket(11, 300)),
+    ("VEL -300", lambda: P.vel(-300), "FA FB 06 0B 1B 2C 01 37 1C", P.CommandPacket(11, -300)),
+    ("RVEL +10", lambda: P.rvel(10), "FA FB 06 15 3B 0A 00 1F 3B", P.CommandPacket(21, 10)),
+]
+
+
+def decode(data: bytes, source: P.Source = "robot", chunk: int | None = None) -> list:
+    decoder = P.Decoder(source)
+    if chunk is None:
+        return decoder.feed(data) + decoder.flush()
+    out: list = []
+    for i in range(0, len(data), chunk):
+        out += decoder.feed(data[i : i + chunk])
+    return out + decoder.flush()
+
+
+@pytest.mark.parametrize(
+    ("name", "build", "expected", "command"), VECTORS, ids=[v[0] for v in VECTORS]
+)
+def test_encoders_reproduce_protocol_vectors(name, build, expected: str, command) -> None:
+    assert build() == bytes.fromhex(expected)
+    assert command.encode() == bytes.fromhex(expected)
+
+
+@pytest.mark.parametrize(
+    ("name", "build", "expected", "command"), VECTORS, ids=[v[0] for v in VECTORS]
+)
+def test_host_side_decoder_reads_vectors_back(name, build, expected: str, command) -> None:
+    assert decode(bytes.fromhex(expected), "host") == [command]
+
+
+def test_checksum_worked_example() -> None:
+    assert P.checksum(bytes.fromhex("0B 3B 2C 01")) == 0x373C
+    assert P.checksum(b"\x01") == 0x0001
+    assert P.checksum(b"") == 0
+    assert P.checksum(b"\xff\xff\xff\xff\x07") == (0xFFFE ^ 0x07)
+
+
+def test_other_commands() -> None:
+    assert decode(P.stop() + P.reset_odometry() + P.config_request(), "host") == [
+        P.CommandPacket(P.Command.STOP),
+        P.CommandPacket(P.Command.SETO),
+        P.CommandPacket(P.Command.CONFIG, 1),
+    ]
+    text = P.encode_command(P.Command.SONAR, b"abc")
+    assert text[3:8] == b"\x1c\x2b\x03ab"
+    assert decode(text, "host") == [P.CommandPacket(28, b"abc")]
+
+
+@pytest.mark.parametrize(
+    ("call", "args"),
+    [
+        (P.sync, (3,)),
+        (P.vel, (40000,)),
+        (P.encode_command, (256,)),
+        (P.encode_command, (1, b"x" * 200)),
+        (P.encode_packet, (b"",)),
+        (P.encode_packet, (b"x" * (P.MAX_DATA + 1),)),
+        (P.encode_config, ({"name": "x"},)),  # leading fields missing
+        (P.encode_config, ({"robot_type": 5},)),
+        (P.encode_config, ({"bogus": 1},)),
+    ],
+)
+def test_encoders_refuse_what_the_wire_cannot_carry(call, args) -> None:
+    with pytest.raises(EncodeError):
+        call(*args)
+
+
+def test_decoder_source_is_checked() -> None:
+    with pytest.raises(ConfigError):
+        P.Decoder("sideways")  # type: ignore[arg-type]
+
+
+# -- round trips -------------------------------------------------------------------------------
+
+i16 = st.integers(-0x8000, 0x7FFF)
+u8 = st.integers(0, 0xFF)
+u16 = st.integers(0, 0xFFFF)
+
+
+@st.composite
+def sips(draw: st.DrawFn) -> P.StandardSip:
+    tail: dict[str, int] = {}
+    kinds = {
+        "B": u8,
+        "H": u16,
+        "h": i16,
+        "b": st.integers(-128, 127),
+        "I": st.integers(0, 2**32 - 1),
+    }
+    groups = draw(st.integers(0, len(P.SIP_TAIL)))
+    for names, layout in P.SIP_TAIL[:groups]:
+        for name, kind in zip(names, layout.format.lstrip("<"), strict=True):
+            tail[name] = draw(kinds[kind])
+    sonar_count = draw(st.integers(0, 16))
+    sonars = tuple(draw(st.tuples(u8, u16)) for _ in range(sonar_count))
+    extra = draw(st.binary(max_size=6)) if groups == len(P.SIP_TAIL) else b""
+    return P.StandardSip(
+        moving=draw(st.booleans()),
+        x=draw(st.integers(0, 0x7FFF)),
+        y=draw(st.integers(0, 0x7FFF)),
+        theta=draw(i16),
+        left_vel=draw(i16),
+        right_vel=draw(i16),
+        battery_dv=draw(u8),
+        stall_bumpers=draw(u16),
+        control=draw(i16),
+        flags=draw(u16),
+        compass=draw(u8),
+        sonars=sonars,
+        extra=extra,
+        **tail,
+    )
+
+
+@st.composite
+def configs(draw: st.DrawFn) -> P.ConfigPacket:
+    n = draw(st.integers(0, len(P.CONFIG_FIELDS)))
+    text = st.text(st.characters(min_codepoint=1, max_codepoint=255), max_size=12)
+    ints = {
+        "B": u8,
+        "H": u16,
+        "h": i16,
+        "b": st.integers(-128, 127),
+        "I": st.integers(0, 2**32 - 1),
+    }
+    fields = tuple(
+        (name, draw(text if kind == "s" else ints[kind])) for name, kind in P.CONFIG_FIELDS[:n]
+    )
+    extra = draw(st.binary(max_size=4)) if n == len(P.CONFIG_FIELDS) else b""
+    return P.ConfigPacket(fields, extra)
+
+
+names = st.text(st.characters(min_codepoint=1, max_codepoint=255), max_size=16)
+robot_messages = st.one_of(
+    sips(),
+    configs(),
+    st.builds(P.SyncEcho, st.integers(0, 2)),
+    st.builds(P.Sync2Info, names, names, names),
+    st.builds(
+        P.RobotPacket,
+        st.integers(0x03, 0xFF).filter(lambda t: t not in (0x20, 0x32, 0x33)),
+        st.binary(max_size=40),
+    ),
+)
+commands = st.builds(
+    P.CommandPacket,
+    u8,
+    st.none() | st.integers(P.INT_ARG_MIN, P.INT_ARG_MAX).filter(bool) | st.binary(max_size=40),
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(robot_messages)
+def test_every_robot_packet_type_round_trips(message) -> None:
+    assert decode(message.encode()) == [message]
+
+
+@settings(max_examples=80, deadline=None)
+@given(commands)
+def test_every_command_round_trips(command: P.CommandPacket) -> None:
+    assert decode(command.encode(), "host") == [command]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(robot_messages, min_size=1, max_size=6), st.randoms(use_true_random=False))
+def test_any_chunking_gives_identical_output(batch, rnd: random.Random) -> None:
+    stream = b"".join(m.encode() for m in batch)
+    assert decode(stream) == batch
+    assert decode(stream, chunk=1) == batch
+    cuts = sorted(rnd.sample(range(1, len(stream)), min(len(stream) - 1, 5)))
+    decoder = P.Decoder()
+    out: list = []
+    for a, b in zip([0, *cuts], [*cuts, len(stream)], strict=True):
+        out += decoder.feed(stream[a:b])
+    assert out + decoder.flush() == batch
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.binary(min_size=1, max_size=80), st.lists(robot_messages, min_size=1, max_size=3))
+def test_garbage_is_counted_and_chunking_still_does_not_matter(garbage: bytes, batch) -> None:
+    frames = [m.encode() for m in batch]
+    stream = garbage + b"".join(frames) + garbage
+    whole = decode(stream)
+    assert whole == decode(stream, chunk=1)
+    decoder = P.Decoder()
+    out = decoder.feed(stream) + decoder.flush()
+    good_bytes = sum(len(m.encode()) for m in out if not isinstance(m, BadFrame))
+    assert good_bytes + decoder.stats.bytes_discarded == len(stream) == decoder.stats.bytes_in
+
+
+# -- resynchronisation -----------------------------------------------------------------------
+
+SIP = P.StandardSip(False, 10, 20, 30, 0, 0, 125, 0, 0, 1, 0, ((0, 1500), (7, 300)))
+ECHO = P.SyncEcho(1)
+
+
+@pytest.mark.parametrize(
+    "garbage",
+    [
+        b"\x00",
+        b"\xfa",
+        b"\xfa\xfb",
+        b"\xfa\xfb\x05",
+        b"\xfa\xfb\x02",
+        b"\xfa\xfb\xff",
+        b"\xfb\xfa" * 5,
+    ],
+    ids=["nul", "fa", "sync", "sync-count", "count-too-small", "count-too-big", "reversed"],
+)
+@pytest.mark.parametrize("where", ["before", "between", "after"])
+def test_garbage_is_counted_and_the_next_packet_decodes(garbage: bytes, where: str) -> None:
+    a, b = ECHO.encode(), SIP.encode()
+    stream = {"before": garbage + a + b, "between": a + garbage + b, "after": a + b + garbage}[
+        where
+    ]
+    for chunk in (None, 1, 4):
+        out = decode(stream, chunk=chunk)
+        assert [m for m in out if not isinstance(m, BadFrame)] == [ECHO, SIP]
+        assert sum(m.size for m in out if isinstance(m, BadFrame)) == len(garbage)
+
+
+def test_bad_checksum_resyncs_at_the_byte_after_fa() -> None:
+    inner = ECHO.encode()
+    count = 2 + len(inner) + 1  # a header whose body swallows a real packet
+    bogus = b"\xfa\xfb" + bytes((count,))
+    out = decode(bogus + inner + b"\x99\x98\x97" + SIP.encode())
+    assert [type(m) for m in out] == [BadFrame, P.SyncEcho, BadFrame, P.StandardSip]
+    assert out[0].reason == "checksum" and out[0].size == len(bogus)
+
+
+def test_truncated_packets_and_self_contradicting_sips() -> None:
+    raw = SIP.encode()
+    for cut in range(1, len(raw)):
+        decoder = P.Decoder()
+        assert decoder.feed(raw[:cut]) == []
+        (bad,) = decoder.flush()
+        assert bad.reason == "truncated" and bad.size == cut
+    lying = bytearray(SIP.encode()[3:-2])
+    lying[19] = 40  # sonar count larger than the packet
+    short_sip = bytes((0x32,)) + b"\x00" * 10
+    sync0_with_junk = b"\x00\x01"
+    stream = b"".join(P.encode_packet(bytes(d)) for d in (lying, short_sip, sync0_with_junk))
+    assert [getattr(m, "reason", None) for m in decode(stream)] == ["format"] * 3
+    assert [
+        getattr(m, "reason", None) for m in decode(P.encode_packet(b"\x04\x3b\x01"), "host")
+    ] == ["format"]
+
+
+def test_sip_fields_and_partial_tail() -> None:
+    sip = P.StandardSip(
+        True,
+        0x7FFF,
+        0,
+        -5,
+        100,
+        -100,
+        131,
+        0x0102,
+        7,
+        0x0001,
+        90,
+        timer=1,
+        analog=2,
+        digital_in=3,
+        digital_out=4,
+        battery_x10=129,
+        charge_state=1,
+        rot_vel=-155,
+    )
+    (decoded,) = decode(sip.encode())
+    assert decoded == sip and decoded.motors_enabled and decoded.battery_v == pytest.approx(12.9)
+    # a firmware that stops half way through a field: the half field is kept as extra bytes
+    body = sip.encode()[3:-2] + b"\x01"
+    (partial,) = decode(P.encode_packet(body))
+    assert partial.fault_flags is None and partial.extra == b"\x01"
+    # the top bit of a position word is not part of the counter
+    body = bytearray(sip.encode()[3:-2])
+    body[4] |= 0x80  # y high byte
+    (masked,) = decode(P.encode_packet(bytes(body)))
+    assert masked.y == 0
+    with pytest.raises(EncodeError):
+        P.StandardSip(False, 0x8000, 0, 0, 0, 0, 0, 0, 0, 0, 0).encode()
+    with pytest.raises(EncodeError):
+        P.StandardSip(False, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, rot_vel=5).encode()
+
+
+def test_config_packet_properties() -> None:
+    values = {name: (name if kind == "s" else 7) for name, kind in P.CONFIG_FIELDS[:20]}
+    values["watchdog_ms"] = 2000
+    values["sip_cycle_ms"] = 100
+    (config,) = decode(P.encode_config(values))
+    assert config.as_dict() == values
+    assert config.watchdog_ms == 2000 and config.sip_cycle_ms == 100
+    assert config.get("name") == "name" and config.get("firmware_version") is None
+
+
+def test_sync2_info_strings() -> None:
+    (info,) = decode(P.Sync2Info("Pioneer", "Pioneer", "p3at").encode())
+    assert info == P.Sync2Info("Pioneer", "Pioneer", "p3at")
+    raw = P.encode_packet(b"\x02Pioneer\x00Pioneer")  # a firmware that stops early
+    assert decode(raw) == [P.Sync2Info("Pioneer", "Pioneer", "")]
+    with pytest.raises(EncodeError):
+        P.Sync2Info("a\x00b", "", "").encode()
+
+
+# -- models and odometry -----------------------------------------------------------------------
+
+
+def test_models_carry_arias_factors() -> None:
+    assert (P3AT.dist_conv_factor, P2AT.dist_conv_factor, P3DX.dist_conv_factor) == (
+        0.465,
+        1.32,
+        0.485,
+    )
+    assert P3AT.angle_conv_factor == pytest.approx(0.001534, abs=1e-6)
+    assert (P3AT.diff_conv_factor, P3DX.diff_conv_factor) == (0.0034, 0.0056)
+    assert (P3AT.max_velocity_mmps, P3DX.max_velocity_mmps) == (1200, 2200)
+    assert P2AT.range_conv_factor == 0.268 and P3AT.sonar_count == 16
+    for alias in ("p3at", "P3-AT", "p3_at", " P3AT "):
+        assert robot_model(alias) is P3AT
+    assert robot_model("p3-dx") is P3DX and set(MODELS) == {"p3at", "p2at", "p3dx"}
+    with pytest.raises(ConfigError):
+        robot_model("p3-sh")
+
+
+def _sip(
+    x: int, y: int, theta: int, lvel: int = 0, rvel: int = 0, rot_vel: int | None = None
+) -> P.StandardSip:
+    tail = {}
+    if rot_vel is not None:
+        tail = dict(
+            timer=0,
+            analog=0,
+            digital_in=0,
+            digital_out=0,
+            battery_x10=0,
+            charge_state=0,
+            rot_vel=rot_vel,
+        )
+    return P.StandardSip(False, x & 0x7FFF, y & 0x7FFF, theta, lvel, rvel, 0, 0, 0, 0, 0, **tail)
+
+
+@pytest.mark.parametrize(
+    ("previous", "current", "delta"),
+    [
+        (0x7FF0, 0x0010, 0x20),
+        (0x0010, 0x7FF0, -0x20),
+        (100, 4196, 4096),
+        (4196, 100, -4096),
+        (5, 5, 0),
+    ],
+)
+def test_position_delta_unwraps_like_aria(previous: int, current: int, delta: int) -> None:
+    assert P.position_delta(previous, current) == delta
+
+
+@st.composite
+def drives(draw: st.DrawFn) -> list[tuple[int, int, int]]:
+    """Steps of up to 0x1000 ticks (ARIA's limit), drifting one way so the counters wrap."""
+    n = draw(st.integers(50, 300))
+    sx, sy = draw(st.sampled_from([-1, 1])), draw(st.sampled_from([-1, 1]))
+    noise = st.integers(-0x400, 0x400)
+    return [
+        (sx * 0xC00 + draw(noise), sy * 0xC00 + draw(noise), draw(st.integers(-2047, 2047)))
+        for _ in range(n)
+    ]
+
+
+@pytest.mark.parametrize("model", [P3AT, P2AT, P3DX], ids=lambda m: m.name)
+@settings(max_examples=20, deadline=None)
+@given(
+    steps=drives(),
+    start=st.tuples(st.integers(0, 0x7FFF), st.integers(0, 0x7FFF), st.integers(0, 4095)),
+)
+def test_long_drives_cross_the_wrap_without_losing_a_tick(model, steps, start) -> None:
+    integrator = P.OdometryIntegrator(model, origin_at_start=True)
+    x, y, th = start
+    integrator.update(_sip(x, y, th), 0)
+    tx = ty = tth = 0
+    wraps = 0
+    for i, (dx, dy, dth) in enumerate(steps, start=1):
+        wraps += (x + dx) // 0x8000 != x // 0x8000
+        x, y, th, tx, ty, tth = x + dx, y + dy, (th + dth) % 4096, tx + dx, ty + dy, tth + dth
+        odom = integrator.update(_sip(x, y, th), i)
+    assert wraps >= 3
+    assert odom.x_m == pytest.approx(tx * model.dist_conv_factor / 1000, abs=1e-9)
+    assert odom.y_m == pytest.approx(ty * model.dist_conv_factor / 1000, abs=1e-9)
+    expected_heading = (start[2] + tth) * model.angle_conv_factor
+    assert math.isclose(
+        math.remainder(odom.theta_rad - expected_heading, math.tau), 0, abs_tol=1e-9
+    )
+    assert odom.raw_x == x & 0x7FFF and odom.raw_theta == th
+
+
+def test_ten_kilometre_drive_in_both_directions() -> None:
+    """A P3-AT at full speed, 100 ms SIPs, 5 km out and 5 km back: 330 wraps each way."""
+    model = P3AT
+    integrator = P.OdometryIntegrator(model)
+    step = round(model.max_velocity_mmps * 0.1 / model.dist_conv_factor)  # ticks per SIP
+    ticks, n = 0, 42_000
+    first = integrator.update(_sip(0, 0, 0), 0)
+    assert (first.x_m, first.y_m, first.theta_rad) == (0, 0, 0)
+    for i in range(n):
+        ticks += step
+        odom = integrator.update(_sip(ticks, 0, 0, 1200, 1200), i)
+    assert odom.x_m == pytest.approx(n * step * model.dist_conv_factor / 1000)
+    assert odom.x_m > 5000 and ticks // 0x8000 >= 330
+    assert odom.v_mps == pytest.approx(1.2)
+    for i in range(n):
+        ticks -= step
+        odom = integrator.update(_sip(ticks, 0, 2048, -1200, -1200), n + i)
+    assert odom.x_m == pytest.approx(0.0, abs=1e-9)
+    assert abs(odom.theta_rad) == pytest.approx(math.pi)
+
+
+def test_first_sip_uses_the_counters_as_aria_does() -> None:
+    odom = P.OdometryIntegrator(P2AT).update(_sip(1000, 2000, 1024), 5)
+    assert odom.x_m == pytest.approx(1.32) and odom.y_m == pytest.approx(2.64)
+    assert odom.theta_rad == pytest.approx(math.pi / 2, abs=1e-12) and odom.t_ns == 5
+    zeroed = P.OdometryIntegrator(P2AT, origin_at_start=True).update(_sip(1000, 2000, 1024), 5)
+    assert (zeroed.x_m, zeroed.y_m) == (0, 0)
+
+
+def test_rotation_rate_from_firmware_or_wheels() -> None:
+    integrator = P.OdometryIntegrator(P3AT)
+    wheels = integrator.update(_sip(0, 0, 0, lvel=-100, rvel=100), 0)
+    assert wheels.omega_radps == pytest.approx(100 * 0.0034)
+    firmware = integrator.update(_sip(0, 0, 0, lvel=-100, rvel=100, rot_vel=-450), 1)
+    assert firmware.omega_radps == pytest.approx(math.radians(-45.0))
+
+
+def test_reset_starts_a_new_track() -> None:
+    integrator = P.OdometryIntegrator(P3AT, origin_at_start=True)
+    integrator.update(_sip(100, 0, 0), 0)
+    integrator.update(_sip(300, 0, 0), 1)
+    integrator.reset()
+    assert integrator.update(_sip(5000, 0, 0), 2).x_m == 0.0
