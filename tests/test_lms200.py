@@ -65,6 +65,12 @@ def test_decoder_reads_protocol_vectors_back(name: str, build, expected: str) ->
         assert message.data == raw[5:-2]
 
 
+def test_baud_modes_map_both_ways() -> None:
+    for baud, mode in L.BAUD_MODES.items():
+        assert L.MODE_BAUDS[mode] == baud
+        assert L.switch_baud(baud)[5] == mode
+
+
 def test_reply_vector_with_its_ack() -> None:
     stream = b"\x06" + bytes.fromhex("02 80 03 00 A0 00 10 16 0A")
     assert decode(stream) == [L.Ack(), L.Telegram(0x80, 0xA0, b"\x00", 0x10)]
@@ -289,6 +295,15 @@ def test_ack_and_nak_only_at_a_telegram_boundary() -> None:
     out = decode(b"\x33\x06" + REPLY)  # after garbage, 0x06 is garbage too
     assert isinstance(out[0], BadFrame) and out[0].size == 2
     assert out[1:] == good(decode(REPLY))
+
+
+def test_joining_mid_stream_trusts_no_ack_before_a_telegram() -> None:
+    mid_scan = SCAN[100:140]
+    decoder = L.Decoder(at_boundary=False)
+    out = decoder.feed(b"\x06" + mid_scan + REPLY + b"\x06") + decoder.flush()
+    assert [type(m) for m in out] == [BadFrame, L.Telegram, L.Ack]
+    assert out[0].size == 1 + len(mid_scan)
+    assert decode(b"\x06")[0] == L.Ack()  # a fresh decoder is at a boundary by default
 
 
 def test_long_garbage_is_reported_in_bounded_runs() -> None:

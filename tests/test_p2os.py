@@ -61,10 +61,13 @@ def test_checksum_worked_example() -> None:
 
 
 def test_other_commands() -> None:
-    assert decode(P.stop() + P.reset_odometry() + P.config_request(), "host") == [
+    assert decode(
+        P.stop() + P.reset_odometry() + P.config_request() + P.host_baud(38400), "host"
+    ) == [
         P.CommandPacket(P.Command.STOP),
         P.CommandPacket(P.Command.SETO),
         P.CommandPacket(P.Command.CONFIG, 1),
+        P.CommandPacket(P.Command.HOSTBAUD, 2),
     ]
     text = P.encode_command(P.Command.SONAR, b"abc")
     assert text[3:8] == b"\x1c\x2b\x03ab"
@@ -75,6 +78,7 @@ def test_other_commands() -> None:
     ("call", "args"),
     [
         (P.sync, (3,)),
+        (P.host_baud, (4800,)),
         (P.vel, (40000,)),
         (P.encode_command, (256,)),
         (P.encode_command, (1, b"x" * 200)),

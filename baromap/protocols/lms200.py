@@ -93,6 +93,8 @@ BAUD_MODES: Final[dict[int, Mode]] = {
     38400: Mode.BAUD_38400,
     500000: Mode.BAUD_500000,
 }
+#: Mode byte -> baud rate, for the sensor side of a baud switch.
+MODE_BAUDS: Final[dict[int, int]] = {int(mode): baud for baud, mode in BAUD_MODES.items()}
 
 # ---------------------------------------------------------------------------------------------
 # CRC
@@ -795,12 +797,16 @@ class Decoder:
     A header whose LEN is plausible holds up telegrams behind it until LEN bytes arrived; on a
     live stream that is at most one telegram time. Call :meth:`flush` at the end of a stream
     or when the line changes (baud switch) to report what is pending and start afresh.
+
+    ``at_boundary=False`` is for joining a line mid-stream (a port opened onto a sensor that
+    may be streaming): nothing before the first good telegram is read as an ACK or NAK.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, *, at_boundary: bool = True) -> None:
         self.stats = DecoderStats()
         self._buf = bytearray()
-        self._run_reason: str | None = None  # None: at a telegram boundary
+        # None: at a telegram boundary, where a lone 0x06 / 0x15 is an ACK / NAK.
+        self._run_reason: str | None = None if at_boundary else "garbage"
         self._run_size = 0
         self._run_sample = bytearray()
 

@@ -182,6 +182,17 @@ def reset_odometry() -> bytes:
     return encode_command(Command.SETO)
 
 
+#: HOSTBAUD argument for each host baud rate (ARIA's SwitchToBaudRate handling).
+HOST_BAUD_CODES: Final[dict[int, int]] = {9600: 0, 19200: 1, 38400: 2, 57600: 3, 115200: 4}
+
+
+def host_baud(baud: int) -> bytes:
+    """HOSTBAUD: the robot answers at ``baud`` from the next packet on; the host follows."""
+    if baud not in HOST_BAUD_CODES:
+        raise EncodeError(f"P2OS speaks {sorted(HOST_BAUD_CODES)} baud, not {baud}")
+    return encode_command(Command.HOSTBAUD, HOST_BAUD_CODES[baud])
+
+
 def config_request() -> bytes:
     """CONFIG: ask for one CONFIG packet (ARIA sends the argument 1)."""
     return encode_command(Command.CONFIG, 1)
