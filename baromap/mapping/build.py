@@ -105,7 +105,7 @@ def build_maps(
     out_dir: str | Path,
     *,
     resolution: float = 0.05,
-    method: str = "paper",
+    method: str = "online",
     progress: bool = False,
     config: SlamConfig | None = None,
 ) -> BuildResult:
@@ -122,7 +122,12 @@ def build_maps(
     timings["load"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     segmentation = segment_run(
-        run.scans.t_ns, run.pressure_t_ns, run.pressure_pa, run.temperature_c, method=method
+        run.scans.t_ns,
+        run.pressure_t_ns,
+        run.pressure_pa,
+        run.temperature_c,
+        method=method,
+        reference=(run.reference_t_ns, run.reference_pa) if len(run.reference_t_ns) else None,
     )
     timings["segmentation"] = time.perf_counter() - t0
     t0 = time.perf_counter()

@@ -20,8 +20,9 @@ def register(subparsers: Any) -> None:
     parser.add_argument(
         "--method",
         choices=("paper", "online"),
-        default="paper",
-        help="floor detection used to cut the run (default: paper, offline batch)",
+        default="online",
+        help="floor detection replayed over the recorded pressure to cut the run "
+        "(default: online, whose heights resist weather drift; paper: the baseline)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(run=run)

@@ -34,6 +34,8 @@ class RunData:
     temperature_c: FloatArray  # NaN where absent
     floor_events: tuple[messages.FloorEvent, ...]
     metadata: dict[str, dict[str, str]]
+    reference_t_ns: IntArray  # fixed reference barometer, empty when none was recorded
+    reference_pa: FloatArray
 
 
 def interpolate_poses(t_src: IntArray, poses: FloatArray, t_query: IntArray) -> FloatArray:
@@ -72,9 +74,16 @@ def load_run(path: str | Path) -> RunData:
     baro_p: list[float] = []
     baro_temp: list[float] = []
     events: list[messages.FloorEvent] = []
-    wanted = [topics.SCAN, topics.ODOM, topics.BARO, topics.FLOOR_EVENT]
+    ref_t: list[int] = []
+    ref_p: list[float] = []
+    wanted = [topics.SCAN, topics.ODOM, topics.BARO, topics.FLOOR_EVENT, topics.REFERENCE_PRESSURE]
     for rec in read_messages(path, wanted):
         msg = rec.message
+        if rec.topic == topics.REFERENCE_PRESSURE:
+            if isinstance(msg, messages.PressureSample):
+                ref_t.append(msg.t_ns)
+                ref_p.append(msg.pressure_pa)
+            continue
         if isinstance(msg, messages.LaserScan):
             scans.append(msg)
         elif isinstance(msg, messages.Odometry):
@@ -104,4 +113,6 @@ def load_run(path: str | Path) -> RunData:
         temperature_c=np.array(baro_temp, dtype=np.float64),
         floor_events=tuple(events),
         metadata=metadata,
+        reference_t_ns=np.array(ref_t, dtype=np.int64),
+        reference_pa=np.array(ref_p, dtype=np.float64),
     )

@@ -1,8 +1,11 @@
 """Which floor each scan was taken on, from the barometer.
 
-The cut is recomputed offline from the whole pressure series (``baromap.floors.detect_floors``):
-after the run nothing forces causality, and the batch detector sees both sides of every
-transition. Scans inside a transition (the elevator moving) belong to no floor: they are
+The cut is recomputed from the whole recorded pressure series (``baromap.floors.detect_floors``)
+rather than taken from the live events: the recomputation can use a reference station and the
+finished floor identities, and its default method ("online", the daemon's detector replayed)
+takes floor heights from the steps across transitions, which weather drift does not spoil.
+
+Scans inside a transition (the elevator moving) belong to no floor: they are
 neither mapped nor used for loop closure, only their odometry joins the floors. A run without
 a barometer (a public laser log) is one floor.
 
@@ -79,9 +82,15 @@ def segment_run(
     pressure_t_ns: IntArray,
     pressure_pa: npt.NDArray[np.float64],
     temperature_c: npt.NDArray[np.float64] | None = None,
-    method: str = "paper",
+    *,
+    method: str = "online",
+    reference: tuple[IntArray, npt.NDArray[np.float64]] | None = None,
 ) -> Segmentation:
-    """Offline floor segmentation of a run's scans."""
+    """Offline floor segmentation of a run's scans.
+
+    ``reference`` is a fixed reference barometer's series (removes weather drift) when the
+    run recorded one.
+    """
     if len(pressure_t_ns) < MIN_PRESSURE_SAMPLES:
         return single_floor(len(scan_t_ns))
     from baromap.floors import detect_floors
@@ -89,14 +98,13 @@ def segment_run(
     temps = None
     if temperature_c is not None and np.isfinite(temperature_c).all():
         temps = temperature_c
-    detection = detect_floors(pressure_t_ns, pressure_pa, temps, method=method)
+    if reference is not None and len(reference[0]) < MIN_PRESSURE_SAMPLES:
+        reference = None
+    detection = detect_floors(pressure_t_ns, pressure_pa, temps, method=method, reference=reference)
     segments = [(int(s.t_start_ns), int(s.t_end_ns), int(s.floor)) for s in detection.segments]
     floor, visit = label_scans(scan_t_ns, segments)
-    visits = {f.index: 0 for f in detection.floors}
-    for _, _, f in segments:
-        visits[f] = visits.get(f, 0) + 1
     floors = tuple(
-        FloorInfo(int(f.index), float(f.elevation_m), float(f.level_pa), visits.get(f.index, 0))
+        FloorInfo(int(f.index), float(f.elevation_m), float(f.level_pa), int(f.visits))
         for f in detection.floors
     )
     return Segmentation(floor, visit, floors, f"barometer ({method})", detection)
