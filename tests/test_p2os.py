@@ -79,6 +79,7 @@ def test_other_commands() -> None:
     [
         (P.sync, (3,)),
         (P.host_baud, (4800,)),
+        (P.encode_sync_echo, (3,)),
         (P.vel, (40000,)),
         (P.encode_command, (256,)),
         (P.encode_command, (1, b"x" * 200)),

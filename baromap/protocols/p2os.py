@@ -210,6 +210,8 @@ class SyncEcho:
     step: int
 
     def encode(self) -> bytes:
+        if self.step not in (0, 1, 2):
+            raise EncodeError(f"there is no SYNC{self.step} echo")
         return encode_packet(bytes((self.step,)))
 
 
