@@ -77,7 +77,7 @@ def parse_csv_pressure(lines: Iterable[str], source: str = "<csv>") -> PressureS
     if not times:
         raise InputFormatError(f"{source}: no time_s,pressure_pa rows")
     if skipped:
-        log.info("csv lines skipped", source=source, **dict(skipped))
+        log.debug("csv lines skipped", source=source, **dict(skipped))
     t = np.asarray(times, dtype=np.int64)
     order = np.argsort(t, kind="stable")
     t = t[order]

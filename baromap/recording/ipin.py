@@ -132,7 +132,7 @@ def parse_ipin(lines: Iterable[str], source: str = "<ipin>") -> IpinLog:
         skipped["repeated time"] += int((~keep).sum())
         t_ns, p = t_ns[keep], p[keep]
     if skipped:
-        log.info("ipin lines skipped", source=source, **dict(skipped))
+        log.debug("ipin lines skipped", source=source, **dict(skipped))
     waypoints.sort(key=lambda w: w.t_ns)
     return IpinLog(t_ns, p, tuple(waypoints), phone, skipped)
 

@@ -1,0 +1,66 @@
+"""CSV pressure logs and ``baromap import csv``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import structlog
+
+from baromap.cli import main
+from baromap.errors import InputFormatError
+from baromap.recording.csv_pressure import parse_csv_pressure
+
+
+@pytest.fixture(autouse=True)
+def _fresh_logging():
+    """``main()`` points structlog at the captured stderr; undo that after each test."""
+    yield
+    structlog.reset_defaults()
+
+
+def test_header_comments_and_bad_rows() -> None:
+    series = parse_csv_pressure(
+        [
+            "time_s,pressure_pa,temperature_c\n",
+            "# bench log\n",
+            "0.0,97000.5,21.5\n",
+            "0.1,97001.0\n",
+            "oops\n",
+            "0.2;97001.5;21.7\n",
+            "0.1,97009.0,21.0\n",
+        ]
+    )
+    assert series.t_ns.tolist() == [0, 100_000_000, 200_000_000]
+    assert series.pressure_pa.tolist() == [97000.5, 97001.0, 97001.5]
+    assert np.isnan(series.temperature_c[1]) and series.temperature_c[2] == 21.7
+
+
+@pytest.mark.parametrize("rows", [["0,970.0\n"], ["t,p\n"], []])
+def test_wrong_units_or_empty_are_refused(rows: list[str]) -> None:
+    with pytest.raises(InputFormatError):
+        parse_csv_pressure(rows)
+
+
+def test_import_then_detect(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rate = 10
+    z = np.concatenate([np.zeros(600), np.linspace(0, 3.5, 40), np.full(600, 3.5)])
+    t = np.arange(z.size) / rate + 1_700_000_000.0
+    p = 97_700.0 * np.exp(-z / 8434.5) + np.random.default_rng(1).normal(0, 0.2, z.size)
+    csv = tmp_path / "run.csv"
+    csv.write_text(
+        "time_s,pressure_pa,temperature_c\n"
+        + "".join(f"{a:.2f},{b:.2f},20.0\n" for a, b in zip(t, p, strict=True))
+    )
+    mcap = tmp_path / "run.mcap"
+    assert main(["import", "csv", str(csv), "-o", str(mcap)]) == 0
+    assert "1240 pressure samples" in capsys.readouterr().out
+    assert main(["detect", str(mcap), "--json"]) == 0
+    import json
+
+    document = json.loads(capsys.readouterr().out)
+    assert [(x["from"], x["to"]) for x in document["transitions"]] == [(0, 1)]
+    assert document["floors"][1]["elevation_m"] == pytest.approx(3.5, abs=0.15)
+    assert main(["detect", str(csv)]) == 0
+    assert "floor 0 -> 1" in capsys.readouterr().out

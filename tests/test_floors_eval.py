@@ -1,0 +1,96 @@
+"""Scoring, and the bars of the floor-detection issue on real and simulated data."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import structlog
+
+from baromap.cli import main
+from baromap.floors.detection import FloorDetection, Transition
+from baromap.floors.evaluation import score, truth_from_series, truth_from_waypoints
+from baromap.floors.report import evaluate, real_cases, sim_case
+
+S = 1_000_000_000
+
+
+@pytest.fixture(autouse=True)
+def _fresh_logging():
+    """``main()`` points structlog at the captured stderr; undo that after each test."""
+    yield
+    structlog.reset_defaults()
+
+
+def _detection(transitions: list[Transition], t_end_s: int = 100) -> FloorDetection:
+    from baromap.floors.detection import Segment
+
+    t = np.arange(0, t_end_s * S, S // 10, dtype=np.int64)
+    segments = []
+    start, floor = 0, transitions[0].from_floor if transitions else 0
+    for tr in transitions:
+        segments.append(Segment(start, tr.t_start_ns, floor))
+        start, floor = tr.t_end_ns, tr.to_floor
+    segments.append(Segment(start, int(t[-1]), floor))
+    return FloorDetection("test", (), tuple(transitions), tuple(segments), t, t * 0.0, t * 0.0)
+
+
+def test_waypoint_truth_windows() -> None:
+    truth = truth_from_waypoints([(10 * S, 0), (20 * S, 0), (40 * S, -1), (50 * S, 1)])
+    assert [(x.t_begin_ns, x.t_end_ns, x.from_floor, x.to_floor) for x in truth.transitions] == [
+        (20 * S, 40 * S, 0, -1),
+        (40 * S, 50 * S, -1, 1),
+    ]
+    floors = truth.floor_at(np.array([5, 15, 30, 45, 50, 60]) * S)
+    assert np.isnan(floors[0]) and floors[1] == 0 and np.isnan(floors[2])
+    assert floors[4] == 1 and np.isnan(floors[5])
+
+
+def test_matching_counts_missed_false_direction_and_storeys() -> None:
+    truth = truth_from_series(
+        np.array([0, 10, 20, 30, 40, 50, 60, 99]) * S,
+        [0, 0, np.nan, 2, 2, np.nan, 1, 1],
+    )
+    good = Transition(12 * S, 28 * S, 31 * S, 0, 2, -70.0, 6.0)
+    two_storeys = Transition(42 * S, 58 * S, 62 * S, 2, 0, 70.0, -6.0)
+    spurious = Transition(80 * S, 82 * S, 84 * S, 0, 1, -35.0, 3.0)
+    s = score(_detection([good, two_storeys, spurious]), truth)
+    assert (s.true, s.found, s.missed, s.false) == (2, 2, 0, 1)
+    assert s.direction_right == 2 and s.storeys_right == 1
+    assert s.delays_s == (1.0, 2.0)
+    late = Transition(12 * S, 28 * S, 60 * S, 0, 2, -70.0, 6.0)
+    assert score(_detection([late]), truth).found == 0
+
+
+def test_real_logs_online_meets_the_bar(shared_data: Path) -> None:
+    cases = {case.name: case for case in real_cases(shared_data / "baro")}
+    trial51 = cases["IPIN2023_T3_TrainingTrial51_repetition02"]
+    trial01 = cases["IPIN2023_T3_TrainingTrial01_repetition01"]
+    _, s51 = evaluate(trial51, "online")
+    assert (s51.true, s51.found, s51.false) == (8, 8, 0)
+    assert s51.direction_right == 8 and s51.storeys_right == 8
+    _, s01 = evaluate(trial01, "online")
+    assert (s01.true, s01.false) == (0, 0)
+    assert s01.accuracy == 1.0
+
+
+@pytest.mark.parametrize("seed", [0, 7, 13])
+def test_simulated_runs_with_drift_and_spikes(seed: int) -> None:
+    case = sim_case(seed)
+    detection, s = evaluate(case, "online")
+    assert s.true >= 4 and s.found == s.true and s.false == 0
+    assert s.storeys_right == s.true
+    assert s.accuracy > 0.99  # revisited floors keep their index
+    assert s.median_delay_s < 10.0
+    assert detection.floors[0].elevation_m == 0.0
+
+
+def test_eval_floors_command(shared_data: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    log = shared_data / "baro" / "IPIN2023_T3_TrainingTrial51_repetition02.txt"
+    assert main(["eval-floors", str(log), "--method", "online", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)["online"]
+    assert (result["found"], result["false"], result["storeys_right"]) == (8, 0, 8)
+    assert main(["detect", str(log), "--method", "paper"]) == 0
+    assert "8 transitions" in capsys.readouterr().out

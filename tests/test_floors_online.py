@@ -1,0 +1,178 @@
+"""The online floor detector and detect_floors, on synthetic series with known answers."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from baromap.floors import FloorDetectorConfig, OnlineFloorDetector, detect_floors
+from baromap.floors.height import pressure_drop_pa
+from baromap.messages import NS_PER_S, FloorPhase, PressureSample
+
+RATE_HZ = 10.0
+P0 = 97_700.0
+STOREY_M = 3.2
+
+
+def series(
+    plan: list[tuple[float, float]],
+    *,
+    drift_pa_s: float = 0.0,
+    noise_pa: float = 0.3,
+    seed: int = 0,
+    ride_m_s: float = 1.0,
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
+    """Pressure for ``plan`` = [(height_m, dwell_s), ...], riding between at ``ride_m_s``."""
+    heights: list[float] = []
+    for k, (height, dwell) in enumerate(plan):
+        if k:
+            previous = plan[k - 1][0]
+            steps = max(1, int(abs(height - previous) / ride_m_s * RATE_HZ))
+            heights.extend(np.linspace(previous, height, steps, endpoint=False)[1:].tolist())
+        heights.extend([height] * int(dwell * RATE_HZ))
+    z = np.asarray(heights)
+    t_s = np.arange(z.size) / RATE_HZ
+    rng = np.random.default_rng(seed)
+    p = P0 * np.exp(-z / 8434.5) + drift_pa_s * t_s + rng.normal(0.0, noise_pa, z.size)
+    return (t_s * NS_PER_S).astype(np.int64), p
+
+
+def run(t: npt.NDArray[np.int64], p: npt.NDArray[np.float64], config=None):
+    detector = OnlineFloorDetector(config)
+    events = []
+    for ti, pi in zip(t.tolist(), p.tolist(), strict=True):
+        events += detector.update(PressureSample(ti, pi, 15.0))
+    events += detector.finish()
+    return detector, events
+
+
+def test_one_storey_up_is_one_event_with_the_right_height() -> None:
+    t, p = series([(0.0, 60), (STOREY_M, 60)])
+    detector, events = run(t, p)
+    assert len(events) == 1
+    event = events[0]
+    assert (event.from_floor, event.to_floor) == (0, 1)
+    assert event.delta_m == pytest.approx(STOREY_M, abs=0.1)
+    assert event.delta_pa == pytest.approx(-pressure_drop_pa(STOREY_M, P0), abs=1.0)
+    assert event.t_start_ns <= event.t_end_ns <= event.t_ns
+    # Decided within a few seconds of arriving (ride 3.2 s from t=60 s).
+    assert event.t_ns / NS_PER_S < 60 + STOREY_M + 5.0
+    state = detector.state
+    assert state.floor == 1 and state.phase is FloorPhase.SETTLED and state.floors_known == 2
+    assert state.elevation_m == pytest.approx(STOREY_M, abs=0.1)
+
+
+def test_going_down_finds_a_lower_floor_and_reindexes() -> None:
+    t, p = series([(0.0, 40), (-STOREY_M, 40)])
+    _, events = run(t, p)
+    assert [(e.from_floor, e.to_floor) for e in events] == [(1, 0)]
+    assert events[0].delta_m < 0
+
+
+@pytest.mark.parametrize("spike_pa", [-25.0, -12.0, 12.0, 25.0])
+def test_ventilation_spikes_and_small_steps_raise_no_event(spike_pa: float) -> None:
+    t, p = series([(0.0, 120)])
+    p = p.copy()
+    i = int(40 * RATE_HZ)
+    p[i : i + 15] += spike_pa  # a 1.5 s gust from the elevator shaft
+    j = int(80 * RATE_HZ)
+    p[j:] += pressure_drop_pa(1.0, P0)  # a 1 m ramp: below the 1.8 m threshold
+    detector, events = run(t, p)
+    assert events == []
+    assert detector.state.floor == 0
+
+
+def test_revisits_get_their_old_index_in_spite_of_drift() -> None:
+    # 1.5 hPa/h is about a storey in 20 minutes; the run lasts 50 minutes.
+    plan = [(0.0, 300), (STOREY_M, 600), (2 * STOREY_M, 600), (0.0, 600), (STOREY_M, 600)]
+    plan += [(2 * STOREY_M, 300)]
+    t, p = series(plan, drift_pa_s=150.0 / 3600.0)
+    _, events = run(t, p)
+    assert [(e.from_floor, e.to_floor) for e in events] == [(0, 1), (1, 2), (2, 0), (0, 1), (1, 2)]
+
+
+def test_the_detector_is_causal() -> None:
+    t, p = series([(0.0, 30), (STOREY_M, 30), (0.0, 30)])
+    _, all_events = run(t, p)
+    cut = int(50 * RATE_HZ)
+    detector = OnlineFloorDetector()
+    early = []
+    for ti, pi in zip(t[:cut].tolist(), p[:cut].tolist(), strict=True):
+        early += detector.update(PressureSample(ti, pi))
+    assert early == [e for e in all_events if e.t_ns < t[cut]]
+
+
+def test_reference_station_removes_weather() -> None:
+    plan = [(0.0, 300), (STOREY_M, 900), (0.0, 600)]
+    drift = 6.0 / 60.0  # a storm: 6 hPa/h
+    t, p = series(plan, drift_pa_s=drift)
+    reference = P0 + drift * t / NS_PER_S
+    detection = detect_floors(t, p, reference=(t, reference))
+    assert [(tr.from_floor, tr.to_floor) for tr in detection.transitions] == [(0, 1), (1, 0)]
+    assert detection.floors[1].elevation_m == pytest.approx(STOREY_M, abs=0.1)
+
+
+def test_bad_samples_are_counted_not_raised() -> None:
+    detector = OnlineFloorDetector()
+    assert detector.update(PressureSample(10, P0)) == []
+    assert detector.update(PressureSample(5, P0)) == []  # older
+    assert detector.update(PressureSample(20, float("nan"))) == []
+    assert detector.ignored_samples == 2
+    assert detector.state.floor is None and detector.state.phase is FloorPhase.UNKNOWN
+
+
+def test_detect_floors_result_is_consistent() -> None:
+    plan = [(0.0, 60), (2 * STOREY_M, 60), (STOREY_M, 60), (2 * STOREY_M, 60)]
+    t, p = series(plan)
+    detection = detect_floors(t, p, np.full(t.shape, 15.0))
+    assert [(tr.from_floor, tr.to_floor) for tr in detection.transitions] == [
+        (0, 2),
+        (2, 1),
+        (1, 2),
+    ]
+    elevations = [f.elevation_m for f in detection.floors]
+    np.testing.assert_allclose(elevations, [0.0, STOREY_M, 2 * STOREY_M], atol=0.1)
+    assert [f.visits for f in detection.floors] == [1, 1, 2]
+    assert detection.floor_of(int(30 * NS_PER_S)) == 0
+    assert detection.floor_of(int(-1 * NS_PER_S)) is None
+    assert detection.smoothed_pa.shape == detection.rate_pa_per_s.shape == t.shape
+    document = detection.to_json()
+    assert set(document) >= {"floors", "transitions", "segments"}
+    assert document["transitions"][0]["from"] == 0 and document["transitions"][0]["to"] == 2
+    segments = detection.segments
+    assert all(a.t_end_ns <= b.t_start_ns for a, b in itertools.pairwise(segments))
+
+
+def test_paper_method_on_a_clean_run_and_its_failure_under_drift() -> None:
+    plan = [(0.0, 120), (STOREY_M, 120), (0.0, 120)]
+    t, p = series(plan, noise_pa=0.2)
+    clean = detect_floors(t, p, method="paper")
+    assert len(clean.floors) == 2
+    assert clean.transitions[0].to_floor == 1
+    # With drift, the revisit of floor 0 no longer matches floor 0's mean.
+    plan = [(0.0, 900), (STOREY_M, 900), (0.0, 900)]
+    t, p = series(plan, drift_pa_s=150.0 / 3600.0)
+    drifted = detect_floors(t, p, method="paper")
+    online = detect_floors(t, p, method="online")
+    assert len(online.floors) == 2
+    assert len(drifted.floors) != 2 or len(drifted.transitions) != 2
+
+
+def test_detect_floors_rejects_bad_input() -> None:
+    from baromap.errors import ConfigError, InputFormatError
+
+    with pytest.raises(InputFormatError):
+        detect_floors([], [])
+    with pytest.raises(InputFormatError):
+        detect_floors([1, 2], [P0])
+    with pytest.raises(ConfigError):
+        detect_floors([1, 2], [P0, P0], method="magic")
+
+
+def test_config_min_height_is_honoured() -> None:
+    t, p = series([(0.0, 60), (STOREY_M, 60)])
+    _, events = run(t, p, FloorDetectorConfig(min_transition_m=4.0, start_m=0.5))
+    assert events == []

@@ -1,0 +1,62 @@
+"""IPIN (GetSensorData) log reader."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from baromap.errors import InputFormatError
+from baromap.recording.ipin import looks_like_ipin, parse_ipin, read_ipin
+
+SAMPLE = """% LogFile created by the 'GetSensorData' App for Android.
+% Model:                   	SM-G930F
+ACCE;0.01;100.0;0.1;0.2;9.8;3
+PRES;0.10;100.00;976.8699;3
+PRES;0.20;100.10;976.8628;3
+PRES;garbage
+PRES;0.30;100.20;5.0;3
+POSI;0.25;1;49.46;11.11;0;100
+PRES;0.40;100.30;976.8557;3
+POSI;0.35;2;49.46;11.11;-1;100
+"""
+
+
+def test_parse_pressure_waypoints_and_phone() -> None:
+    log = parse_ipin(SAMPLE.splitlines())
+    assert log.phone == "SM-G930F"
+    assert log.pressure_pa.tolist() == pytest.approx([97686.99, 97686.28, 97685.57])
+    # Sensor-clock spacing on the app clock (median offset 0.1 - 100.0).
+    assert (log.t_ns / 1e9).tolist() == pytest.approx([0.1, 0.2, 0.4])
+    assert [(w.index, w.floor) for w in log.waypoints] == [(1, 0), (2, -1)]
+    assert log.skipped["bad PRES"] == 2
+
+
+def test_not_ipin() -> None:
+    assert not looks_like_ipin("time_s,pressure_pa\n0,97000\n")
+    with pytest.raises(InputFormatError):
+        parse_ipin(["% nothing\n", "ACCE;1;2;3;4;5;6\n"])
+
+
+def test_real_logs(shared_data: Path) -> None:
+    trial51 = read_ipin(shared_data / "baro" / "IPIN2023_T3_TrainingTrial51_repetition02.txt")
+    assert trial51.pressure_pa.size == 3016
+    assert [w.floor for w in trial51.waypoints] == [
+        0,
+        -1,
+        -1,
+        -2,
+        -2,
+        -1,
+        -1,
+        0,
+        0,
+        -1,
+        -1,
+        -2,
+        -2,
+        -1,
+        -1,
+        0,
+    ]
+    assert 97_600 < trial51.pressure_pa.mean() < 97_800
