@@ -1,0 +1,272 @@
+"""How good the maps are: on the Intel log against the Kuemmerle relations, on a simulated run
+against the building's true floor plans. Shared by the tests and ``bench/mapping.py`` so both
+measure the same thing.
+
+Simulated-run measures (all after aligning the estimated frame to the building frame with ONE
+rigid transform for the whole run, fitted to all on-floor scan poses, so a floor that is
+misaligned with the others shows up as an error instead of being fitted away):
+
+- occupied precision: the fraction of a floor map's occupied cells whose centre lies within
+  10 cm of a true wall face;
+- free-space IoU: intersection over union of the map's free cells and the plan's free space,
+  both on the plan's 5 cm raster, over the part of the plan the laser actually swept (the cells
+  a grid built from the same scans at the TRUE poses observes: rooms never looked into are not
+  the map's fault, everything the laser saw is);
+- lobby alignment: per floor, the mean difference between aligned estimated and true poses of
+  the scans taken in the elevator lobby;
+- floor heights: detected elevation minus true elevation, both relative to the lowest floor;
+- loop closures across floors (must be zero) and the floor labels' agreement with the truth.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from scipy import ndimage
+
+from baromap.mapping import se2
+from baromap.mapping.occupancy import OccupancyGrid, build_grid
+from baromap.mapping.relations import RelationErrors, read_relations, relation_errors
+from baromap.mapping.slam import BETWEEN_FLOORS, SlamConfig, SlamResult, run_slam
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+WALL_TOLERANCE_M = 0.10
+LOBBY_RADIUS_M = 2.0
+
+
+# --------------------------------------------------------------------------- Intel
+
+
+@dataclass(frozen=True, slots=True)
+class IntelReport:
+    seed: int
+    slam: RelationErrors
+    odometry: RelationErrors
+    result: SlamResult
+    seconds: float
+
+
+def intel_relations(
+    data_dir: str | Path, seed: int, config: SlamConfig | None = None
+) -> IntelReport:
+    """SLAM on the Intel log with odometry synthesised by ``seed``, scored on the relations."""
+    import time
+
+    from baromap.mapping.scans import ScanBlock
+    from baromap.recording.carmen import read_carmen, synthesize_odometry, to_laser_scan
+
+    laser = Path(data_dir)
+    carmen = read_carmen(laser / "intel-corrected-abstime.log.gz")
+    relations = read_relations(laser / "intel.relations")
+    times = carmen.scan_times_ns()
+    odom = synthesize_odometry(carmen.reference_poses(), seed)
+    scans = ScanBlock.from_messages([to_laser_scan(s, i) for i, s in enumerate(carmen.scans)])
+    zeros = np.zeros(len(times), dtype=np.int64)
+    start = time.perf_counter()
+    result = run_slam(scans, odom, zeros, zeros, config=config)
+    seconds = time.perf_counter() - start
+    return IntelReport(
+        seed=seed,
+        slam=relation_errors(times, result.scan_poses, relations),
+        odometry=relation_errors(times, odom, relations),
+        result=result,
+        seconds=seconds,
+    )
+
+
+# --------------------------------------------------------------------------- simulation
+
+
+@dataclass(frozen=True, slots=True)
+class FloorScore:
+    floor: int  # detected floor index
+    true_floor: int
+    occupied_precision: float
+    free_iou: float
+    lobby_error_m: float
+    lobby_error_deg: float
+    height_error_m: float
+
+
+@dataclass(slots=True)
+class SimReport:
+    floors: list[FloorScore]
+    cross_floor_closures: int
+    loop_closures: int
+    label_agreement: float  # share of on-floor scans whose detected floor maps to the true one
+    alignment: FloatArray  # the rigid transform estimated -> building frame
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def passed(self) -> bool:
+        return (
+            all(
+                f.occupied_precision >= 0.9
+                and f.free_iou >= 0.9
+                and f.lobby_error_m <= 0.10
+                and f.lobby_error_deg <= 1.0
+                and abs(f.height_error_m) <= 0.3
+                for f in self.floors
+            )
+            and self.cross_floor_closures == 0
+        )
+
+    def lines(self) -> list[str]:
+        out = [
+            "floor true  occ<=10cm  freeIoU  lobby[m]  lobby[deg]  height err[m]",
+        ]
+        for f in self.floors:
+            out.append(
+                f"{f.floor:5d} {f.true_floor:5d}  {f.occupied_precision:9.3f}  {f.free_iou:7.3f}"
+                f"  {f.lobby_error_m:8.3f}  {f.lobby_error_deg:10.2f}  {f.height_error_m:+13.3f}"
+            )
+        out.append(
+            f"loop closures {self.loop_closures}, across floors {self.cross_floor_closures}; "
+            f"floor labels agree with truth on {100 * self.label_agreement:.1f} % of scans"
+        )
+        return out
+
+
+def fit_rigid(src: FloatArray, dst: FloatArray) -> FloatArray:
+    """The 2D rigid transform (x, y, theta) taking points ``src`` onto ``dst`` (least squares)."""
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    a, b = src - cs, dst - cd
+    theta = math.atan2(
+        float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])),
+        float(np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])),
+    )
+    c, s = math.cos(theta), math.sin(theta)
+    t = cd - np.array([c * cs[0] - s * cs[1], s * cs[0] + c * cs[1]])
+    return np.array([t[0], t[1], theta])
+
+
+def truth_at(
+    truth_t_ns: IntArray, truth_xyt: FloatArray, truth_floor: IntArray, t_ns: IntArray
+) -> tuple[FloatArray, IntArray]:
+    """True pose (interpolated) and floor (nearest sample) at the given times."""
+    from baromap.mapping.run_data import interpolate_poses
+
+    poses = interpolate_poses(truth_t_ns, truth_xyt, t_ns)
+    idx = np.clip(np.searchsorted(truth_t_ns, t_ns), 0, len(truth_t_ns) - 1)
+    return poses, truth_floor[idx]
+
+
+def evaluate_sim(
+    build: Any,
+    building: Any,
+    truth_t_ns: IntArray,
+    truth_xyt: FloatArray,
+    truth_floor: IntArray,
+) -> SimReport:
+    """Score a :class:`~baromap.mapping.build.BuildResult` against the simulated building."""
+    seg = build.segmentation
+    scans_t = build.run.scans.t_ns
+    est = build.slam.scan_poses
+    true_pose, true_floor = truth_at(truth_t_ns, truth_xyt, truth_floor, scans_t)
+    on_floor = seg.scan_floor != BETWEEN_FLOORS
+    # which true floor each detected floor is (majority vote over its scans)
+    mapping: dict[int, int] = {}
+    for info in seg.floors:
+        mine = true_floor[seg.scan_floor == info.index]
+        if len(mine):
+            values, counts = np.unique(mine, return_counts=True)
+            mapping[info.index] = int(values[np.argmax(counts)])
+    agree = np.array(
+        [
+            mapping.get(int(d), -99) == int(t)
+            for d, t in zip(seg.scan_floor, true_floor, strict=True)
+        ]
+    )
+    label_agreement = float(agree[on_floor].mean()) if on_floor.any() else 0.0
+    align = fit_rigid(est[on_floor, :2], true_pose[on_floor, :2])
+    aligned = se2.compose(align[None, :], est)
+    lowest_true = mapping.get(min(mapping), 0) if mapping else 0
+    base_true = building.floors[lowest_true].elevation_m
+    scores: list[FloorScore] = []
+    for info in seg.floors:
+        grid = build.grids.get(info.index)
+        t_floor = mapping.get(info.index)
+        if grid is None or t_floor is None:
+            continue
+        plan = building.floors[t_floor]
+        mine = on_floor & (seg.scan_floor == info.index)
+        kf = build.slam.keyframes[seg.scan_floor[build.slam.keyframes] == info.index]
+        swept = build_grid(build.run.scans, kf, true_pose[kf], resolution=grid.resolution)
+        occ, iou = _map_scores(grid, align, plan, swept)
+        lobby = mine & (
+            np.hypot(true_pose[:, 0] - building.lobby_xy[0], true_pose[:, 1] - building.lobby_xy[1])
+            < LOBBY_RADIUS_M
+        )
+        if lobby.any():
+            d = se2.between(true_pose[lobby], aligned[lobby])
+            lobby_m = float(np.hypot(d[:, 0].mean(), d[:, 1].mean()))
+            lobby_deg = abs(math.degrees(float(np.mean(d[:, 2]))))
+        else:
+            lobby_m = lobby_deg = float("nan")
+        height_err = info.elevation_m - (plan.elevation_m - base_true)
+        scores.append(
+            FloorScore(info.index, t_floor, occ, iou, lobby_m, lobby_deg, float(height_err))
+        )
+    return SimReport(
+        floors=scores,
+        cross_floor_closures=int(build.cross_floor_closures),
+        loop_closures=len(build.slam.loop_edges),
+        label_agreement=label_agreement,
+        alignment=align,
+    )
+
+
+def _lookup(
+    grid: OccupancyGrid, xy: FloatArray, mask: npt.NDArray[np.bool_]
+) -> npt.NDArray[np.bool_]:
+    """``mask`` (a per-cell property of ``grid``) at world points; False outside the grid."""
+    gc = np.floor((xy[:, 0] - grid.origin_xy[0]) / grid.resolution).astype(np.int64)
+    gr = np.floor((xy[:, 1] - grid.origin_xy[1]) / grid.resolution).astype(np.int64)
+    gh, gw = grid.shape
+    ok = (gc >= 0) & (gc < gw) & (gr >= 0) & (gr < gh)
+    out = np.zeros(len(xy), dtype=bool)
+    out[ok] = mask[gr[ok], gc[ok]]
+    return out
+
+
+def _map_scores(
+    grid: OccupancyGrid, align: FloatArray, plan: Any, swept: OccupancyGrid
+) -> tuple[float, float]:
+    """Occupied precision and free IoU of one floor map in the building frame."""
+    res = 0.05
+    walls = plan.occupancy_truth(res)
+    h, w = walls.shape
+    # distance of every plan cell to the nearest true wall face
+    wall_dist = ndimage.distance_transform_edt(~walls) * res
+    # occupied precision: estimated occupied cells moved into the building frame
+    rows, cols = np.nonzero(grid.occupied())
+    xy = np.stack(
+        [
+            grid.origin_xy[0] + (cols + 0.5) * grid.resolution,
+            grid.origin_xy[1] + (rows + 0.5) * grid.resolution,
+        ],
+        axis=1,
+    )
+    xy_b = se2.transform_points(align, xy)
+    ci = np.floor(xy_b[:, 0] / res).astype(np.int64)
+    ri = np.floor(xy_b[:, 1] / res).astype(np.int64)
+    inside = (ci >= 0) & (ci < w) & (ri >= 0) & (ri < h)
+    near = np.zeros(len(xy_b), dtype=bool)
+    near[inside] = wall_dist[ri[inside], ci[inside]] <= WALL_TOLERANCE_M
+    occupied_precision = float(near.mean()) if len(near) else 0.0
+    # free IoU on the plan raster: each plan cell looks up the estimated map
+    ys, xs = np.mgrid[0:h, 0:w]
+    centers = np.stack([(xs.ravel() + 0.5) * res, (ys.ravel() + 0.5) * res], axis=1)
+    in_est = se2.transform_points(se2.inverse(align), centers)
+    est_free = _lookup(grid, in_est, grid.free()).reshape(h, w)
+    swept_cells = _lookup(swept, centers, swept.log_odds != 0).reshape(h, w)
+    true_free = plan.is_free(centers).reshape(h, w) & swept_cells
+    union = np.count_nonzero(est_free | true_free)
+    iou = np.count_nonzero(est_free & true_free) / union if union else 0.0
+    return occupied_precision, float(iou)
