@@ -34,6 +34,8 @@ from baromap.floors.height import height_difference_m, pressure_drop_pa
 from baromap.messages import NS_PER_S, PressureSample
 
 Method = Literal["online", "paper"]
+#: Span next to a transition whose median is the level it left or reached (for sharpening).
+SHARPEN_LOCAL_S = 3.0
 METHODS: tuple[str, ...] = ("online", "paper")
 
 
@@ -316,8 +318,8 @@ def _assemble(
         )
         base_level = reference_level
     else:
-        steps, levels = _steps(t, p, temp, raw, bounds, default_temperature=temperature)
-        raw, bounds = _sharpen(t, smoothed, raw, bounds, levels, config=config)
+        steps, _ = _steps(t, p, temp, raw, bounds, default_temperature=temperature)
+        raw, bounds = _sharpen(t, smoothed, raw, bounds, config=config)
         relative_pa = solve_levels(steps, n_ids, "delta_pa")
         heights = solve_levels(steps, n_ids, "height_m")
         base_level = _level_at_start(t, p, bounds[0])
@@ -396,7 +398,6 @@ def _sharpen(
     smoothed: npt.NDArray[np.float64],
     raw: Sequence[_Raw],
     bounds: Sequence[tuple[int, int, int]],
-    levels: Sequence[tuple[float, float]],
     *,
     config: FloorDetectorConfig,
 ) -> tuple[list[_Raw], list[tuple[int, int, int]]]:
@@ -410,11 +411,17 @@ def _sharpen(
     """
     out_raw: list[_Raw] = []
     out_bounds = list(bounds)
-    for k, (tr, (before, after)) in enumerate(zip(raw, levels, strict=True)):
-        margin = pressure_drop_pa(config.start_m, before, config.default_temperature_c)
+    local = round(SHARPEN_LOCAL_S * NS_PER_S)
+    for k, tr in enumerate(raw):
         lo, hi = np.searchsorted(t, (out_bounds[k][0], bounds[k + 1][1]))
         i0, i1 = np.searchsorted(t, (tr.t_start_ns, tr.t_end_ns))
-        i1 = max(i1, i0 + 1)
+        i1 = max(min(i1, hi - 1), i0 + 1)
+        # Levels right next to the change (not the drift-corrected fit, which extrapolates).
+        b0 = np.searchsorted(t, tr.t_start_ns - local)
+        a1 = np.searchsorted(t, tr.t_end_ns + local)
+        before = float(np.median(smoothed[max(b0, lo) : i0 + 1]))
+        after = float(np.median(smoothed[i1 : max(a1, i1 + 1)]))
+        margin = pressure_drop_pa(config.start_m, before, config.default_temperature_c)
         away = np.abs(smoothed[i0:i1] - before) > margin
         left = np.flatnonzero(away)
         if left.size == 0:

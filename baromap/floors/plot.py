@@ -1,0 +1,48 @@
+"""The paper's Figure 4 for any run: raw and smoothed pressure, rate of change, transitions."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from baromap.floors.detection import FloorDetection
+from baromap.messages import NS_PER_S
+
+
+def plot_detection(detection: FloorDetection, pressure_pa: npt.ArrayLike, path: str | Path) -> None:
+    """Write a PNG: pressure (raw, smoothed) with floor segments, and the rate below it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = (detection.t_ns - detection.t_ns[0]) / NS_PER_S
+    t0 = detection.t_ns[0]
+    fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(12, 6.5))
+    top.plot(t, np.asarray(pressure_pa) / 100.0, lw=0.5, color="0.6", label="raw")
+    top.plot(t, detection.smoothed_pa / 100.0, lw=1.0, color="C0", label="smoothed")
+    bottom.plot(t, detection.rate_pa_per_s, lw=0.7, color="C1")
+    for tr in detection.transitions:
+        a, b = (tr.t_start_ns - t0) / NS_PER_S, (tr.t_end_ns - t0) / NS_PER_S
+        for ax in (top, bottom):
+            ax.axvspan(a, b, color="C3", alpha=0.25, lw=0)
+        top.annotate(
+            f"{tr.from_floor}\u2192{tr.to_floor}",
+            ((a + b) / 2, 1.0),
+            xycoords=("data", "axes fraction"),
+            ha="center",
+            va="bottom",
+            fontsize=8,
+        )
+        bottom.axvline((tr.t_detect_ns - t0) / NS_PER_S, color="C3", lw=0.8)
+    top.set_ylabel("pressure [hPa]")
+    top.invert_yaxis()  # up the page = up the building
+    top.legend(loc="best", fontsize=8)
+    bottom.set_ylabel("rate [Pa/s]")
+    bottom.set_xlabel("time [s]")
+    fig.suptitle(f"floor detection ({detection.method}): shaded = transitions, line = decided")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
