@@ -1,0 +1,153 @@
+"""The barometer-board twin: our firmware's COBS frames at 115200 baud, from the scenario.
+
+Like the firmware it sends a lone 0x00 and a HELLO at power-up, a SAMPLE every 1/rate s of
+its own clock (default 25 Hz), a STATUS every second, and answers SET_RATE,
+SET_OVERSAMPLING and IDENTIFY with an ACK (IDENTIFY then with a HELLO). Readings come from
+the same atmosphere and BMP280 models as ``pressure_run``, evaluated at the robot's route
+time (which stops while the base's watchdog holds the robot) and the weather's own time.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from baromap.protocols import baro
+from baromap.protocols.framing import BadFrame
+from baromap.sim.bmp280 import Bmp280
+from baromap.sim.scenario import STREAM_ROBOT_BARO
+from baromap.sim.twins.base import SimClock, Twin
+
+BAUD = 115200
+FIRMWARE = (1, 0, 0)
+
+
+class BaroTwin(Twin):
+    name = "baro"
+    initial_baud = BAUD
+
+    def __init__(self, clock: SimClock, link: str | Path | None = None, rate_hz: int = 25) -> None:
+        self.default_rate = rate_hz
+        super().__init__(clock, link)
+        self.samples_sent = 0
+
+    def power_on(self) -> None:
+        self.decoder = baro.Decoder()
+        self.rate_hz = self.default_rate
+        self.osrs = (16, 2, 16)
+        self.seq = 0
+        self.counters = dict.fromkeys(
+            ("frames_sent", "frames_dropped", "i2c_errors", "samples_missed", "rx_bytes"), 0
+        )
+        self.rx_frames = self.rx_crc = self.rx_bad = 0
+        self.sensor = Bmp280.random(self.clock.scenario.rng(STREAM_ROBOT_BARO), float(self.rate_hz))
+        self._boot = time.monotonic()
+        self._next_sample = self._boot + self.clock.real_delay(1.0 / self.rate_hz)
+        self._next_status = self._boot + self.clock.real_delay(1.0)
+        self.port.send(b"\x00")
+        self._send(self._hello())
+
+    def _time_us(self) -> int:
+        return round((time.monotonic() - self._boot) * self.clock.speed * 1e6) % baro.TIME_MODULO
+
+    def _send(self, frame: baro.Frame) -> None:
+        self.port.send(baro.encode(frame))
+        self.counters["frames_sent"] += 1
+        self.seq = (self.seq + 1) % baro.SEQ_MODULO
+
+    def _hello(self) -> baro.HelloFrame:
+        return baro.HelloFrame(
+            self.seq,
+            self._time_us(),
+            0,
+            *FIRMWARE,
+            baro.SensorModel.BMP280,
+            0x58,
+            0x76,
+            self.rate_hz,
+            *self.osrs,
+            int(baro.ResetCause.POWER_ON),
+        )
+
+    def on_bytes(self, data: bytes) -> None:
+        self.counters["rx_bytes"] += len(data)
+        for frame in self.decoder.feed(data):
+            if isinstance(frame, BadFrame):
+                if frame.reason == "crc":
+                    self.rx_crc += 1
+                else:
+                    self.rx_bad += 1
+                continue
+            self.rx_frames += 1
+            self._command(frame)
+
+    def _command(self, frame: object) -> None:
+        result = baro.AckResult.OK
+        if isinstance(frame, baro.SetRateCommand):
+            if 1 <= frame.rate_hz <= baro.MAX_RATE_HZ:
+                self.rate_hz = frame.rate_hz
+                self._next_sample = time.monotonic() + self.clock.real_delay(1.0 / self.rate_hz)
+            else:
+                result = baro.AckResult.BAD_VALUE
+        elif isinstance(frame, baro.SetOversamplingCommand):
+            ok = (
+                frame.osrs_p in baro.OVERSAMPLING_VALUES
+                and frame.osrs_t in baro.OVERSAMPLING_VALUES
+                and frame.iir_filter in baro.IIR_FILTER_VALUES
+            )
+            if ok:
+                self.osrs = (frame.osrs_p, frame.osrs_t, frame.iir_filter)
+            else:
+                result = baro.AckResult.BAD_VALUE
+        elif not isinstance(frame, baro.IdentifyCommand):
+            result = baro.AckResult.UNKNOWN_COMMAND
+        ftype = int(getattr(frame, "TYPE", 0))
+        self._send(
+            baro.AckFrame(self.seq, self._time_us(), ftype, getattr(frame, "seq", 0), result)
+        )
+        if isinstance(frame, baro.IdentifyCommand):
+            self._send(self._hello())
+
+    def tick(self) -> None:
+        now = time.monotonic()
+        if now >= self._next_status:
+            self._next_status += self.clock.real_delay(1.0)
+            self._send(
+                baro.StatusFrame(
+                    seq=self.seq,
+                    time_us=self._time_us(),
+                    frames_sent=self.counters["frames_sent"],
+                    frames_dropped=self.counters["frames_dropped"],
+                    i2c_errors=self.counters["i2c_errors"],
+                    samples_missed=self.counters["samples_missed"],
+                    rx_bytes=self.counters["rx_bytes"],
+                    rx_frames=self.rx_frames,
+                    rx_crc_errors=self.rx_crc,
+                    rx_bad_frames=self.rx_bad,
+                    rx_overflows=0,
+                    sensor_state=baro.SensorState.RUNNING,
+                )
+            )
+        if now < self._next_sample:
+            return
+        self._next_sample += self.clock.real_delay(1.0 / self.rate_hz)
+        if self._next_sample < now:  # fell behind (a stall, a slow machine): count and skip
+            missed = int((now - self._next_sample) / self.clock.real_delay(1.0 / self.rate_hz))
+            self.counters["samples_missed"] += missed
+            self._next_sample = now + self.clock.real_delay(1.0 / self.rate_hz)
+        pressure, temperature = self.reading()
+        self._send(baro.SampleFrame.from_values(self.seq, self._time_us(), pressure, temperature))
+        self.samples_sent += 1
+
+    def reading(self) -> tuple[float, float]:
+        sc = self.clock.scenario
+        t_robot = np.array([self.clock.robot_time()])
+        truth = sc.truth(t_robot)
+        weather_t = np.array([self.clock.now()])
+        p_true = sc.true_pressure_pa(weather_t, truth)
+        # Ventilation follows the car, i.e. route time; weather follows the clock.
+        p_true += sc.ventilation.pa(t_robot, truth.vz) - sc.ventilation.pa(weather_t, truth.vz)
+        p, t = self.sensor.measure(p_true, sc.air.at(truth.z))
+        return float(p[0]), float(t[0])

@@ -1,0 +1,168 @@
+"""What every twin shares: the simulated clock, a thread, a pty, and the fault switches."""
+
+from __future__ import annotations
+
+import select
+import threading
+import time
+from pathlib import Path
+from types import TracebackType
+
+import structlog
+
+from baromap.sim.scenario import Scenario, make_scenario
+from baromap.sim.twins.pty_port import PtyPort
+
+log = structlog.get_logger(__name__)
+
+TICK_S = 0.002
+
+
+class SimClock:
+    """Simulated time for all twins: wall time times ``speed``, and the robot's route time.
+
+    The robot's route time stops while the base's watchdog holds the robot (no host packets
+    for 2 s), so the laser, the barometer and the odometry all see it standing still; the
+    weather keeps its own course.
+    """
+
+    def __init__(self, scenario: Scenario, speed: float = 1.0) -> None:
+        if speed <= 0:
+            raise ValueError("speed must be positive")
+        self.scenario = scenario
+        self.speed = speed
+        self._t0 = time.monotonic()
+        self._lock = threading.Lock()
+        self._halted_at: float | None = None
+        self._halted_total = 0.0
+
+    def now(self) -> float:
+        """Simulated seconds since the start."""
+        return (time.monotonic() - self._t0) * self.speed
+
+    def robot_time(self) -> float:
+        with self._lock:
+            t = self._halted_at if self._halted_at is not None else self.now()
+            return max(0.0, min(t - self._halted_total, self.scenario.duration_s))
+
+    def halt(self) -> None:
+        with self._lock:
+            if self._halted_at is None:
+                self._halted_at = self.now()
+
+    def resume(self) -> None:
+        with self._lock:
+            if self._halted_at is not None:
+                self._halted_total += self.now() - self._halted_at
+                self._halted_at = None
+
+    @property
+    def halted(self) -> bool:
+        return self._halted_at is not None
+
+    def real_delay(self, sim_seconds: float) -> float:
+        return sim_seconds / self.speed
+
+    def t_ns(self, sim_seconds: float) -> int:
+        return int(self.scenario.start_ns + round(sim_seconds * 1e9))
+
+
+def default_clock(
+    seed: int = 0, floors: int = 6, minutes: float = 46.0, speed: float = 1.0
+) -> SimClock:
+    return SimClock(make_scenario(seed, floors=floors, minutes=minutes), speed)
+
+
+class Twin:
+    """A device on a pty, served by its own thread; use as a context manager or start/stop."""
+
+    name = "device"
+    initial_baud = 9600
+
+    def __init__(self, clock: SimClock, link: str | Path | None = None) -> None:
+        self.clock = clock
+        self.port = PtyPort(self.initial_baud, link)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._replug_pending = False
+
+    # ---- lifetime -------------------------------------------------------------------------------
+    @property
+    def path(self) -> str:
+        return self.port.path
+
+    def start(self) -> Twin:
+        self.power_on()
+        self._thread = threading.Thread(target=self._loop, name=f"sim-{self.name}", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        self.port.close()
+
+    def __enter__(self) -> Twin:
+        return self.start()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+    # ---- faults ---------------------------------------------------------------------------------
+    def inject_garbage(self, data: bytes) -> None:
+        self.port.inject_garbage(data)
+
+    def drop_bytes(self, count: int) -> None:
+        self.port.drop_next(count)
+
+    def stall(self, seconds: float) -> None:
+        self.port.stall(seconds)
+
+    def unplug(self) -> None:
+        self.port.unplug()
+
+    def replug(self) -> None:
+        """Power the device up again on a fresh pty behind the same link."""
+        self.port.replug()
+        self._replug_pending = True
+
+    # ---- the device -----------------------------------------------------------------------------
+    def power_on(self) -> None:
+        """Reset the device's state (at start and after a replug)."""
+
+    def on_bytes(self, data: bytes) -> None:
+        """Bytes the host wrote."""
+
+    def tick(self) -> None:
+        """Called every few milliseconds: produce output that is due."""
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            if self._replug_pending:
+                self._replug_pending = False
+                self.power_on()
+            fd = self.port.fileno()
+            if fd is None:
+                self._stop.wait(0.01)
+                continue
+            try:
+                ready, _, _ = select.select([fd], [], [], TICK_S)
+            except (OSError, ValueError):
+                continue
+            if ready:
+                data = self.port.read()
+                if data:
+                    self.on_bytes(data)
+            try:
+                self.tick()
+                self.port.pump()
+            except Exception:  # a twin must never die silently mid-test
+                log.exception("twin failed", twin=self.name)
+                raise

@@ -1,0 +1,96 @@
+"""All three twins on one clock: what ``baromap sim`` and the demo start."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import signal
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+from types import TracebackType
+
+from baromap.sim.scenario import make_scenario
+from baromap.sim.twins.baro import BaroTwin
+from baromap.sim.twins.base import SimClock, Twin
+from baromap.sim.twins.lms200 import Lms200Twin
+from baromap.sim.twins.p2os import P2osTwin
+
+
+class SimDevices:
+    """The LMS200, the P3-AT and the barometer board of one scenario, on ptys."""
+
+    def __init__(
+        self,
+        *,
+        seed: int = 0,
+        floors: int = 6,
+        minutes: float = 46.0,
+        drift_hpa_per_h: float = 1.5,
+        route: Sequence[int] | None = None,
+        speed: float = 1.0,
+        link_dir: str | Path | None = None,
+    ) -> None:
+        scenario = make_scenario(
+            seed, floors=floors, minutes=minutes, drift_hpa_per_h=drift_hpa_per_h, route=route
+        )
+        self.clock = SimClock(scenario, speed)
+        links = Path(link_dir) if link_dir is not None else None
+        self.lms200 = Lms200Twin(self.clock, links / "lms200" if links else None)
+        self.p3at = P2osTwin(self.clock, links / "p3at" if links else None)
+        self.baro = BaroTwin(self.clock, links / "baro" if links else None)
+
+    @property
+    def twins(self) -> tuple[Twin, ...]:
+        return (self.lms200, self.p3at, self.baro)
+
+    def paths(self) -> dict[str, str]:
+        return {t.name: t.path for t in self.twins}
+
+    def start(self) -> SimDevices:
+        for t in self.twins:
+            t.start()
+        return self
+
+    def stop(self) -> None:
+        for t in self.twins:
+            t.stop()
+
+    def __enter__(self) -> SimDevices:
+        return self.start()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+
+def run_from_args(args: argparse.Namespace) -> int:
+    from baromap.sim.cli import parse_route
+
+    devices = SimDevices(
+        seed=args.seed,
+        floors=args.floors,
+        minutes=args.minutes,
+        drift_hpa_per_h=args.drift,
+        route=parse_route(args.route),
+        speed=args.speed,
+        link_dir=args.link_dir,
+    )
+    done = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda *_: done.set())
+    with devices:
+        paths = devices.paths()
+        if args.json:
+            print(json.dumps(paths), flush=True)
+        else:
+            for name, path in paths.items():
+                print(f"{name} {path}", flush=True)
+        with contextlib.suppress(KeyboardInterrupt):
+            done.wait(args.duration)
+    signal.signal(signal.SIGTERM, previous)
+    return 0

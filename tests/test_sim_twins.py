@@ -1,0 +1,319 @@
+"""Twins on pseudo-terminals: real-protocol clients written from protocols.md work unchanged."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import serial
+
+from baromap.cli import main
+from baromap.protocols import baro, lms200, p2os
+from baromap.protocols.framing import BadFrame
+from baromap.protocols.robot_models import P3AT
+from baromap.sim.scenario import make_scenario
+from baromap.sim.twins import BaroTwin, Lms200Twin, P2osTwin, SimClock
+
+SCENARIO = make_scenario(2, floors=3, minutes=5.0)
+
+
+@pytest.fixture
+def clock() -> SimClock:
+    return SimClock(SCENARIO, speed=1.0)
+
+
+def read_for(port: serial.Serial, seconds: float) -> bytes:
+    out = bytearray()
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        out += port.read(max(1, port.in_waiting))
+    return bytes(out)
+
+
+def read_until(port: serial.Serial, decoder, want, seconds: float = 2.0) -> list:  # type: ignore[no-untyped-def]
+    """Feed bytes until a message satisfying ``want`` arrives; returns every message seen."""
+    seen: list = []  # type: ignore[type-arg]
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        data = port.read(max(1, port.in_waiting))
+        if data:
+            seen += decoder.feed(data)
+            if any(want(m) for m in seen):
+                return seen
+    raise AssertionError(f"timed out; got {seen[-5:]}")
+
+
+@pytest.fixture
+def lms(clock: SimClock, tmp_path: Path) -> Iterator[Lms200Twin]:
+    with Lms200Twin(clock, tmp_path / "lms200") as twin:
+        yield twin  # type: ignore[misc]
+
+
+def lms_init(port: serial.Serial, decoder: lms200.Decoder) -> None:
+    """protocols.md's init sequence, as a driver does it."""
+
+    def telegram(cmd: int):  # type: ignore[no-untyped-def]
+        return lambda m: isinstance(m, lms200.Telegram) and m.command == cmd
+
+    # 1. find the baud: status request at 9600
+    port.write(lms200.status_request())
+    seen = read_until(port, decoder, telegram(lms200.Reply.STATUS))
+    assert isinstance(seen[0], lms200.Ack)
+    # 2. switch to 38400; on the A0 reply change the host's baud and wait 250 ms
+    port.write(lms200.switch_baud(38400))
+    seen = read_until(port, decoder, telegram(lms200.Reply.MODE))
+    assert lms200.mode_result(seen[-1]) == 0
+    port.baudrate = 38400
+    time.sleep(0.25)
+    # 3. stop streaming, read type and status
+    port.write(lms200.stop_continuous())
+    read_until(port, decoder, telegram(lms200.Reply.MODE))
+    port.write(lms200.type_request())
+    seen = read_until(port, decoder, telegram(lms200.Reply.TYPE))
+    assert lms200.parse_type_reply(seen[-1]).startswith("LMS200")
+    # 4. installation mode and mm units
+    port.write(lms200.installation_mode())
+    seen = read_until(port, decoder, telegram(lms200.Reply.MODE))
+    assert lms200.mode_result(seen[-1]) == 0
+    port.write(lms200.set_config(lms200.LmsConfig(units=1)))
+    seen = read_until(port, decoder, telegram(lms200.Reply.WRITE_CONFIG))
+    assert lms200.parse_config_write_reply(seen[-1])[0]
+    # 5. variant 180 deg / 1 deg
+    port.write(lms200.set_variant(180, 100))
+    seen = read_until(port, decoder, telegram(lms200.Reply.VARIANT))
+    assert lms200.parse_variant_reply(seen[-1]).accepted
+    # 6. continuous output
+    port.write(lms200.start_continuous())
+    read_until(port, decoder, telegram(lms200.Reply.MODE))
+
+
+def test_lms200_init_sequence_and_clean_stream(lms: Lms200Twin) -> None:
+    decoder = lms200.Decoder()
+    with serial.serial_for_url(lms.path, baudrate=9600, timeout=0.05) as port:
+        lms_init(port, decoder)
+        started = time.monotonic()
+        data = read_for(port, 1.5)
+        elapsed = time.monotonic() - started
+        port.write(lms200.stop_continuous())
+    messages = decoder.feed(data)
+    scans = [m for m in messages if isinstance(m, lms200.ScanTelegram)]
+    assert decoder.stats.bad == {}
+    assert not [m for m in messages if isinstance(m, BadFrame)]
+    # 372-byte telegrams at 38400 baud: about 10 per second, paced like the real line.
+    assert len(data) <= 3840 * elapsed * 1.1 + 800
+    assert 10 <= len(scans) <= 17
+    scan = scans[-1].to_laser_scan(0)
+    assert scan.beam_count == 181
+    assert scan.range_max_m == pytest.approx(8.19)
+    assert scan.valid().sum() > 100
+
+
+def test_lms200_answers_nak_invalid_and_refuses_bad_variants(lms: Lms200Twin) -> None:
+    decoder = lms200.Decoder()
+    with serial.serial_for_url(lms.path, baudrate=9600, timeout=0.05) as port:
+        bad = bytearray(lms200.status_request())
+        bad[-1] ^= 0xFF
+        port.write(bytes(bad))
+        read_until(port, decoder, lambda m: isinstance(m, lms200.Nak))
+        port.write(lms200.encode_telegram(0x55))
+        seen = read_until(port, decoder, lambda m: isinstance(m, lms200.Telegram))
+        assert seen[-1].command == lms200.Reply.INVALID_COMMAND
+        port.write(lms200.encode_telegram(lms200.Command.VARIANT, bytes([180, 0, 25, 0])))
+        seen = read_until(port, decoder, lambda m: isinstance(m, lms200.Telegram))
+        reply = lms200.parse_variant_reply(seen[-1])
+        assert not reply.accepted
+        assert (reply.angle_deg, reply.resolution_cdeg) == (180, 100)
+
+
+def test_lms200_faults_show_up_as_counted_bad_frames(lms: Lms200Twin) -> None:
+    decoder = lms200.Decoder()
+    with serial.serial_for_url(lms.path, baudrate=9600, timeout=0.05) as port:
+        lms_init(port, decoder)
+        read_for(port, 0.3)
+        lms.inject_garbage(b"\x02\x80\xff\x00garbage")
+        lms.drop_bytes(50)
+        decoder.feed(read_for(port, 0.6))
+        assert sum(decoder.stats.bad.values()) >= 2
+        frames = decoder.stats.frames
+        lms.stall(0.6)
+        time.sleep(0.05)
+        quiet = read_for(port, 0.4)
+        assert len(quiet) < 400  # at most the telegram that was on the line
+        decoder.feed(quiet + read_for(port, 0.6))
+        assert decoder.stats.frames > frames  # streaming resumed after the stall
+
+
+@pytest.fixture
+def base(clock: SimClock, tmp_path: Path) -> Iterator[P2osTwin]:
+    with P2osTwin(clock, tmp_path / "p3at") as twin:
+        yield twin  # type: ignore[misc]
+
+
+def p2os_connect(port: serial.Serial, decoder: p2os.Decoder) -> p2os.Sync2Info:
+    """The SYNC handshake as protocols.md describes it (CLOSE and retry if SIPs arrive)."""
+    for _attempt in range(3):
+        ok = True
+        info = None
+        for step in range(3):
+            port.write(p2os.sync(step))
+            seen = read_until(
+                port,
+                decoder,
+                lambda m: isinstance(m, (p2os.SyncEcho, p2os.Sync2Info, p2os.StandardSip)),
+            )
+            last = [m for m in seen if not isinstance(m, BadFrame)][-1]
+            if isinstance(last, p2os.StandardSip):
+                port.write(p2os.close_controller())
+                time.sleep(0.3)
+                port.reset_input_buffer()
+                ok = False
+                break
+            info = last if isinstance(last, p2os.Sync2Info) else None
+        if ok and info is not None:
+            port.write(p2os.open_controller())
+            port.write(p2os.pulse())
+            return info
+    raise AssertionError("no handshake")
+
+
+def test_p2os_handshake_sips_and_odometry(base: P2osTwin) -> None:
+    decoder = p2os.Decoder()
+    with serial.serial_for_url(base.path, baudrate=9600, timeout=0.05) as port:
+        info = p2os_connect(port, decoder)
+        assert (info.robot_class, info.subclass) == ("Pioneer", "p3at")
+        port.write(p2os.config_request())
+        port.write(p2os.enable_motors(True))
+        messages = []
+        for _ in range(6):
+            messages += decoder.feed(read_for(port, 0.25))
+            port.write(p2os.pulse())
+        port.write(p2os.stop())
+        port.write(p2os.close_controller())
+    sips = [m for m in messages if isinstance(m, p2os.StandardSip)]
+    assert decoder.stats.bad == {}
+    assert 11 <= len(sips) <= 17  # every 100 ms
+    assert sips[-1].motors_enabled
+    config = next(m for m in messages if isinstance(m, p2os.ConfigPacket))
+    assert config.watchdog_ms == 2000
+    integrator = p2os.OdometryIntegrator(P3AT)
+    poses = [integrator.update(s, i) for i, s in enumerate(sips)]
+    assert all(abs(p.x_m) < 100 for p in poses)
+
+
+def test_p2os_client_finds_the_robot_still_open(base: P2osTwin) -> None:
+    decoder = p2os.Decoder()
+    with serial.serial_for_url(base.path, baudrate=9600, timeout=0.05) as port:
+        p2os_connect(port, decoder)
+    # The first client vanished without CLOSE: SIPs keep coming, the next client must cope.
+    with serial.serial_for_url(base.path, baudrate=9600, timeout=0.05) as port:
+        info = p2os_connect(port, p2os.Decoder())
+        assert info.name == "baromap-sim"
+        port.write(p2os.close_controller())
+
+
+def test_p2os_watchdog_stops_the_robot(clock: SimClock, base: P2osTwin) -> None:
+    decoder = p2os.Decoder()
+    with serial.serial_for_url(base.path, baudrate=9600, timeout=0.05) as port:
+        p2os_connect(port, decoder)
+        read_for(port, 2.4)
+        assert clock.halted
+        assert base.watchdog_trips == 1
+        frozen = clock.robot_time()
+        time.sleep(0.2)
+        assert clock.robot_time() == frozen
+        port.write(p2os.pulse())
+        time.sleep(0.2)
+        assert not clock.halted
+        assert clock.robot_time() > frozen
+        port.write(p2os.close_controller())
+
+
+@pytest.fixture
+def board(clock: SimClock, tmp_path: Path) -> Iterator[BaroTwin]:
+    with BaroTwin(clock, tmp_path / "baro") as twin:
+        yield twin  # type: ignore[misc]
+
+
+def test_baro_frames_are_clean_and_match_the_model(board: BaroTwin, clock: SimClock) -> None:
+    decoder = baro.Decoder()
+    with serial.serial_for_url(board.path, baudrate=115200, timeout=0.05) as port:
+        port.write(baro.identify(seq=7))
+        frames = decoder.feed(read_for(port, 1.3))
+        port.write(baro.set_rate(99, seq=8))
+        frames += decoder.feed(read_for(port, 0.2))
+    assert decoder.stats.bad == {}
+    acks = [f for f in frames if isinstance(f, baro.AckFrame)]
+    assert (acks[0].command, acks[0].command_seq, acks[0].result) == (baro.FrameType.IDENTIFY, 7, 0)
+    assert acks[-1].result == baro.AckResult.BAD_VALUE
+    hello = next(f for f in frames if isinstance(f, baro.HelloFrame))
+    assert (hello.rate_hz, hello.osrs_p, hello.iir_filter) == (25, 16, 16)
+    samples = [f for f in frames if isinstance(f, baro.SampleFrame)]
+    assert 28 <= len(samples) <= 37
+    assert any(isinstance(f, baro.StatusFrame) for f in frames)
+    # Readings agree with the scenario's air pressure within the sensor's offset budget.
+    truth = SCENARIO.truth(np.array([clock.robot_time()]))
+    expected = SCENARIO.true_pressure_pa(np.array([clock.now()]), truth)[0]
+    assert abs(samples[-1].pressure_pa - expected) < 150
+    seqs = [f.seq for f in frames]
+    assert len(set(seqs)) == len(seqs)
+
+
+def test_baro_faults_unplug_and_replug(board: BaroTwin) -> None:
+    link = Path(board.path)
+    decoder = baro.Decoder()
+    with serial.serial_for_url(board.path, baudrate=115200, timeout=0.05) as port:
+        read_for(port, 0.2)
+        board.inject_garbage(b"\x13\x37\xbe\xef\x00")
+        board.drop_bytes(3)
+        decoder.feed(read_for(port, 0.5))
+    assert sum(decoder.stats.bad.values()) >= 2
+    first_target = os.readlink(link)
+    board.unplug()
+    assert not link.exists()
+    board.replug()
+    assert link.is_symlink()
+    decoder = baro.Decoder()
+    with serial.serial_for_url(str(link), baudrate=115200, timeout=0.05) as port:
+        port.write(baro.identify())
+        frames = decoder.feed(read_for(port, 0.6))
+    assert any(isinstance(f, baro.HelloFrame) for f in frames)
+    assert any(isinstance(f, baro.SampleFrame) for f in frames)
+    assert decoder.stats.bad == {}
+    assert os.path.exists(first_target) or os.readlink(link) != first_target
+
+
+def test_faster_than_real_time(tmp_path: Path) -> None:
+    fast = SimClock(SCENARIO, speed=8.0)
+    with BaroTwin(fast) as twin:
+        decoder = baro.Decoder()
+        with serial.serial_for_url(twin.path, baudrate=115200, timeout=0.05) as port:
+            frames = decoder.feed(read_for(port, 0.5))
+    samples = [f for f in frames if isinstance(f, baro.SampleFrame)]
+    assert len(samples) >= 80  # 25 Hz x 8 = 200/s
+    assert decoder.stats.bad == {}
+
+
+def test_cli_prints_paths_as_json(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    code = main(
+        [
+            "sim",
+            "--json",
+            "--duration",
+            "0.3",
+            "--floors",
+            "3",
+            "--minutes",
+            "5",
+            "--link-dir",
+            str(tmp_path),
+        ]
+    )
+    assert code == 0
+    paths = json.loads(capsys.readouterr().out)
+    assert set(paths) == {"lms200", "p3at", "baro"}
+    assert paths["baro"] == str(tmp_path / "baro")
