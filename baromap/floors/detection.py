@@ -375,7 +375,7 @@ def _steps(
         before_start = max(bounds[k][0], before_end - window)
         after_start = min(bounds[k + 1][1], tr.t_end_ns + guard_after)
         after_end = min(bounds[k + 1][1], after_start + window)
-        levels = measure_step(t, p, (before_start, before_end), (after_start, after_end))
+        levels = measure_step(t, p, (before_start, before_end), (after_start, after_end), temp)
         if levels is None:
             level_before = float(np.interp(tr.t_start_ns, t, p))
             levels = (level_before, level_before + tr.delta_pa)
