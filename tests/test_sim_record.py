@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import structlog
 
 from baromap.cli import main
 from baromap.messages import BeamFlag, LaserScan, Odometry, PressureSample, TruthFloor, TruthPose
@@ -148,12 +149,17 @@ def test_odometry_has_the_p3at_error_model(messages: dict[str, list]) -> None:  
 
 def test_cli_record(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "cli.mcap"
-    code = main(["sim", "record", "-o", str(out), "--minutes", "1", "--floors", "2", "--seed", "3"])
-    assert code == 0
-    printed = capsys.readouterr().out
-    assert "simulated minutes" in printed
-    assert "/scan" in printed
-    meta = read_metadata(out)[METADATA_NAME]
-    assert meta["floors"] == "2"
-    # Refuses to overwrite without --force.
-    assert main(["sim", "record", "-o", str(out), "--minutes", "1"]) == 1
+    try:
+        code = main(
+            ["sim", "record", "-o", str(out), "--minutes", "1", "--floors", "2", "--seed", "3"]
+        )
+        assert code == 0
+        printed = capsys.readouterr().out
+        assert "simulated minutes" in printed
+        assert "/scan" in printed
+        meta = read_metadata(out)[METADATA_NAME]
+        assert meta["floors"] == "2"
+        # Refuses to overwrite without --force.
+        assert main(["sim", "record", "-o", str(out), "--minutes", "1"]) == 1
+    finally:
+        structlog.reset_defaults()  # main() bound the logs to this test's captured stderr

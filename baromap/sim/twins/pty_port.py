@@ -88,7 +88,7 @@ class PtyPort:
     def unplug(self) -> None:
         """Close the pty and remove the symlink: the host's reads fail, its port is gone."""
         self.close()
-        log.info("device unplugged", link=str(self.link))
+        log.debug("device unplugged", link=str(self.link))
 
     def replug(self) -> None:
         """A fresh pty behind the same symlink (a new slave path, as after a real replug)."""
@@ -96,7 +96,7 @@ class PtyPort:
             self.close()
         with self._lock:
             self._open()
-        log.info("device replugged", path=self.path)
+        log.debug("device replugged", path=self.path)
 
     def inject_garbage(self, data: bytes) -> None:
         with self._lock:
