@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import ndimage
 
 from baromap.errors import ConfigError
@@ -276,3 +278,45 @@ def test_elevator_rides_make_pressure_spikes(run) -> None:  # type: ignore[no-un
     for tr in run.transitions:
         far &= np.abs(run.t_ns - (tr.t_start_ns + tr.t_end_ns) // 2) > 60 * 1_000_000_000
     assert np.abs(disturbance[far]).max() < 0.5
+
+
+def _brute_cast(
+    segs: np.ndarray, origin: np.ndarray, heading: float, angles: np.ndarray
+) -> np.ndarray:
+    out = np.full(len(angles), np.inf)
+    p0, e = segs[:, :2], segs[:, 2:] - segs[:, :2]
+    w = p0 - origin
+    for k, a in enumerate(angles):
+        d = np.array([math.cos(heading + a), math.sin(heading + a)])
+        den = d[0] * e[:, 1] - d[1] * e[:, 0]
+        with np.errstate(all="ignore"):
+            t = (w[:, 0] * e[:, 1] - w[:, 1] * e[:, 0]) / den
+            u = (w[:, 0] * d[1] - w[:, 1] * d[0]) / den
+        ok = (np.abs(den) > 1e-12) & (t > 1e-6) & (u >= 0) & (u <= 1)
+        if ok.any():
+            out[k] = t[ok].min()
+    return out
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    heading=st.floats(-math.pi, math.pi),
+    n=st.integers(1, 40),
+)
+def test_segment_ray_casting_matches_brute_force(seed: int, heading: float, n: int) -> None:
+    from baromap.sim.laser import cast
+
+    rng = np.random.default_rng(seed)
+    segs = rng.uniform(-6, 6, (n, 4))
+    origin = rng.uniform(-1, 1, 2)
+    angles = np.radians(np.arange(-90.0, 90.5, 1.0))
+    got, cosines = cast(segs, origin[None, :], np.array([heading]), angles, 8.0)
+    want = _brute_cast(segs, origin, heading, angles)
+    want[want > 8.0] = np.inf
+    # Same beams hit, at the same distances.
+    differ = np.isfinite(got[0]) != np.isfinite(want)
+    assert differ.sum() == 0
+    both = np.isfinite(got[0]) & np.isfinite(want)
+    assert np.allclose(got[0][both], want[both], atol=1e-6)
+    assert np.all((cosines >= 0) & (cosines <= 1 + 1e-9))
