@@ -16,6 +16,20 @@ import structlog
 Renderer = Literal["console", "json"]
 
 
+class _CurrentStderr:
+    """Writes to whatever ``sys.stderr`` is *now*, not what it was at configuration time.
+
+    Test runners and daemons swap stderr; holding the old object would write into a closed
+    capture buffer.
+    """
+
+    def write(self, text: str) -> int:
+        return sys.stderr.write(text)
+
+    def flush(self) -> None:
+        sys.stderr.flush()
+
+
 def configure(renderer: Renderer = "console", level: str | int = "INFO") -> None:
     """Route structlog and stdlib logging to stderr with one renderer."""
     numeric = logging.getLevelName(level.upper()) if isinstance(level, str) else level
@@ -34,9 +48,9 @@ def configure(renderer: Renderer = "console", level: str | int = "INFO") -> None
     structlog.configure(
         processors=processors,
         wrapper_class=structlog.make_filtering_bound_logger(numeric),
-        logger_factory=structlog.PrintLoggerFactory(file=sys.stderr),
+        logger_factory=structlog.PrintLoggerFactory(file=_CurrentStderr()),  # type: ignore[arg-type]
         cache_logger_on_first_use=False,
     )
     logging.basicConfig(
-        level=numeric, stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s"
+        level=numeric, stream=_CurrentStderr(), format="%(levelname)s %(name)s: %(message)s"
     )
