@@ -46,6 +46,11 @@ def register(subparsers: Any) -> None:
         help="also score N simulated runs (seeds 0..N-1)",
     )
     evaluate.add_argument("--first-seed", type=int, default=0)
+    evaluate.add_argument(
+        "--sweep",
+        action="store_true",
+        help="with --real: how robust the online method is to its settings on the real logs",
+    )
     evaluate.add_argument("--drift", type=float, default=1.5, help="simulated drift, hPa/h")
     evaluate.add_argument("--minutes", type=float, default=46.0, help="simulated run length")
     evaluate.add_argument(
@@ -141,6 +146,13 @@ def run_eval(args: argparse.Namespace) -> int:
         print(HEADER)
         for m, sc in results.items():
             print(line(str(args.input)[-34:], m, sc))
+    if args.sweep:
+        from baromap.floors.report import real_sweep
+
+        if args.real is None:
+            raise ConfigError("--sweep needs --real DIR")
+        real_sweep(args.real)
+        return 0
     if args.real is not None or args.sim_seeds > 0:
         seeds = list(range(args.first_seed, args.first_seed + max(args.sim_seeds, 0)))
         run_report(

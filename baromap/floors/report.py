@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from baromap.errors import ConfigError
 from baromap.floors.config import FloorDetectorConfig
 from baromap.floors.detection import FloorDetection, detect_floors
 from baromap.floors.evaluation import (
@@ -198,3 +199,45 @@ def run_report(
         for method in methods:
             out(totals[method].summary(method))
     return totals
+
+
+#: Settings varied by :func:`real_sweep`, around the defaults, by physically sensible amounts.
+SWEEP_GRID: dict[str, tuple[float, ...]] = {
+    "min_transition_m": (1.6, 1.8, 1.9, 2.0),
+    "settle_s": (1.2, 1.5, 2.0, 3.0),
+    "trend_tau_s": (1.0, 1.5),
+    "start_m": (0.4, 0.5, 0.7),
+    "start_rate_m_s": (0.12, 0.15, 0.2),
+    "settle_rate_m_s": (0.07, 0.1),
+    "level_tau_s": (0.5, 0.7, 1.0),
+}
+
+
+def real_sweep(directory: str | Path, out: Print = print) -> None:
+    """How robust the online method's bar on the real logs is to its settings.
+
+    Prints, for each value of each setting, in how many combinations of the others every true
+    transition was found with the right storey count and none was false on any log.
+    """
+    import itertools
+
+    cases = list(real_cases(directory))
+    keys = list(SWEEP_GRID)
+    passed: dict[tuple[str, float], list[int]] = {}
+    for values in itertools.product(*SWEEP_GRID.values()):
+        settings = dict(zip(keys, values, strict=True))
+        try:
+            config = FloorDetectorConfig(**settings)
+        except ConfigError:
+            continue
+        ok = True
+        for case in cases:
+            s = evaluate(case, "online", config)[1]
+            ok = ok and s.found == s.true and s.false == 0 and s.storeys_right == s.true
+        for key, value in settings.items():
+            tally = passed.setdefault((key, value), [0, 0])
+            tally[0] += ok
+            tally[1] += 1
+    out(f"online method on {len(cases)} real logs: combinations meeting the bar, per setting")
+    for (key, value), (good, total) in passed.items():
+        out(f"  {key:18s} {value:5g}: {good:4d}/{total}")
