@@ -203,7 +203,7 @@ def test_garbage_inside_a_frame_loses_only_that_frame(
     victim %= len(frames)
     parts = [baro.encode(frame) for frame in frames]
     wire = parts[victim]
-    cut = 1 + where % (len(wire) - 1)  # strictly inside, before the delimiter
+    cut = 1 + where % (len(wire) - 2)  # strictly inside the encoded bytes
     parts[victim] = wire[:cut] + noise + wire[cut:]
     decoded, bad = frames_and_bad(baro.Decoder().feed(b"".join(parts)))
     assert decoded == frames[:victim] + frames[victim + 1 :]

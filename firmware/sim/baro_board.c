@@ -626,6 +626,7 @@ int main(int argc, char **argv) {
 			perror(truth_path);
 			return 1;
 		}
+		setvbuf(truth, NULL, _IOLBF, 0); /* whole lines only: a test may read it while we run */
 		fprintf(truth, "read_us,meas_us,pressure_pa,temperature_c,adc_p,adc_t\n");
 	}
 	bmp_attach(avr, &bmp, (uint8_t)address);
