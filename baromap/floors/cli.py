@@ -18,7 +18,11 @@ def register(subparsers: Any) -> None:
         "input", help="recording (.mcap), CSV time_s,pressure_pa[,temp] or IPIN log"
     )
     detect.add_argument("--method", choices=("online", "paper"), default="online")
-    detect.add_argument("--reference", help="reference station pressure (CSV or recording)")
+    detect.add_argument(
+        "--reference",
+        help="reference station pressure (CSV or recording); a recording's own "
+        "/reference/pressure is used when present",
+    )
     detect.add_argument(
         "--min-height",
         type=float,
