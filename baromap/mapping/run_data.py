@@ -7,6 +7,7 @@ nearest odometry pose.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -55,13 +56,30 @@ def interpolate_poses(t_src: IntArray, poses: FloatArray, t_query: IntArray) -> 
 
 
 def laser_offset_from_metadata(metadata: dict[str, dict[str, str]]) -> FloatArray:
-    """Laser mounting in the robot frame: ``laser_offset`` ("x y theta") in any record."""
+    """Laser mounting in the robot frame, from any metadata record that states it.
+
+    Two spellings exist: ``laser_offset = "x y theta"`` (the CARMEN importer) and
+    ``laser_mount = {"x_m", "y_m", "yaw_rad"}`` as JSON (the simulator, the daemon's config).
+    """
     for record in metadata.values():
         text = record.get("laser_offset")
         if text:
             values = [float(v) for v in text.replace(",", " ").split()]
             if len(values) == 3:
                 return np.array(values)
+        mount = record.get("laser_mount")
+        if mount:
+            try:
+                data = json.loads(mount)
+                return np.array(
+                    [
+                        float(data.get("x_m", 0.0)),
+                        float(data.get("y_m", 0.0)),
+                        float(data.get("yaw_rad", 0.0)),
+                    ]
+                )
+            except (ValueError, TypeError, AttributeError) as exc:
+                raise InputFormatError(f"laser_mount metadata is not valid JSON: {exc}") from exc
     return np.zeros(3)
 
 
