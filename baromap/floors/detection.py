@@ -15,7 +15,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -33,7 +33,6 @@ from baromap.floors.elevation import (
 from baromap.floors.height import height_difference_m, pressure_drop_pa
 from baromap.messages import NS_PER_S, PressureSample
 
-Method = Literal["online", "paper"]
 #: Span next to a transition whose median is the level it left or reached (for sharpening).
 SHARPEN_LOCAL_S = 3.0
 METHODS: tuple[str, ...] = ("online", "paper")

@@ -18,7 +18,6 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from baromap.floors.height import height_difference_m
 from baromap.messages import NS_PER_S
 
 #: How much floor time on each side of a transition the step fit uses (less where the visit
@@ -119,7 +118,3 @@ def _reachable(steps: Sequence[Step], n_floors: int) -> npt.NDArray[np.bool_]:
                 seen[step.from_id] = seen[step.to_id] = True
                 changed = True
     return seen
-
-
-def step_height_m(level_before: float, level_after: float, temperature_c: float) -> float:
-    return height_difference_m(level_before, level_after, temperature_c)

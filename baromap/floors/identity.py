@@ -79,7 +79,3 @@ class FloorRegistry:
             for other_id, other in enumerate(self._floors)
             if other.relative_pa > level or (other.relative_pa == level and other_id < floor_id)
         )
-
-    def ranks(self) -> list[int]:
-        """Height rank of every floor id."""
-        return [self.index(i) for i in range(len(self._floors))]
