@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from baromap.messages import BeamFlag
-from baromap.protocols import lms200, p2os
+from baromap.protocols import baro, lms200, p2os
 
 StreamMaker = Callable[[int], bytes]
 DecoderMaker = Callable[[], Any]
@@ -118,15 +118,43 @@ def p2os_stream(n_frames: int, seed: int = 2) -> bytes:
     return b"".join(parts[:n_frames])
 
 
+def baro_stream(n_frames: int, seed: int = 3) -> bytes:
+    """The barometer board at 50 Hz: HELLO, SAMPLEs, a STATUS a second, the odd ACK/ERROR."""
+    rng = random.Random(seed)
+    t_us, p_q8 = 0, 101325 * 256
+    parts = [
+        b"\x00",
+        baro.encode(baro.HelloFrame(0, 0, 0, 1, 0, 0, 1, 0x58, 0x76, 50, 16, 2, 16, 1)),
+    ]
+    counts = Counter[int]()
+    for _ in range(max(n_frames - 1, 0)):
+        t_us = (t_us + 20_000) & 0xFFFF_FFFF
+        p_q8 += rng.randint(-80, 80)
+        roll = rng.random()
+        if roll < 0.02:
+            frame: baro.Frame = baro.StatusFrame(
+                counts[3], t_us, *(rng.randrange(1 << 20) for _ in range(9)), 2
+            )
+        elif roll < 0.03:
+            frame = baro.AckFrame(counts[5], t_us, 0x81, rng.randrange(1 << 16), 0)
+        elif roll < 0.032:
+            frame = baro.ErrorFrame(counts[4], t_us, 3, 0x20, rng.randrange(1, 4))
+        else:
+            frame = baro.SampleFrame(counts[2], t_us, p_q8, 2200 + rng.randint(-5, 5))
+        counts[frame.TYPE] = (counts[frame.TYPE] + 1) & 0xFFFF
+        parts.append(baro.encode(frame))
+    return b"".join(parts[: n_frames + 1])
+
+
 #: name -> (make_stream(n_frames) -> bytes, make_decoder()).
 CODECS: dict[str, tuple[StreamMaker, DecoderMaker]] = {
     "lms200": (lms_stream, lms200.Decoder),
     "p2os": (p2os_stream, p2os.Decoder),
-    # "baro": (baro_stream, baro.Decoder),  <- the barometer codec (baromap.protocols.baro) here
+    "baro": (baro_stream, baro.Decoder),
 }
 
 #: Fastest line rate each device runs at (baud, 10 bits per byte on an 8N1 line).
-LINE_BAUD: dict[str, int] = {"lms200": 500_000, "p2os": 115_200}
+LINE_BAUD: dict[str, int] = {"lms200": 500_000, "p2os": 115_200, "baro": 115_200}
 #: Decode throughput the brief requires: 20 x the LMS200's 500 kbaud (as 500000/8 B/s).
 LMS_TARGET_MBPS = 20 * 500_000 / 8 / 1e6
 

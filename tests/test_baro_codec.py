@@ -168,6 +168,36 @@ def test_any_chunking_gives_identical_output(frames: list[baro.Frame], cuts: lis
     assert decoder.buffered == 0
 
 
+noise = st.one_of(
+    st.binary(max_size=120),
+    st.integers(60, 9000).map(lambda n: b"\x5a" * n),  # long runs without a delimiter
+)
+
+
+@given(
+    parts=st.lists(st.one_of(any_frame.map(baro.encode), noise), max_size=10),
+    cuts=st.lists(st.integers(min_value=0, max_value=20_000), max_size=40),
+)
+@settings(suppress_health_check=[HealthCheck.too_slow])
+def test_any_chunking_of_a_hostile_stream_gives_identical_output(
+    parts: list[bytes], cuts: list[int]
+) -> None:
+    """Good frames, noise and over-long runs: the records do not depend on read sizes."""
+    stream = b"".join(parts)
+    whole = baro.Decoder()
+    expected = whole.feed(stream) + whole.flush()
+    decoder = baro.Decoder()
+    items: list[baro.DecodedItem] = []
+    previous = 0
+    for cut in [*sorted({min(c, len(stream)) for c in cuts}), len(stream)]:
+        items += decoder.feed(stream[previous:cut])
+        previous = cut
+        assert decoder.buffered <= 2 * baro.MAX_ENCODED
+    items += decoder.flush()
+    assert items == expected
+    assert decoder.stats == whole.stats
+
+
 @given(
     frames=st.lists(any_frame, min_size=1, max_size=8),
     garbage=st.lists(st.binary(max_size=150), min_size=9, max_size=9),
@@ -244,6 +274,9 @@ def test_oversized_run_is_counted_and_bounded(run: int) -> None:
     assert decoded == [baro.SampleFrame(3, 4, 5, 6)]
     assert {b.reason for b in bad} == {"oversized"}
     assert sum(b.size for b in bad) == run
+    # One record per run, or fixed 4096-byte blocks and the rest for a very long one.
+    assert [b.size for b in bad[:-1]] == [4096] * (len(bad) - 1)
+    assert len(bad) == 1 + max(0, run - baro.MAX_ENCODED) // 4096
 
 
 def test_oversized_run_glued_to_a_frame_still_yields_the_frame() -> None:

@@ -413,6 +413,7 @@ class Decoder:
         self._skipping = False
         self._skipped = 0
         self._skipped_sample = b""
+        self._sampling = False
         self._tail = b""
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[DecodedItem]:
@@ -425,15 +426,16 @@ class Decoder:
             stop = chunk.find(b"\x00", start)
             piece = chunk[start:end] if stop < 0 else chunk[start:stop]
             if self._skipping:
-                self._skip(piece)
+                self._skip(piece, out)
             elif len(self._buf) + len(piece) > MAX_ENCODED:
                 run = bytes(self._buf) + piece
                 self._buf.clear()
                 self._skipping = True
                 self._skipped = 0
-                self._skipped_sample = run[:BAD_FRAME_SAMPLE_BYTES]
+                self._skipped_sample = b""
+                self._sampling = True
                 self._tail = b""
-                self._skip(run)
+                self._skip(run, out)
             elif stop >= 0:
                 if self._buf:
                     self._buf += piece
@@ -450,8 +452,6 @@ class Decoder:
             if self._skipping:
                 self._end_skip(out, at_delimiter=True)
             start = stop + 1
-        if self._skipping:
-            self._report_long_run(out)
         return out
 
     def flush(self) -> list[DecodedItem]:
@@ -469,19 +469,20 @@ class Decoder:
         """Bytes held while waiting for a delimiter (at most :data:`MAX_ENCODED` of a frame)."""
         return len(self._buf) + len(self._tail)
 
-    def _skip(self, piece: bytes) -> None:
+    def _skip(self, piece: bytes, out: list[DecodedItem]) -> None:
+        if self._sampling:  # the first bytes of the run, whatever the chunking
+            self._skipped_sample += piece[: BAD_FRAME_SAMPLE_BYTES - len(self._skipped_sample)]
         self._skipped += len(piece)
         self._tail = (self._tail + piece)[-MAX_ENCODED:]
-
-    def _report_long_run(self, out: list[DecodedItem]) -> None:
-        # An endless run is reported piecewise so health counters keep moving; the last
-        # MAX_ENCODED bytes stay unreported because they may still end in a frame.
-        reportable = self._skipped - len(self._tail)
-        if reportable >= _OVERSIZED_REPORT_EVERY:
-            bad = BadFrame("oversized", reportable, self._skipped_sample)
+        # An endless run is reported in fixed blocks so health counters keep moving and the
+        # output does not depend on how the bytes were chunked. The last MAX_ENCODED bytes are
+        # never reported early: they may still end in a frame.
+        while self._skipped - len(self._tail) >= _OVERSIZED_REPORT_EVERY:
+            bad = BadFrame("oversized", _OVERSIZED_REPORT_EVERY, self._skipped_sample)
             out.append(self.stats.count_bad(bad))
-            self._skipped -= reportable
-            self._skipped_sample = self._tail[:BAD_FRAME_SAMPLE_BYTES]
+            self._skipped -= _OVERSIZED_REPORT_EVERY
+            self._skipped_sample = b""
+            self._sampling = False
 
     def _end_skip(self, out: list[DecodedItem], *, at_delimiter: bool) -> None:
         found = _glued_frame_start(self._tail, 0) if at_delimiter else None
