@@ -16,6 +16,7 @@ test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
+	@if command -v avr-gcc >/dev/null 2>&1; then $(MAKE) -C firmware; else echo "firmware: build skipped (avr-gcc not found; install gcc-avr avr-libc arduino-core-avr)"; fi
 	$(BIN)/pytest $(PYTEST_ARGS)
 
 lint: $(STAMP)
