@@ -127,6 +127,13 @@ void handle_frame(uint32_t now) {
       return;
   }
   ++counters.rx_frames;
+#if defined(BAROMAP_TEST_HOOKS)
+  // Test builds only (make hooks): hang the loop so a test can watch the watchdog reset us.
+  if (frame.type == proto::TEST_HANG) {
+    for (;;) {
+    }
+  }
+#endif
   proto::Command cmd;
   proto::AckResult result = proto::validate_command(frame, &cmd);
   send_ack(now, frame.type, frame.seq, result);

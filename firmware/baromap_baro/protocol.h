@@ -29,6 +29,7 @@ enum FrameType : uint8_t {
   SET_RATE = 0x81,
   SET_OVERSAMPLING = 0x82,
   IDENTIFY = 0x83,
+  TEST_HANG = 0xF0,  // only in test builds (-DBAROMAP_TEST_HOOKS): never answered
 };
 
 enum SensorModel : uint8_t { SENSOR_NONE = 0, SENSOR_BMP280 = 1, SENSOR_BME280 = 2, SENSOR_MS5611 = 3 };

@@ -671,6 +671,9 @@ int main(int argc, char **argv) {
 		next_service = avr->cycle + service_every;
 		if (end_cycle && avr->cycle >= end_cycle)
 			break;
+		/* a watchdog reset of the AVR cancels every cycle timer, ours too */
+		if (!avr_cycle_timer_status(avr, uart_feed_timer, NULL))
+			avr_cycle_timer_register_usec(avr, UART_BYTE_US, uart_feed_timer, NULL);
 		service_pty();
 		while (backpressure && out_len > BACKPRESSURE_HIGH && !stop_requested) {
 			usleep(1000);

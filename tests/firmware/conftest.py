@@ -19,6 +19,7 @@ from firmware_board import (
     ELF,
     FIRMWARE_DIR,
     HARNESS,
+    HOOKS_ELF,
     HOST_TESTS,
     BoardLink,
     SimulatedBoard,
@@ -87,10 +88,12 @@ def harness(firmware_elf: Path) -> Path:
     return HARNESS
 
 
-@pytest.fixture
-def real_port(request: pytest.FixtureRequest) -> str | None:
-    port = request.config.getoption("--baro-port")
-    return str(port) if port else None
+@pytest.fixture(scope="session")
+def hooks_elf(firmware_elf: Path) -> Path:
+    """The firmware built with test-only commands (make hooks)."""
+    _make("hooks")
+    assert HOOKS_ELF.is_file()
+    return HOOKS_ELF
 
 
 @pytest.fixture

@@ -25,6 +25,7 @@ from baromap.protocols.framing import BadFrame
 FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware"
 BUILD_DIR = FIRMWARE_DIR / "build"
 ELF = BUILD_DIR / "baromap_baro.elf"
+HOOKS_ELF = BUILD_DIR / "hooks" / "baromap_baro.elf"
 HARNESS = BUILD_DIR / "baro_board"
 HOST_TESTS = BUILD_DIR / "host_tests"
 BAUD = 115200
@@ -205,12 +206,13 @@ class SimulatedBoard:
         speed: float = 0.0,
         address: int = 0x76,
         name: str = "board",
+        elf: Path = ELF,
     ) -> None:
         self.workdir = workdir
         self.trajectory = list(trajectory) if trajectory else None
         self.truth_path = workdir / f"{name}-truth.csv"
         self.log_path = workdir / f"{name}-harness.log"
-        args = [str(HARNESS), str(ELF), "--wait-host", "--speed", repr(speed)]
+        args = [str(HARNESS), str(elf), "--wait-host", "--speed", repr(speed)]
         args += ["--address", hex(address), "--truth", str(self.truth_path)]
         if self.trajectory:
             path = write_trajectory(workdir / f"{name}-trajectory.csv", self.trajectory)

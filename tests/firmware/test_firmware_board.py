@@ -7,6 +7,7 @@ import itertools
 import random
 import statistics
 from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 from firmware_board import (
@@ -329,3 +330,20 @@ def test_real_time_pacing_keeps_the_stream_whole(sim_board: SimBoardFactory) -> 
     samples = frames_of(link.run_for(2.0), baro.SampleFrame)
     assert len(samples) >= 45
     assert_contiguous(samples)
+
+
+def test_watchdog_resets_a_stuck_loop(sim_board: SimBoardFactory, hooks_elf: Path) -> None:
+    """A test build hangs its loop on command; the watchdog must bring the board back."""
+    link = sim_board(elf=hooks_elf).link
+    assert link.wait_type(baro.HelloFrame).reset_cause & baro.ResetCause.POWER_ON
+    before = frames_of(link.run_for(1.0), baro.SampleFrame)
+    assert len(before) >= 20
+    body = baro.HEADER.pack(baro.PROTOCOL_VERSION, 0xF0, 1, 0)  # TEST_HANG
+    link.send(b"\x00" + baro.cobs_encode(body + baro.CRC.pack(baro.crc16(body))) + b"\x00")
+    hello = link.wait_type(baro.HelloFrame, device_s=2.0)
+    assert hello.reset_cause & baro.ResetCause.WATCHDOG
+    assert hello.seq == 0  # a fresh start
+    after = frames_of(link.run_for(1.0), baro.SampleFrame)
+    assert len(after) >= 20
+    assert after[0].seq == 0
+    assert_contiguous(after)
