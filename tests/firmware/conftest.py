@@ -27,7 +27,10 @@ from firmware_board import (
 )
 
 ARDUINO_CORE = Path("/usr/share/arduino/hardware/arduino/avr/cores/arduino")
-SIM_ONLY = "simavr only: needs injected pressure or a removable sensor, not a real board"
+SIM_ONLY = (
+    "simavr only: needs what only the simulator gives (injected pressure, a removable sensor,"
+    " a cold start or a test build)"
+)
 
 
 def _make(target: str) -> subprocess.CompletedProcess[str]:

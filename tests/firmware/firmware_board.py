@@ -275,10 +275,21 @@ class SimulatedBoard:
 
 
 def open_real_board(port_url: str) -> BoardLink:
-    """A real board: opening the port resets an Uno/Nano, so wait for it to come up."""
+    """A real board, back at its defaults.
+
+    Opening the port resets an Uno/Nano (DTR), so wait for it to come up; adapters without that
+    reset keep the previous test's settings, so set the defaults explicitly.
+    """
     port = serial.serial_for_url(port_url, baudrate=BAUD, timeout=0.05)
     link = BoardLink(port, simulated=False, speed=1.0)
     deadline = time.monotonic() + 4.0
     while time.monotonic() < deadline and not link.frames:
         link.pump()
+    for command in (
+        baro.SetRateCommand(link.next_seq(), 0, 25),
+        baro.SetOversamplingCommand(link.next_seq(), 0, 16, 2, 16),
+    ):
+        if link.command(command).result != baro.AckResult.OK:
+            raise AssertionError(f"the board refused {command}")
+    link.run_for(0.5)
     return link
