@@ -125,7 +125,9 @@ def test_wide_multiresolution_search_finds_a_far_offset() -> None:
     field = LikelihoodField.from_points(world, 0.05, 0.06)
     window = SearchWindow(1.5, math.radians(20), math.radians(1.0), coarse_step_cells=4)
     guess = se2.compose(truth, np.array([0.9, -0.7, math.radians(12)]))
-    result = match(field, block([truth]).endpoints(0, 30.0), guess, window, field.max_filtered(4))
+    result = match(
+        field, block([truth]).endpoints(0, 30.0), guess, window, coarse_field=field.max_filtered(4)
+    )
     assert np.hypot(*(result.pose[:2] - truth[:2])) < 0.03
     assert abs(se2.wrap(result.pose[2] - truth[2])) < math.radians(0.5)
 

@@ -129,6 +129,20 @@ class MatchResult:
     pose: FloatArray  # (3,) world pose of the scan's frame
     score: float  # mean field value over the points at ``pose``, in [0, 1]
     information: FloatArray  # (3, 3) Gauss-Newton information of the fit, world frame
+    runner_up: float = 0.0  # best score of a clearly different pose (ambiguity), 0 if none
+
+
+@dataclass(frozen=True, slots=True)
+class Prior:
+    """Odometry's opinion of the pose: a soft pull towards ``pose`` (Cartographer's
+    translation and rotation weights). Where the scan cannot decide, along a featureless
+    corridor, the prior decides; where the scan can, a 1 sigma deviation costs only
+    ``weight / 2`` of score (a score is a mean likelihood in [0, 1])."""
+
+    pose: FloatArray
+    sigma_xy: float
+    sigma_theta: float
+    weight: float = 0.01
 
 
 @dataclass(frozen=True, slots=True)
@@ -169,6 +183,23 @@ def _score_grid(
     return scores
 
 
+def _prior_penalty(
+    prior: Prior | None, angles: FloatArray, dx: FloatArray, dy: FloatArray
+) -> FloatArray | float:
+    """Score penalty over an (angle, dy, dx) lattice, broadcastable against its scores."""
+    if prior is None:
+        return 0.0
+    da = se2.wrap(angles - prior.pose[2])[:, None, None] / prior.sigma_theta
+    ex = (dx[None, None, :] - prior.pose[0]) / prior.sigma_xy
+    ey = (dy[None, :, None] - prior.pose[1]) / prior.sigma_xy
+    out: FloatArray = 0.5 * prior.weight * (da**2 + ex**2 + ey**2)
+    return out
+
+
+#: Two lattice poses farther apart than this are different answers, not one blurred peak.
+DISTINCT_M = 0.3
+
+
 def correlative_search(
     field: LikelihoodField,
     points: FloatArray,
@@ -176,9 +207,10 @@ def correlative_search(
     window: SearchWindow,
     *,
     coarse_field: LikelihoodField | None = None,
-    keep: int = 4,
-) -> tuple[FloatArray, float]:
-    """Best pose on the window's lattice, and its score."""
+    prior: Prior | None = None,
+    keep: int = 6,
+) -> tuple[FloatArray, float, float]:
+    """Best pose on the window's lattice, its score, and the best score of a distinct pose."""
     res = field.resolution
     half_angles = max(0, round(window.angular_rad / window.angle_step_rad))
     angles = guess[2] + window.angle_step_rad * np.arange(-half_angles, half_angles + 1)
@@ -187,19 +219,21 @@ def correlative_search(
     if step == 1 or coarse_field is None:
         offsets = np.arange(-half_cells, half_cells + 1)
         scores = _score_grid(field, points, guess, angles, offsets)
-        a, iy, ix = np.unravel_index(int(np.argmax(scores)), scores.shape)
-        pose = np.array([guess[0] + offsets[ix] * res, guess[1] + offsets[iy] * res, angles[a]])
-        return pose, float(scores[a, iy, ix])
+        xs, ys = guess[0] + offsets * res, guess[1] + offsets * res
+        objective = scores - _prior_penalty(prior, angles, xs, ys)
+        a, iy, ix = np.unravel_index(int(np.argmax(objective)), objective.shape)
+        pose = np.array([xs[ix], ys[iy], angles[a]])
+        return pose, float(scores[a, iy, ix]), 0.0
     coarse_half = math.ceil(half_cells / step)
     coarse_offsets = np.arange(-coarse_half, coarse_half + 1) * step
     coarse = _score_grid(coarse_field, points, guess, angles, coarse_offsets)
-    order = np.argsort(coarse.reshape(-1))[::-1][:keep]
+    order = np.argsort(coarse.reshape(-1))[::-1]
     fine_offsets = np.arange(-(step // 2), step // 2 + 1)
-    best_pose = np.asarray(guess, dtype=np.float64).copy()
-    best_score = -1.0
-    for flat in order:
+    found: list[tuple[float, FloatArray]] = []
+    for flat in order[: keep * 4]:
         a, iy, ix = np.unravel_index(int(flat), coarse.shape)
-        if coarse[a, iy, ix] <= best_score:
+        bound = float(coarse[a, iy, ix])
+        if len(found) >= keep and bound <= max(f[0] for f in found):
             break  # an upper bound below the best fine score cannot win
         center = np.array(
             [guess[0] + coarse_offsets[ix] * res, guess[1] + coarse_offsets[iy] * res, angles[a]]
@@ -207,25 +241,48 @@ def correlative_search(
         fine_angles = angles[a] + window.angle_step_rad * np.array([-0.5, 0.0, 0.5])
         scores = _score_grid(field, points, center, fine_angles, fine_offsets)
         fa, fy, fx = np.unravel_index(int(np.argmax(scores)), scores.shape)
-        if scores[fa, fy, fx] > best_score:
-            best_score = float(scores[fa, fy, fx])
-            best_pose = np.array(
-                [
-                    center[0] + fine_offsets[fx] * res,
-                    center[1] + fine_offsets[fy] * res,
-                    fine_angles[fa],
-                ]
-            )
-    return best_pose, best_score
+        pose = np.array(
+            [
+                center[0] + fine_offsets[fx] * res,
+                center[1] + fine_offsets[fy] * res,
+                fine_angles[fa],
+            ]
+        )
+        found.append((float(scores[fa, fy, fx]), pose))
+    if not found:
+        return np.asarray(guess, dtype=np.float64).copy(), 0.0, 0.0
+    found.sort(key=lambda f: f[0], reverse=True)
+    best_score, best_pose = found[0]
+    runner_up = 0.0
+    for score, pose in found[1:]:
+        if np.hypot(*(pose[:2] - best_pose[:2])) > DISTINCT_M:
+            runner_up = score
+            break
+    return best_pose, best_score, runner_up
 
 
 def refine(
-    field: LikelihoodField, points: FloatArray, pose: FloatArray, iterations: int = 12
+    field: LikelihoodField,
+    points: FloatArray,
+    pose: FloatArray,
+    iterations: int = 12,
+    prior: Prior | None = None,
 ) -> tuple[FloatArray, float, FloatArray]:
-    """Gauss-Newton on sum (1 - M(T p))^2; returns pose, score and the information J^T J."""
+    """Gauss-Newton on sum (1 - M(T p))^2; returns pose, score and the fit's information.
+
+    The information is the inverse of the Gauss-Newton covariance: large along directions the
+    scan pins down, small along a corridor or for the rotation inside a small symmetric room
+    (an elevator car), which is what a pose-graph edge should know.
+    """
     current = np.asarray(pose, dtype=np.float64).copy()
     lam = 1e-3
-    hessian = np.eye(3)
+
+    n = len(points)
+    if prior is not None:
+        # the same pull as in the lattice search, as residual rows of the least squares
+        prior_scale = math.sqrt(n * prior.weight) * np.array(
+            [1 / prior.sigma_xy, 1 / prior.sigma_xy, 1 / prior.sigma_theta]
+        )
 
     def evaluate(p: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         world = se2.transform_points(p, points)
@@ -234,7 +291,13 @@ def refine(
         dxdt = -s * points[:, 0] - c * points[:, 1]
         dydt = c * points[:, 0] - s * points[:, 1]
         jac = np.stack([gx, gy, gx * dxdt + gy * dydt], axis=1)
-        return 1.0 - value, jac, value
+        residual = 1.0 - value
+        if prior is not None:
+            dev = np.array([p[0] - prior.pose[0], p[1] - prior.pose[1], 0.0])
+            dev[2] = float(se2.wrap(p[2] - prior.pose[2]))
+            residual = np.concatenate([residual, -prior_scale * dev])
+            jac = np.vstack([jac, -np.diag(prior_scale)])
+        return residual, jac, value
 
     residual, jac, value = evaluate(current)
     cost = float(residual @ residual)
@@ -257,9 +320,15 @@ def refine(
             lam *= 10
             if lam > 1e3:
                 break
-    hessian = jac.T @ jac
+    # Gauss-Newton covariance sigma_r^2 (J^T J)^-1 of the scan alone (the prior is the
+    # odometry edge's business), returned as its inverse: the residual variance makes a
+    # poor fit (clutter, partial overlap) count for less
+    scan_r, scan_j = residual[:n], jac[:n]
+    dof = max(n - 3, 1)
+    sigma2 = max(float(scan_r @ scan_r) / dof, 1e-6)
+    information = (scan_j.T @ scan_j) / sigma2
     current[2] = float(se2.wrap(current[2]))
-    return current, float(value.mean()) if len(value) else 0.0, hessian
+    return current, float(value.mean()) if len(value) else 0.0, information
 
 
 def match(
@@ -267,14 +336,18 @@ def match(
     points: FloatArray,
     guess: FloatArray,
     window: SearchWindow,
+    *,
     coarse_field: LikelihoodField | None = None,
+    prior: Prior | None = None,
 ) -> MatchResult:
     """Search the window, then refine; the refined pose is kept only if it scores better."""
-    lattice_pose, _ = correlative_search(field, points, guess, window, coarse_field=coarse_field)
+    lattice_pose, _, runner_up = correlative_search(
+        field, points, guess, window, coarse_field=coarse_field, prior=prior
+    )
     # compare like with like: the interpolated score at the lattice pose, not the cell lookup
     _, lattice_score, lattice_info = refine(field, points, lattice_pose, iterations=0)
-    pose, score, info = refine(field, points, lattice_pose)
+    pose, score, info = refine(field, points, lattice_pose, prior=prior)
     moved = np.hypot(*(pose[:2] - lattice_pose[:2]))
-    if score < lattice_score or moved > 2 * field.resolution:
-        return MatchResult(pose=lattice_pose, score=lattice_score, information=lattice_info)
-    return MatchResult(pose=pose, score=score, information=info)
+    if score < lattice_score - (0.0 if prior is None else 0.01) or moved > 2 * field.resolution:
+        return MatchResult(lattice_pose, lattice_score, lattice_info, runner_up)
+    return MatchResult(pose, score, info, runner_up)

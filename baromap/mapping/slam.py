@@ -27,7 +27,7 @@ import structlog
 
 from baromap.mapping import se2
 from baromap.mapping.pose_graph import Edge, PoseGraph
-from baromap.mapping.scan_matcher import LikelihoodField, SearchWindow, match
+from baromap.mapping.scan_matcher import LikelihoodField, Prior, SearchWindow, match
 from baromap.mapping.scans import ScanBlock, voxel_filter
 
 log = structlog.get_logger(__name__)
@@ -54,10 +54,16 @@ class SlamConfig:
         )
     )
     front_min_score: float = 0.3
-    match_sigma_xy: float = 0.02
-    match_sigma_theta: float = math.radians(0.5)
+    #: a match's Gauss-Newton covariance is inflated by this factor (scan points are not
+    #: independent) and floored by these sigmas before it becomes an edge
+    match_cov_scale: float = 4.0
+    match_sigma_xy: float = 0.01
+    match_sigma_theta: float = math.radians(0.2)
     odom_sigma_xy_per_m: float = 0.1
     odom_sigma_theta_per_m: float = math.radians(5.0)
+    #: wheel odometry of a skid-steer base misjudges turns in place by several percent,
+    #: systematically, so its rotation counts for little against a scan match
+    odom_sigma_theta_per_rad: float = 0.1
     loop_every: int = 1
     loop_radius_m: float = 3.0
     loop_min_separation: int = 30
@@ -71,8 +77,17 @@ class SlamConfig:
         )
     )
     loop_min_score: float = 0.55
-    loop_sigma_xy: float = 0.05
-    loop_sigma_theta: float = math.radians(1.0)
+    #: a closure is ambiguous (a corridor with evenly spaced doors) when a pose at least
+    #: 0.3 m away scores within this ratio of the best
+    loop_max_ambiguity: float = 0.95
+    #: weight of the odometry prior in front-end matching (see scan_matcher.Prior)
+    prior_weight: float = 0.01
+    loop_sigma_xy: float = 0.02
+    loop_sigma_theta: float = math.radians(0.5)
+    #: scans whose 90th-percentile range is shorter than this (the robot inside an elevator
+    #: car) are too small and symmetric for a wide search: the box matches itself turned or
+    #: shifted; they close loops with the narrow front-end window around the estimate instead
+    loop_min_extent_m: float = 2.5
     loop_robust_c: float = 3.0
     optimize_every: int = 10
 
@@ -115,6 +130,12 @@ class _Keyframes:
             voxel_filter(scans.endpoints(int(s), config.max_range_m), config.voxel_m)
             for s in indices
         ]
+        self.extent = np.array(
+            [
+                float(np.percentile(np.hypot(p[:, 0], p[:, 1]), 90)) if len(p) else 0.0
+                for p in self.points
+            ]
+        )
 
     def world_points(self, ids: list[int] | IntArray, poses: FloatArray) -> FloatArray:
         clouds = [se2.transform_points(poses[k], self.points[k]) for k in ids]
@@ -135,6 +156,29 @@ def _field_around(
 
 def _info(sigma_xy: float, sigma_theta: float) -> FloatArray:
     return np.diag([1 / sigma_xy**2, 1 / sigma_xy**2, 1 / sigma_theta**2])
+
+
+def _match_info(
+    information: FloatArray, scale: float, sigma_xy: float, sigma_theta: float
+) -> FloatArray:
+    """Edge information from a match: inflated GN covariance plus a floor, inverted (world
+    frame; :func:`_rotate_info` takes it into the frame the edge's error is expressed in)."""
+    try:
+        cov = np.linalg.inv(information) * scale
+    except np.linalg.LinAlgError:
+        cov = np.diag([1.0, 1.0, 1.0])
+    cov = cov + np.diag([sigma_xy**2, sigma_xy**2, sigma_theta**2])
+    out: FloatArray = np.linalg.inv(cov)
+    return out
+
+
+def _rotate_info(info: FloatArray, theta: float) -> FloatArray:
+    """World-frame information in the frame of the matched pose (heading ``theta``), where the
+    pose graph expresses an edge's translational error."""
+    c, s = math.cos(theta), math.sin(theta)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    out: FloatArray = rot.T @ info @ rot
+    return out
 
 
 def run_slam(
@@ -173,29 +217,37 @@ def run_slam(
         if kf_visit[k] != kf_visit[k - 1]:
             visit_start = k
         dist = math.hypot(step[0], step[1])
-        odom_info = _info(
-            0.02 + config.odom_sigma_xy_per_m * dist,
-            math.radians(0.5) + config.odom_sigma_theta_per_m * dist + 0.05 * abs(step[2]),
-        )
-        edge = Edge(k - 1, k, step, odom_info, "odometry")
+        sigma_xy = 0.02 + config.odom_sigma_xy_per_m * dist
+        sigma_theta = math.radians(0.5) + config.odom_sigma_theta_per_m * dist + 0.05 * abs(step[2])
+        # odometry always enters the graph: along a featureless corridor it is the only
+        # measurement of the motion, and the match edge's information says so
+        graph.add_edge(Edge(k - 1, k, step, _info(sigma_xy, sigma_theta), "odometry"))
         if k > visit_start and len(clouds.points[k]) >= 10:
             ids = list(range(max(visit_start, k - config.submap_keyframes), k))
             ref = clouds.world_points(ids, graph.poses)
             fld = _field_around(ref, guess, config, config.front_window.linear_m + 1.0)
-            result = match(fld, clouds.points[k], guess, config.front_window)
+            prior = Prior(guess, sigma_xy, sigma_theta, config.prior_weight)
+            result = match(fld, clouds.points[k], guess, config.front_window, prior=prior)
             if result.score >= config.front_min_score:
                 graph.poses[k] = result.pose
-                edge = Edge(
-                    k - 1,
-                    k,
-                    se2.between(graph.poses[k - 1], result.pose),
-                    _info(config.match_sigma_xy, config.match_sigma_theta),
-                    "match",
+                info = _match_info(
+                    result.information,
+                    config.match_cov_scale,
+                    config.match_sigma_xy,
+                    config.match_sigma_theta,
+                )
+                graph.add_edge(
+                    Edge(
+                        k - 1,
+                        k,
+                        se2.between(graph.poses[k - 1], result.pose),
+                        _rotate_info(info, result.pose[2]),
+                        "match",
+                    )
                 )
                 stats["front_matches"] += 1
             else:
                 stats["front_failures"] += 1
-        graph.add_edge(edge)
         if k % config.loop_every == 0 and k - last_loop_target > 0:
             target = _try_loop(
                 k,
@@ -258,18 +310,29 @@ def _try_loop(
     if len(ref) < 50 or len(clouds.points[k]) < 30:
         return None
     stats["loop_attempts"] += 1
-    window = config.loop_window
-    fld = _field_around(ref, poses[k], config, window.linear_m + 1.0)
-    coarse = fld.max_filtered(window.coarse_step_cells)
-    result = match(fld, clouds.points[k], poses[k], window, coarse)
+    if clouds.extent[k] < config.loop_min_extent_m:
+        window = config.front_window
+        fld = _field_around(ref, poses[k], config, window.linear_m + 1.0)
+        result = match(fld, clouds.points[k], poses[k], window)
+    else:
+        window = config.loop_window
+        fld = _field_around(ref, poses[k], config, window.linear_m + 1.0)
+        coarse = fld.max_filtered(window.coarse_step_cells)
+        result = match(fld, clouds.points[k], poses[k], window, coarse_field=coarse)
     if result.score < config.loop_min_score:
         return None
+    if result.runner_up >= config.loop_max_ambiguity * result.score:
+        stats["loop_ambiguous"] = stats.get("loop_ambiguous", 0) + 1
+        return None
+    info = _match_info(
+        result.information, config.match_cov_scale, config.loop_sigma_xy, config.loop_sigma_theta
+    )
     graph.add_edge(
         Edge(
             target,
             k,
             se2.between(poses[target], result.pose),
-            _info(config.loop_sigma_xy, config.loop_sigma_theta),
+            _rotate_info(info, result.pose[2]),
             "loop",
             robust_c=config.loop_robust_c,
         )
