@@ -22,6 +22,16 @@ const uint8_t MODE_NORMAL = 0x03;
 const uint32_t STARTUP_US = 2000;  // data sheet: start-up time after reset 2 ms
 const uint8_t NVM_TRIES = 10;
 
+// MS5611 commands and timing (data sheet MS5611-01BA03).
+const uint8_t MS_CMD_RESET = 0x1E;
+const uint8_t MS_CMD_CONVERT_D1 = 0x40;  // + 2 * OSR index
+const uint8_t MS_CMD_CONVERT_D2 = 0x50;
+const uint8_t MS_CMD_ADC_READ = 0x00;
+const uint8_t MS_CMD_PROM_READ = 0xA0;  // + 2 * word
+const uint32_t MS_RELOAD_US = 3000;     // 2.8 ms after reset
+// Maximum conversion time for OSR 256, 512, 1024, 2048, 4096, plus a little margin.
+const uint16_t MS_CONVERSION_US[5] = {650, 1220, 2330, 4590, 9100};
+
 // Register codes: 1, 2, 4, 8, 16 -> 1..5 (oversampling); 0, 2, 4, 8, 16 -> 0..4 (IIR).
 uint8_t log2_code(uint8_t value) {
   uint8_t code = 0;
@@ -44,6 +54,12 @@ void BaroSensor::begin(const SensorSettings &settings, uint32_t now_us) {
   model_ = proto::SENSOR_NONE;
   chip_id_ = 0;
   wrong_id_ = 0;
+  unrecognised_ = false;
+  ms_probe_ = false;
+  sample_requested_ = false;
+  ms_have_value_ = false;
+  ms_converting_d2_ = true;
+  prom_index_ = 0;
   failures_ = 0;
   nvm_tries_ = 0;
   no_data_ = 0;
@@ -59,13 +75,18 @@ void BaroSensor::reconfigure(const SensorSettings &settings) {
   reconfigure_pending_ = true;
 }
 
-bool BaroSensor::running() const { return state_ == RUN || state_ == SAMPLE || state_ == CHECK; }
+bool BaroSensor::running() const {
+  return state_ == RUN || state_ == SAMPLE || state_ == CHECK || state_ == MS_CONVERT ||
+         state_ == MS_WAIT || state_ == MS_READ;
+}
 
 uint8_t BaroSensor::protocol_state() const {
   if (running()) return proto::STATE_RUNNING;
-  if (state_ == WAIT_PROBE || state_ == PROBE) return proto::STATE_SEARCHING;
+  if (state_ == WAIT_PROBE || state_ == PROBE || ms_probe_) return proto::STATE_SEARCHING;
   return proto::STATE_CONFIGURING;
 }
+
+uint8_t BaroSensor::ms5611_osr_index() const { return log2_code(settings_.osrs_p); }  // 1..16 -> 0..4
 
 uint8_t BaroSensor::ctrl_meas() const {
   return (uint8_t)((log2_code(settings_.osrs_t) + 1) << 5 | (log2_code(settings_.osrs_p) + 1) << 2 |
@@ -78,12 +99,20 @@ uint8_t BaroSensor::config() const {
 }
 
 bool BaroSensor::transact(const uint8_t *data, uint8_t len, uint8_t read_len, uint32_t now_us) {
-  uint8_t addr = state_ == PROBE ? ADDRESSES[candidate_] : address_;
+  uint8_t addr = state_ == PROBE || ms_probe_ ? ADDRESSES[candidate_] : address_;
   in_flight_ = twi::start(addr, data, len, buf_, read_len, now_us, I2C_TIMEOUT_US);
   return in_flight_;
 }
 
 bool BaroSensor::start_sample(uint32_t now_us) {
+  if (model_ == proto::SENSOR_MS5611) {
+    // The conversions run continuously; the sample is the latest pair, given at the next poll.
+    if (!running() || sample_requested_) {
+      return false;
+    }
+    sample_requested_ = true;
+    return true;
+  }
   if (state_ != RUN || in_flight_ || reconfigure_pending_) {
     return false;
   }
@@ -104,6 +133,9 @@ void BaroSensor::launch(uint32_t now_us) {
         state_ = PROBE;
         candidate_ = 0;
         wrong_id_ = 0;
+        unrecognised_ = false;
+        ms_probe_ = false;
+        ms_have_value_ = false;
         model_ = proto::SENSOR_NONE;
         chip_id_ = 0;
         launch(now_us);
@@ -164,6 +196,37 @@ void BaroSensor::launch(uint32_t now_us) {
         if (!transact(cmd, 1, 1, now_us)) state_ = RUN;
       }
       break;
+    case MS_RESET:
+      cmd[0] = MS_CMD_RESET;
+      transact(cmd, 1, 0, now_us);
+      break;
+    case MS_RESET_WAIT:
+      if ((int32_t)(now_us - wait_until_) >= 0) {
+        state_ = MS_PROM;
+        prom_index_ = 0;
+        launch(now_us);
+      }
+      break;
+    case MS_PROM:
+      cmd[0] = (uint8_t)(MS_CMD_PROM_READ + 2 * prom_index_);
+      transact(cmd, 1, 2, now_us);
+      break;
+    case MS_CONVERT:
+      reconfigure_pending_ = false;  // the OSR is taken from the settings at every conversion
+      cmd[0] = (uint8_t)((ms_converting_d2_ ? MS_CMD_CONVERT_D2 : MS_CMD_CONVERT_D1) +
+                         2 * ms5611_osr_index());
+      transact(cmd, 1, 0, now_us);
+      break;
+    case MS_WAIT:
+      if ((int32_t)(now_us - wait_until_) >= 0) {
+        state_ = MS_READ;
+        launch(now_us);
+      }
+      break;
+    case MS_READ:
+      cmd[0] = MS_CMD_ADC_READ;
+      transact(cmd, 1, 3, now_us);
+      break;
     default:
       break;
   }
@@ -171,6 +234,17 @@ void BaroSensor::launch(uint32_t now_us) {
 
 void BaroSensor::poll(uint32_t now_us, SensorEvent *event) {
   event->kind = SensorEvent::NONE;
+  if (sample_requested_) {
+    sample_requested_ = false;
+    if (ms_have_value_ && running()) {
+      event->kind = SensorEvent::SAMPLE;
+      event->pressure_q24_8 = ms_pressure_q24_8_;
+      event->temperature_centi_c = ms_temperature_centi_;
+    } else {
+      event->kind = SensorEvent::SAMPLE_FAILED;  // no conversion pair yet
+    }
+    return;
+  }
   if (in_flight_) {
     twi::Status status = twi::poll(now_us);
     if (status == twi::BUSY) {
@@ -196,7 +270,7 @@ void BaroSensor::next_candidate(uint32_t now_us, SensorEvent *event) {
     return;  // the next pass probes the other address
   }
   if (probe_failures_ != 0xFFFF) ++probe_failures_;
-  if (wrong_id_) {
+  if (unrecognised_) {
     error(event, proto::ERR_WRONG_CHIP_ID, wrong_id_, probe_failures_);
   } else {
     error(event, proto::ERR_SENSOR_NOT_FOUND, 0, probe_failures_);
@@ -206,6 +280,13 @@ void BaroSensor::next_candidate(uint32_t now_us, SensorEvent *event) {
 }
 
 void BaroSensor::fail(uint8_t status, uint32_t now_us, SensorEvent *event) {
+  if (ms_probe_) {
+    // It was not an MS5611 after all (or it stopped answering while we asked): next address.
+    ms_probe_ = false;
+    state_ = PROBE;
+    next_candidate(now_us, event);
+    return;
+  }
   ++i2c_errors_;
   if (failures_ != 0xFF) ++failures_;
   if (status == twi::ERR_TIMEOUT && timeouts_ != 0xFFFF) ++timeouts_;
@@ -239,7 +320,13 @@ void BaroSensor::complete(uint8_t status, uint32_t now_us, SensorEvent *event) {
         state_ = RESET;
         return;
       }
+      // Something answered with no BMP280 chip id: an MS5611 has no such register. Reset it and
+      // read its PROM; a valid CRC-4 says it is one.
       wrong_id_ = id;
+      unrecognised_ = true;
+      ms_probe_ = true;
+      state_ = MS_RESET;
+      return;
     }
     next_candidate(now_us, event);  // an empty address is not an I2C error
     return;
@@ -250,6 +337,10 @@ void BaroSensor::complete(uint8_t status, uint32_t now_us, SensorEvent *event) {
   }
   failures_ = 0;
   timeouts_ = 0;
+  if (state_ >= MS_RESET) {
+    complete_ms5611(now_us, event);
+    return;
+  }
   switch (state_) {
     case RESET:
       state_ = RESET_WAIT;
@@ -314,6 +405,76 @@ void BaroSensor::complete(uint8_t status, uint32_t now_us, SensorEvent *event) {
       event->kind = SensorEvent::SAMPLE;
       event->temperature_centi_c = (int16_t)bmp280_temperature_centi(t_fine);
       event->pressure_q24_8 = bmp280_pressure_q24_8(calib_, t_fine, adc_p);
+      break;
+    }
+    default:
+      break;
+  }
+}
+
+void BaroSensor::complete_ms5611(uint32_t now_us, SensorEvent *event) {
+  switch (state_) {
+    case MS_RESET:
+      state_ = MS_RESET_WAIT;
+      wait_until_ = now_us + MS_RELOAD_US;
+      break;
+    case MS_PROM:
+      prom_[prom_index_] = (uint16_t)((uint16_t)buf_[0] << 8 | buf_[1]);
+      if (++prom_index_ < MS5611_PROM_WORDS) {
+        break;
+      }
+      if (!ms5611_prom_valid(prom_)) {
+        if (ms_probe_) {
+          ms_probe_ = false;
+          state_ = PROBE;
+          next_candidate(now_us, event);
+        } else {
+          error(event, proto::ERR_BAD_CALIBRATION, 0, 1);
+          state_ = WAIT_PROBE;
+          wait_until_ = now_us + PROBE_RETRY_US;
+        }
+        break;
+      }
+      ms_probe_ = false;
+      address_ = ADDRESSES[candidate_];
+      model_ = proto::SENSOR_MS5611;
+      chip_id_ = 0;
+      no_data_ = 0;
+      probe_failures_ = 0;
+      ms_have_value_ = false;
+      ms_converting_d2_ = true;
+      state_ = MS_CONVERT;
+      event->kind = SensorEvent::CONFIGURED;
+      break;
+    case MS_CONVERT:
+      state_ = MS_WAIT;
+      wait_until_ = now_us + MS_CONVERSION_US[ms5611_osr_index()];
+      break;
+    case MS_READ: {
+      uint32_t value = (uint32_t)buf_[0] << 16 | (uint32_t)buf_[1] << 8 | buf_[2];
+      state_ = MS_CONVERT;
+      if (value == 0) {
+        // Read too early, or the sensor was power-cycled and lost the conversion.
+        if (++no_data_ >= NO_DATA_LIMIT) {
+          error(event, proto::ERR_NO_DATA, 0, no_data_);
+          no_data_ = 0;
+          ms_have_value_ = false;
+          state_ = MS_RESET;
+        }
+        ms_converting_d2_ = true;
+        break;
+      }
+      no_data_ = 0;
+      if (ms_converting_d2_) {
+        ms_d2_ = value;
+        ms_converting_d2_ = false;
+        break;
+      }
+      int32_t temperature = 0;
+      ms5611_compensate(prom_, value, ms_d2_, &temperature, &ms_pressure_q24_8_);
+      ms_temperature_centi_ = (int16_t)temperature;
+      ms_have_value_ = true;
+      ms_converting_d2_ = true;
       break;
     }
     default:

@@ -1,5 +1,5 @@
-// Host unit tests of the firmware's plain C++ (COBS, CRC, protocol, receive framer, BMP280
-// compensation), compiled with g++ and run by the Python suite. The expected values come from
+// Host unit tests of the firmware's plain C++ (COBS, CRC, protocol, receive framer, BMP280 and
+// MS5611 compensation), compiled with g++ and run by the Python suite. The expected values come from
 // firmware/test_vectors.txt, the file the Python codec's tests read too.
 //
 // usage: host_tests [PATH/TO/test_vectors.txt]
@@ -16,6 +16,7 @@
 #include "bmp280_math.h"
 #include "cobs.h"
 #include "crc16.h"
+#include "ms5611_math.h"
 #include "protocol.h"
 #include "rx_framer.h"
 
@@ -301,6 +302,32 @@ void test_bmp280_calib(const Vector &v) {
   }
 }
 
+void test_ms5611(const Vector &v) {
+  uint16_t prom[MS5611_PROM_WORDS] = {0,
+                                      (uint16_t)v.num("C1"),
+                                      (uint16_t)v.num("C2"),
+                                      (uint16_t)v.num("C3"),
+                                      (uint16_t)v.num("C4"),
+                                      (uint16_t)v.num("C5"),
+                                      (uint16_t)v.num("C6"),
+                                      0};
+  int32_t temp = 0;
+  uint32_t p = 0;
+  ms5611_compensate(prom, (uint32_t)v.num("D1"), (uint32_t)v.num("D2"), &temp, &p);
+  check(temp == v.num("TEMP"), v.id() + " TEMP = " + std::to_string(temp));
+  check(p == (uint32_t)v.num("P"), v.id() + " P = " + std::to_string(p));
+}
+
+void test_ms5611_prom(const Vector &v) {
+  Bytes raw = v.bytes("prom");
+  check(raw.size() == 2 * MS5611_PROM_WORDS, v.id() + " length");
+  uint16_t prom[MS5611_PROM_WORDS];
+  for (uint8_t i = 0; i < MS5611_PROM_WORDS; ++i) {
+    prom[i] = (uint16_t)((raw[2 * i] << 8) | raw[2 * i + 1]);  // the sensor sends MSB first
+  }
+  check(ms5611_prom_valid(prom) == (v.num("valid") != 0), v.id() + " validity");
+}
+
 // The datasheet's fixed example, independent of the vector file: it must never drift.
 void test_datasheet_example() {
   Bmp280Calib c = {27504, 26435, -1000, 36477, -10685, 3024, 2855, 140, -7, 15500, -14600, 6000};
@@ -314,6 +341,16 @@ void test_datasheet_example() {
   check(pa > 100653.2 && pa < 100653.3, "datasheet P within 0.05 Pa of 100653.27");
   uint8_t regs[3] = {0x65, 0x5A, 0xC0};  // 415148 = 0x655AC
   check(bmp280_adc20(regs) == 415148, "adc20 assembles msb/lsb/xlsb");
+  // MS5611 data sheet: 20.07 degC, 1000.09 mbar.
+  uint16_t prom[MS5611_PROM_WORDS] = {0, 40127, 36924, 23317, 23282, 33464, 28312, 0};
+  int32_t temp = 0;
+  uint32_t q = 0;
+  ms5611_compensate(prom, 9085466, 8569150, &temp, &q);
+  check(temp == 2007, "MS5611 datasheet TEMP 20.07 degC");
+  check(q >> 8 == 100009, "MS5611 datasheet P 100009 Pa");
+  // AN520's PROM example carries CRC-4 0xB.
+  uint16_t an520[MS5611_PROM_WORDS] = {0x3132, 0x3334, 0x3536, 0x3738, 0x3940, 0x4142, 0x4344, 0x450B};
+  check(ms5611_crc4(an520) == 0x0B, "AN520 CRC-4 example");
 }
 
 // The receive framer: every frame of a stream comes out whole, whatever garbage sits between
@@ -396,6 +433,8 @@ int main(int argc, char **argv) {
     else if (v.kind == "bad") test_bad(v);
     else if (v.kind == "bmp280") test_bmp280(v);
     else if (v.kind == "bmp280_calib") test_bmp280_calib(v);
+    else if (v.kind == "ms5611") test_ms5611(v);
+    else if (v.kind == "ms5611_prom") test_ms5611_prom(v);
     else check(false, "unknown vector kind " + v.kind);
   }
   test_datasheet_example();

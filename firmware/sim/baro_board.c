@@ -16,6 +16,13 @@
  * (its setting is stored and read back): the data are the unfiltered trajectory, so a test can
  * compare what the board reports with what was injected.
  *
+ * With --sensor ms5611 the virtual device is a TE MS5611 instead: commands reset (0x1E), PROM
+ * read (0xA0..0xAE, with a valid CRC-4), D1/D2 conversions (0x40.., 0x50.., OSR 256..4096 with
+ * the data sheet's maximum conversion times) and ADC read (0x00; 0 when read before the
+ * conversion ended). The raw values are again found by bisection so that the data sheet's
+ * compensation (second order included) gives the trajectory's values at the end of each
+ * conversion; the truth log then has one line per D1 read (adc_p = D1, adc_t = the last D2).
+ *
  * Trajectory file (--trajectory): CSV lines "time_s,pressure_pa,temperature_c,present" (a
  * header line is skipped), time in simulated seconds since the simulation started. Pressure
  * and temperature are interpolated linearly; `present` (0/1) holds from its row on: while 0,
@@ -31,7 +38,7 @@
  * SIGINT/SIGTERM end the simulation cleanly.
  *
  * usage: baro_board FIRMWARE.elf [--trajectory CSV] [--truth CSV] [--speed X] [--address 0x76]
- *                   [--wait-host] [--duration S] [--no-backpressure]
+ *                   [--sensor bmp280|ms5611] [--wait-host] [--duration S] [--no-backpressure]
  *   --speed X        simulated seconds per wall second (default 1.0); 0 = as fast as possible
  *   --wait-host      start the AVR only once a program has opened the pty (as a real board
  *                    resets when the port opens), so its first frames are not lost
@@ -361,8 +368,8 @@ static void bmp_write(vbmp_t *b, uint8_t reg, uint8_t v, double now) {
 	}
 }
 
-static void twi_reply(vbmp_t *b, uint8_t msg, uint8_t addr, uint8_t data) {
-	avr_raise_irq(b->irq + 0, avr_twi_irq_msg(msg, addr, data));
+static void twi_reply(avr_irq_t *irq, uint8_t msg, uint8_t addr, uint8_t data) {
+	avr_raise_irq(irq + 0, avr_twi_irq_msg(msg, addr, data));
 }
 
 /* Messages from the AVR's TWI master: START (+address), WRITE, READ, STOP. */
@@ -405,13 +412,13 @@ static void bmp_twi_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
 				}
 			}
 		}
-		twi_reply(b, TWI_COND_ACK, v.u.twi.addr, 1);
+		twi_reply(b->irq, TWI_COND_ACK, v.u.twi.addr, 1);
 		return;
 	}
 	if (!b->selected)
 		return;
 	if (v.u.twi.msg & TWI_COND_WRITE) {
-		twi_reply(b, TWI_COND_ACK, v.u.twi.addr, 1);
+		twi_reply(b->irq, TWI_COND_ACK, v.u.twi.addr, 1);
 		/* writes come as register, value, register, value... */
 		if (b->index % 2 == 0)
 			b->ptr = v.u.twi.data;
@@ -422,7 +429,7 @@ static void bmp_twi_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
 	if (v.u.twi.msg & TWI_COND_READ) {
 		uint8_t data = bmp_read(b, b->ptr, now);
 		b->ptr++;
-		twi_reply(b, TWI_COND_READ, v.u.twi.addr, data);
+		twi_reply(b->irq, TWI_COND_READ, v.u.twi.addr, data);
 	}
 }
 
@@ -438,6 +445,208 @@ static void bmp_attach(avr_t *avr, vbmp_t *b, uint8_t addr7) {
 	double p, temp;
 	trajectory_at(0, &p, &temp, &b->present);
 	bmp_power_on(b, 0);
+}
+
+/* ------------------------------------------------------------------ virtual MS5611 -- */
+
+/* Data sheet typical coefficients C1..C6, a factory word C0; C7 gets its CRC-4 at start-up. */
+static uint16_t ms_prom[8] = {0x0045, 40127, 36924, 23317, 23282, 33464, 28312, 0x0000};
+
+static uint8_t ms_crc4(const uint16_t *prom) { /* AN520 */
+	uint16_t rem = 0;
+	for (int i = 0; i < 16; i++) {
+		uint16_t w = prom[i >> 1];
+		if (i >= 14)
+			w &= 0xFF00;
+		rem ^= (i & 1) ? (w & 0xFF) : (w >> 8);
+		for (int b = 0; b < 8; b++)
+			rem = (rem & 0x8000) ? (uint16_t)((rem << 1) ^ 0x3000) : (uint16_t)(rem << 1);
+	}
+	return (rem >> 12) & 0x0F;
+}
+
+/* The data sheet's compensation, written again here so the test compares two implementations. */
+static void ms_comp(uint32_t d1, uint32_t d2, int64_t *temp_centi, int64_t *p_q8) {
+	const uint16_t *c = ms_prom;
+	int64_t dt = (int64_t)d2 - ((int64_t)c[5] << 8);
+	int64_t temp = 2000 + dt * c[6] / 8388608;
+	int64_t off = (int64_t)c[2] * 65536 + (int64_t)c[4] * dt / 128;
+	int64_t sens = (int64_t)c[1] * 32768 + (int64_t)c[3] * dt / 256;
+	if (temp < 2000) {
+		int64_t t2 = dt * dt / 2147483648LL, cold = (temp - 2000) * (temp - 2000);
+		int64_t off2 = 5 * cold / 2, sens2 = 5 * cold / 4;
+		if (temp < -1500) {
+			off2 += 7 * (temp + 1500) * (temp + 1500);
+			sens2 += 11 * (temp + 1500) * (temp + 1500) / 2;
+		}
+		temp -= t2;
+		off -= off2;
+		sens -= sens2;
+	}
+	*temp_centi = temp;
+	*p_q8 = ((int64_t)d1 * sens / 2097152 - off) / 128;
+}
+
+/* TEMP (0.01 degC) as a continuous function of D2: the integer formula rounds to 0.01 degC,
+ * but OFF and SENS use dT itself, so D2 must follow the temperature smoothly (one LSB is about
+ * 0.00003 degC) or a pressure sample would jump by up to 2 Pa whenever TEMP steps. */
+static double ms_temp_exact(uint32_t d2) {
+	double dt = (double)d2 - ms_prom[5] * 256.0;
+	double temp = 2000.0 + dt * ms_prom[6] / 8388608.0;
+	return temp < 2000.0 ? temp - dt * dt / 2147483648.0 : temp;
+}
+
+/* D2 for temp_c, then the D1 whose compensation with that D2 comes closest to p_pa. */
+static void ms_invert(double p_pa, double temp_c, uint32_t *d1, uint32_t *d2) {
+	int64_t t, p, p_lo;
+	uint32_t lo = 0, hi = (1u << 24) - 1; /* TEMP grows with D2 */
+	while (lo < hi) {
+		uint32_t mid = lo + (hi - lo) / 2;
+		if (ms_temp_exact(mid) >= temp_c * 100.0)
+			hi = mid;
+		else
+			lo = mid + 1;
+	}
+	*d2 = lo;
+	lo = 0;
+	hi = (1u << 24) - 1; /* P grows with D1 */
+	while (lo < hi) {
+		uint32_t mid = lo + (hi - lo) / 2;
+		ms_comp(mid, *d2, &t, &p);
+		if (p >= p_pa * 256.0)
+			hi = mid;
+		else
+			lo = mid + 1;
+	}
+	if (lo > 0) {
+		ms_comp(lo, *d2, &t, &p);
+		ms_comp(lo - 1, *d2, &t, &p_lo);
+		if (fabs(p_lo - p_pa * 256.0) < fabs(p - p_pa * 256.0))
+			lo--;
+	}
+	*d1 = lo;
+}
+
+typedef struct {
+	avr_t *avr;
+	avr_irq_t *irq;
+	uint8_t addr7;
+	int selected, present;
+	uint8_t command; /* last command byte written */
+	int conv_kind;   /* conversion under way: 1 = D1, 2 = D2, 0 = none */
+	double conv_end; /* us */
+	uint32_t adc;    /* result of the finished conversion, served by ADC read */
+	int adc_valid;
+	uint8_t out[3]; /* bytes of the current read */
+	int out_index;
+	uint32_t last_d2;
+	FILE *truth;
+	unsigned long transactions, nacked, data_reads;
+} vms_t;
+
+static vms_t ms;
+
+static void ms_finish_conversion(vms_t *m) {
+	double p, temp;
+	int present;
+	trajectory_at(m->conv_end * 1e-6, &p, &temp, &present);
+	uint32_t d1, d2;
+	ms_invert(p, temp, &d1, &d2);
+	m->adc = m->conv_kind == 1 ? d1 : d2;
+	m->adc_valid = 1;
+	if (m->conv_kind == 2)
+		m->last_d2 = d2;
+	if (m->conv_kind == 1 && m->truth)
+		fprintf(m->truth, "%.1f,%.1f,%.6f,%.4f,%u,%u\n", sim_us(m->avr), m->conv_end, p, temp, d1,
+		        m->last_d2);
+	m->conv_kind = 0;
+}
+
+static void ms_twi_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
+	(void)irq;
+	vms_t *m = param;
+	avr_twi_msg_irq_t v;
+	v.u.v = value;
+	double now = sim_us(m->avr);
+	if (v.u.twi.msg & TWI_COND_STOP)
+		m->selected = 0;
+	if (v.u.twi.msg & TWI_COND_START) {
+		m->selected = 0;
+		if ((v.u.twi.addr >> 1) != m->addr7)
+			return;
+		double p, temp;
+		int present;
+		trajectory_at(now * 1e-6, &p, &temp, &present);
+		if (present && !m->present) { /* power-up: nothing converted */
+			m->conv_kind = 0;
+			m->adc_valid = 0;
+		}
+		m->present = present;
+		m->transactions++;
+		if (!present) {
+			m->nacked++;
+			return;
+		}
+		m->selected = 1;
+		if (v.u.twi.addr & 1) { /* read: what the last command asked for */
+			m->out_index = 0;
+			memset(m->out, 0, sizeof m->out);
+			if (m->command == 0x00) {
+				if (m->conv_kind && now >= m->conv_end)
+					ms_finish_conversion(m);
+				if (m->adc_valid) {
+					m->out[0] = m->adc >> 16;
+					m->out[1] = m->adc >> 8;
+					m->out[2] = m->adc;
+				}
+				m->adc_valid = 0; /* a second read gives 0, as on the chip */
+				m->data_reads++;
+			} else if (m->command >= 0xA0 && m->command <= 0xAE) {
+				uint16_t w = ms_prom[(m->command - 0xA0) / 2];
+				m->out[0] = w >> 8;
+				m->out[1] = w & 0xFF;
+			}
+		}
+		twi_reply(m->irq, TWI_COND_ACK, v.u.twi.addr, 1);
+		return;
+	}
+	if (!m->selected)
+		return;
+	if (v.u.twi.msg & TWI_COND_WRITE) {
+		twi_reply(m->irq, TWI_COND_ACK, v.u.twi.addr, 1);
+		uint8_t cmd = v.u.twi.data;
+		m->command = cmd;
+		if (cmd == 0x1E) {
+			m->conv_kind = 0;
+			m->adc_valid = 0;
+		} else if ((cmd & 0xF0) == 0x40 || (cmd & 0xF0) == 0x50) {
+			static const double conv_us[5] = {600, 1170, 2280, 4540, 9040};
+			int osr = ((cmd & 0x0F) >> 1) % 5;
+			m->conv_kind = (cmd & 0xF0) == 0x40 ? 1 : 2;
+			m->conv_end = now + conv_us[osr];
+			m->adc_valid = 0;
+		}
+	}
+	if (v.u.twi.msg & TWI_COND_READ) {
+		uint8_t data = m->out_index < 3 ? m->out[m->out_index] : 0;
+		m->out_index++;
+		twi_reply(m->irq, TWI_COND_READ, v.u.twi.addr, data);
+	}
+}
+
+static void ms_attach(avr_t *avr, vms_t *m, uint8_t addr7) {
+	static const char *names[2] = {"8>ms5611.out", "32<ms5611.in"};
+	memset(m, 0, sizeof *m);
+	m->avr = avr;
+	m->addr7 = addr7;
+	m->command = 0xFF;
+	ms_prom[7] = (ms_prom[7] & 0xFFF0) | ms_crc4(ms_prom);
+	m->irq = avr_alloc_irq(&avr->irq_pool, 0, 2, names);
+	avr_irq_register_notify(m->irq + 1, ms_twi_hook, m);
+	avr_connect_irq(m->irq + 0, avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_INPUT));
+	avr_connect_irq(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT), m->irq + 1);
+	double p, temp;
+	trajectory_at(0, &p, &temp, &m->present);
 }
 
 /* --------------------------------------------------------------- UART <-> pty -- */
@@ -559,19 +768,20 @@ static void sleep_hook(avr_t *avr, avr_cycle_count_t how_long) {
 
 static void usage(void) {
 	fprintf(stderr, "usage: baro_board FIRMWARE.elf [--trajectory CSV] [--truth CSV] [--speed X]\n"
-	                "                  [--address 0x76|0x77] [--wait-host] [--duration S]\n"
-	                "                  [--no-backpressure]\n");
+	                "                  [--address 0x76|0x77] [--sensor bmp280|ms5611] [--wait-host]\n"
+	                "                  [--duration S] [--no-backpressure]\n");
 }
 
 int main(int argc, char **argv) {
 	const char *trajectory_path = NULL, *truth_path = NULL;
 	double speed = 1.0, duration = 0.0;
-	int address = 0x76, wait_host = 0;
+	int address = 0x76, wait_host = 0, use_ms5611 = 0;
 	static const struct option options[] = {
 		{"trajectory", required_argument, 0, 't'}, {"truth", required_argument, 0, 'r'},
 		{"speed", required_argument, 0, 's'},      {"address", required_argument, 0, 'a'},
 		{"wait-host", no_argument, 0, 'w'},        {"duration", required_argument, 0, 'd'},
 		{"no-backpressure", no_argument, 0, 'n'},  {"help", no_argument, 0, 'h'},
+		{"sensor", required_argument, 0, 'm'},
 		{0, 0, 0, 0}};
 	int opt;
 	while ((opt = getopt_long(argc, argv, "", options, NULL)) != -1) {
@@ -583,6 +793,14 @@ int main(int argc, char **argv) {
 		case 'w': wait_host = 1; break;
 		case 'd': duration = atof(optarg); break;
 		case 'n': backpressure = 0; break;
+		case 'm':
+			if (strcmp(optarg, "ms5611") == 0) {
+				use_ms5611 = 1;
+			} else if (strcmp(optarg, "bmp280") != 0) {
+				usage();
+				return 2;
+			}
+			break;
 		default: usage(); return 2;
 		}
 	}
@@ -629,8 +847,13 @@ int main(int argc, char **argv) {
 		setvbuf(truth, NULL, _IOLBF, 0); /* whole lines only: a test may read it while we run */
 		fprintf(truth, "read_us,meas_us,pressure_pa,temperature_c,adc_p,adc_t\n");
 	}
-	bmp_attach(avr, &bmp, (uint8_t)address);
-	bmp.truth = truth;
+	if (use_ms5611) {
+		ms_attach(avr, &ms, (uint8_t)address);
+		ms.truth = truth;
+	} else {
+		bmp_attach(avr, &bmp, (uint8_t)address);
+		bmp.truth = truth;
+	}
 
 	uint32_t flags = 0; /* no stdio echo of UART bytes, no polling sleeps */
 	avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
@@ -693,7 +916,8 @@ int main(int argc, char **argv) {
 	        "data reads %lu\n",
 	        state == cpu_Crashed ? "CRASHED" : "stopped", sim_s, wall_s,
 	        wall_s > 0 ? sim_s / wall_s : 0.0, bytes_to_host, bytes_from_host, bytes_dropped,
-	        bmp.transactions, bmp.nacked, bmp.data_reads);
+	        bmp.transactions + ms.transactions, bmp.nacked + ms.nacked,
+	        bmp.data_reads + ms.data_reads);
 	if (truth)
 		fclose(truth);
 	close(pty_master);

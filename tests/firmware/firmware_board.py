@@ -207,13 +207,14 @@ class SimulatedBoard:
         address: int = 0x76,
         name: str = "board",
         elf: Path = ELF,
+        sensor: str = "bmp280",
     ) -> None:
         self.workdir = workdir
         self.trajectory = list(trajectory) if trajectory else None
         self.truth_path = workdir / f"{name}-truth.csv"
         self.log_path = workdir / f"{name}-harness.log"
         args = [str(HARNESS), str(elf), "--wait-host", "--speed", repr(speed)]
-        args += ["--address", hex(address), "--truth", str(self.truth_path)]
+        args += ["--address", hex(address), "--sensor", sensor, "--truth", str(self.truth_path)]
         if self.trajectory:
             path = write_trajectory(workdir / f"{name}-trajectory.csv", self.trajectory)
             args += ["--trajectory", str(path)]
