@@ -37,7 +37,7 @@ def vectors_of(kind: str) -> list[Any]:
 
 def frame_from_vector(v: dict[str, str]) -> baro.Frame:
     cls = CLASS_BY_TYPE_NAME[v["type"]]
-    names = ["seq", "time_us", *baro._PAYLOAD_FIELDS[cls]]
+    names = ["seq", "time_us", *baro.PAYLOAD_FIELDS[cls]]
     return cls(*(int(v[name]) for name in names))
 
 
@@ -429,5 +429,5 @@ def test_status_counters_by_name() -> None:
 
 def test_payload_fields_follow_the_struct_layout() -> None:
     for cls in baro.FRAME_CLASSES:
-        assert len(baro._PAYLOAD_FIELDS[cls]) == len(list(_codes(cls.PAYLOAD.format)))
+        assert len(baro.PAYLOAD_FIELDS[cls]) == len(list(_codes(cls.PAYLOAD.format)))
         assert struct.calcsize(cls.PAYLOAD.format) <= baro.MAX_PAYLOAD

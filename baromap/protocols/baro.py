@@ -32,7 +32,7 @@ MIN_FRAME: Final = HEADER.size + CRC.size
 MAX_FRAME: Final = HEADER.size + MAX_PAYLOAD + CRC.size
 #: COBS adds one code byte per started 254 bytes; 58 decoded bytes need one.
 MAX_ENCODED: Final = MAX_FRAME + 1
-#: While skipping an oversized run, report it at least this often so the counters keep moving.
+#: An over-long run is reported in blocks of this many bytes, so counters keep moving.
 _OVERSIZED_REPORT_EVERY = 4096
 CRC_INIT: Final = 0xFFFF
 Q24_8: Final = 256.0
@@ -324,14 +324,15 @@ FRAME_CLASSES: Final[tuple[type[Frame], ...]] = (
     IdentifyCommand,
 )
 _BY_TYPE: Final[dict[int, type[Frame]]] = {int(cls.TYPE): cls for cls in FRAME_CLASSES}
-_PAYLOAD_FIELDS: Final[dict[type[Frame], tuple[str, ...]]] = {
+#: Payload field names of each frame class, in wire order (after ``seq`` and ``time_us``).
+PAYLOAD_FIELDS: Final[dict[type[Frame], tuple[str, ...]]] = {
     cls: tuple(f.name for f in fields(cls))[2:] for cls in FRAME_CLASSES
 }
 
 
 def frame_payload(frame: Frame) -> bytes:
     """The payload bytes of ``frame`` (no header, no CRC)."""
-    values = [getattr(frame, name) for name in _PAYLOAD_FIELDS[type(frame)]]
+    values = [getattr(frame, name) for name in PAYLOAD_FIELDS[type(frame)]]
     try:
         return frame.PAYLOAD.pack(*values)
     except struct.error as exc:
@@ -340,7 +341,7 @@ def frame_payload(frame: Frame) -> bytes:
 
 def encode_raw(frame: Frame) -> bytes:
     """Header + payload + CRC of ``frame``, before COBS (what the CRC protects)."""
-    if type(frame) not in _PAYLOAD_FIELDS:
+    if type(frame) not in PAYLOAD_FIELDS:
         raise EncodeError(f"not a baro frame: {frame!r}")
     payload = frame_payload(frame)
     try:
@@ -357,6 +358,7 @@ def encode(frame: Frame) -> bytes:
 
 
 def encode_all(frames: Iterable[Frame]) -> bytes:
+    """The wire bytes of several frames, back to back."""
     return b"".join(encode(frame) for frame in frames)
 
 
