@@ -9,9 +9,10 @@ misaligned with the others shows up as an error instead of being fitted away):
 - occupied precision: the fraction of a floor map's occupied cells whose centre lies within
   10 cm of a true wall face;
 - free-space IoU: intersection over union of the map's free cells and the plan's free space,
-  both on the plan's 5 cm raster, over the part of the plan the laser actually swept (the cells
-  a grid built from the same scans at the TRUE poses observes: rooms never looked into are not
-  the map's fault, everything the laser saw is);
+  both on the plan's 5 cm raster, over the part of the plan the laser actually mapped: the
+  cells that a grid built from the same keyframes at the TRUE poses classifies (free or
+  occupied). Rooms never looked into are not the SLAM's fault; everything the same scans
+  would have mapped from perfect poses is;
 - lobby alignment: per floor, the mean difference between aligned estimated and true poses of
   the scans taken in the elevator lobby;
 - floor heights: detected elevation minus true elevation, both relative to the lowest floor;
@@ -265,7 +266,7 @@ def _map_scores(
     centers = np.stack([(xs.ravel() + 0.5) * res, (ys.ravel() + 0.5) * res], axis=1)
     in_est = se2.transform_points(se2.inverse(align), centers)
     est_free = _lookup(grid, in_est, grid.free()).reshape(h, w)
-    swept_cells = _lookup(swept, centers, swept.log_odds != 0).reshape(h, w)
+    swept_cells = _lookup(swept, centers, swept.free() | swept.occupied()).reshape(h, w)
     true_free = plan.is_free(centers).reshape(h, w) & swept_cells
     union = np.count_nonzero(est_free | true_free)
     iou = np.count_nonzero(est_free & true_free) / union if union else 0.0

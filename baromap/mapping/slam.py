@@ -88,6 +88,9 @@ class SlamConfig:
     #: car) are too small and symmetric for a wide search: the box matches itself turned or
     #: shifted; they close loops with the narrow front-end window around the estimate instead
     loop_min_extent_m: float = 2.5
+    #: least score of the car-to-car match across an elevator ride for it to join the floors
+    #: (otherwise odometry alone does)
+    ride_min_score: float = 0.6
     loop_robust_c: float = 3.0
     optimize_every: int = 10
 
@@ -105,13 +108,25 @@ class SlamResult:
 def select_keyframes(
     odom: FloatArray, visit: IntArray, floor: IntArray, config: SlamConfig
 ) -> IntArray:
-    """Scans where the robot has moved enough since the last keyframe of the same visit."""
+    """Scans where the robot has moved enough since the last keyframe of the same visit.
+
+    The first and the last scan of every visit are keyframes too: they are the robot in the
+    elevator car just before and just after a ride, the two scans that join the floors.
+    """
     chosen: list[int] = []
     last = -1
     for s in range(len(odom)):
         if floor[s] == BETWEEN_FLOORS:
             continue
         if last < 0 or visit[s] != visit[last]:
+            if s > 0 and last >= 0 and last != s - 1 and floor[s - 1] != BETWEEN_FLOORS:
+                chosen.append(s - 1)
+            elif last >= 0:
+                prev = s - 1
+                while prev > last and floor[prev] == BETWEEN_FLOORS:
+                    prev -= 1
+                if prev > last:
+                    chosen.append(prev)
             chosen.append(s)
             last = s
             continue
@@ -222,7 +237,31 @@ def run_slam(
         # odometry always enters the graph: along a featureless corridor it is the only
         # measurement of the motion, and the match edge's information says so
         graph.add_edge(Edge(k - 1, k, step, _info(sigma_xy, sigma_theta), "odometry"))
-        if k > visit_start and len(clouds.points[k]) >= 10:
+        if k == visit_start and _in_car(k - 1, k, clouds, config):
+            # the ride: both scans see the closed car, which travels with the robot, so
+            # matching them measures the little the robot turned while the floors changed
+            fld = _field_around(clouds.world_points([k - 1], graph.poses), guess, config, 1.5)
+            prior = Prior(guess, sigma_xy, sigma_theta, config.prior_weight)
+            result = match(fld, clouds.points[k], guess, config.front_window, prior=prior)
+            if result.score >= config.ride_min_score:
+                graph.poses[k] = result.pose
+                info = _match_info(
+                    result.information,
+                    config.match_cov_scale,
+                    config.match_sigma_xy,
+                    config.match_sigma_theta,
+                )
+                graph.add_edge(
+                    Edge(
+                        k - 1,
+                        k,
+                        se2.between(graph.poses[k - 1], result.pose),
+                        _rotate_info(info, result.pose[2]),
+                        "ride",
+                    )
+                )
+                stats["ride_matches"] = stats.get("ride_matches", 0) + 1
+        elif k > visit_start and len(clouds.points[k]) >= 10:
             ids = list(range(max(visit_start, k - config.submap_keyframes), k))
             ref = clouds.world_points(ids, graph.poses)
             fld = _field_around(ref, guess, config, config.front_window.linear_m + 1.0)
@@ -271,6 +310,16 @@ def run_slam(
     stats["loops"] = len(loops)
     scan_poses = _all_scan_poses(odom, kf_scan, graph.poses, floor)
     return SlamResult(kf_scan, graph.poses.copy(), scan_poses, graph, loops, stats)
+
+
+def _in_car(a: int, b: int, clouds: _Keyframes, config: SlamConfig) -> bool:
+    """Both keyframes are small enclosed scans (the robot inside a closed elevator car)."""
+    return bool(
+        len(clouds.points[a]) >= 30
+        and len(clouds.points[b]) >= 30
+        and clouds.extent[a] < config.loop_min_extent_m
+        and clouds.extent[b] < config.loop_min_extent_m
+    )
 
 
 def _try_loop(
