@@ -53,7 +53,10 @@ def _make(target: str) -> subprocess.CompletedProcess[str]:
 def _require(*tools: str) -> None:
     missing = [tool for tool in tools if shutil.which(tool) is None]
     if missing:
-        pytest.skip(f"toolchain missing: {', '.join(missing)} (install gcc-avr avr-libc ...)")
+        pytest.skip(
+            f"toolchain missing: {', '.join(missing)}"
+            " (install gcc-avr avr-libc arduino-core-avr g++ make)"
+        )
 
 
 @pytest.fixture(scope="session")
