@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from baromap.errors import ConfigError, EncodeError
 from baromap.messages import BeamFlag
 from baromap.protocols import lms200 as L
-from baromap.protocols.framing import BadFrame
+from baromap.protocols.framing import MAX_DISCARD_RUN, BadFrame
 
 # protocols.md section 1: every telegram, byte for byte.
 VECTORS = [
@@ -307,11 +307,11 @@ def test_joining_mid_stream_trusts_no_ack_before_a_telegram() -> None:
 
 
 def test_long_garbage_is_reported_in_bounded_runs() -> None:
-    garbage = bytes([0x55]) * (3 * L.MAX_DISCARD_RUN + 5)
+    garbage = bytes([0x55]) * (3 * MAX_DISCARD_RUN + 5)
     decoder = L.Decoder()
     out = decoder.feed(garbage) + decoder.feed(REPLY) + decoder.flush()
     sizes = [m.size for m in out if isinstance(m, BadFrame)]
-    assert sizes == [L.MAX_DISCARD_RUN] * 3 + [5]
+    assert sizes == [MAX_DISCARD_RUN] * 3 + [5]
     assert len(decoder._buf) == 0
     assert decoder.stats.as_dict()["bad_garbage"] == 4
 

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 #: Discarded bytes kept in a :class:`BadFrame` for diagnosis; the rest is only counted.
 BAD_FRAME_SAMPLE_BYTES = 64
@@ -50,3 +52,80 @@ class DecoderStats:
         }
         out.update({f"bad_{reason}": n for reason, n in sorted(self.bad.items())})
         return out
+
+
+#: A pending run of discarded bytes is reported once it reaches this many bytes, so a line
+#: that never syncs still shows up in the counters.
+MAX_DISCARD_RUN = 4096
+
+
+class DiscardRun:
+    """Consecutive discarded bytes, reported as one :class:`BadFrame` when the run ends.
+
+    A run ends at the next good frame, when the reason changes, or every
+    :data:`MAX_DISCARD_RUN` bytes. Reporting runs rather than single bytes keeps a decoder's
+    output independent of how the stream was chunked: the same bytes give the same records.
+    ``reason`` is ``None`` while the decoder is in sync.
+    """
+
+    __slots__ = ("_stats", "reason", "sample", "size")
+
+    def __init__(self, stats: DecoderStats, reason: str | None = None) -> None:
+        self._stats = stats
+        self.reason = reason
+        self.size = 0
+        self.sample = bytearray()
+
+    def start(self, reason: str, out: list[Any]) -> None:
+        """End the current run (if any) and open one for ``reason``."""
+        self.end(out)
+        self.reason = reason
+
+    def absorb(self, buf: bytearray, start: int, stop: int, out: list[Any]) -> None:
+        """Discard ``buf[start:stop]``; a decoder in sync starts a ``garbage`` run."""
+        if self.reason is None:
+            self.reason = "garbage"
+        while start < stop:
+            take = min(stop - start, MAX_DISCARD_RUN - self.size)
+            room = BAD_FRAME_SAMPLE_BYTES - len(self.sample)
+            if room > 0:
+                self.sample += buf[start : start + min(room, take)]
+            self.size += take
+            start += take
+            if self.size >= MAX_DISCARD_RUN:
+                self._emit(out)  # report it, but stay out of sync: the run goes on
+
+    def reject(self, reason: str, buf: bytearray, pos: int, out: list[Any]) -> int:
+        """Discard the frame start at ``pos`` for ``reason``; the search resumes after it."""
+        self.start(reason, out)
+        self.absorb(buf, pos, pos + 1, out)
+        return pos + 1
+
+    def end(self, out: list[Any]) -> None:
+        """Back in sync: report what was discarded."""
+        self._emit(out)
+        self.reason = None
+
+    def _emit(self, out: list[Any]) -> None:
+        if self.reason is not None and self.size:
+            out.append(self._stats.count_bad(BadFrame(self.reason, self.size, bytes(self.sample))))
+        self.size = 0
+        self.sample = bytearray()
+
+
+def flush_truncated(buf: bytearray, run: DiscardRun, process: Callable[[], list[Any]]) -> list[Any]:
+    """End of stream for a length-prefixed decoder: settle what is still pending.
+
+    An unfinished frame can no longer complete, so its first byte is discarded as
+    ``truncated`` and the bytes after it are searched again (``process``): a complete frame
+    that a bogus length was holding up still decodes. Then the pending run is reported.
+    """
+    out: list[Any] = []
+    while buf:
+        if run.reason != "truncated":
+            run.start("truncated", out)
+        run.absorb(buf, 0, 1, out)
+        del buf[0]
+        out += process()
+    run.end(out)
+    return out

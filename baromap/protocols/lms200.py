@@ -25,7 +25,7 @@ import numpy.typing as npt
 
 from baromap.errors import ConfigError, EncodeError
 from baromap.messages import BeamFlag, LaserScan
-from baromap.protocols.framing import BAD_FRAME_SAMPLE_BYTES, BadFrame, DecoderStats
+from baromap.protocols.framing import BadFrame, DecoderStats, DiscardRun, flush_truncated
 
 STX: Final = 0x02
 ACK: Final = 0x06
@@ -44,9 +44,6 @@ MAX_TELEGRAM_BYTES: Final = HEADER_BYTES + MAX_LEN + CRC_BYTES
 
 #: Status byte healthy sensors send in every reply.
 STATUS_OK: Final = 0x10
-#: A pending run of discarded bytes is reported once it reaches this many bytes.
-MAX_DISCARD_RUN: Final = 4096
-
 INSTALLATION_PASSWORD: Final = b"SICK_LMS"
 
 
@@ -806,9 +803,7 @@ class Decoder:
         self.stats = DecoderStats()
         self._buf = bytearray()
         # None: at a telegram boundary, where a lone 0x06 / 0x15 is an ACK / NAK.
-        self._run_reason: str | None = None if at_boundary else "garbage"
-        self._run_size = 0
-        self._run_sample = bytearray()
+        self._run = DiscardRun(self.stats, None if at_boundary else "garbage")
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[LmsMessage]:
         self.stats.bytes_in += len(data)
@@ -816,22 +811,11 @@ class Decoder:
         return self._process()
 
     def flush(self) -> list[LmsMessage]:
-        """End of stream (or of a line setting): settle everything still pending.
+        """End of stream or of a line setting (baud switch): settle what is pending.
 
-        An unfinished frame can no longer complete, so its first byte is discarded as
-        ``truncated`` and the bytes after it are searched again: a complete frame that a
-        bogus length was holding up still decodes. Then the pending discard run is reported.
+        See :func:`baromap.protocols.framing.flush_truncated`.
         """
-        out: list[LmsMessage] = []
-        while self._buf:
-            if self._run_reason != "truncated":
-                self._end_run(out)
-                self._run_reason = "truncated"
-            self._absorb(self._buf, 0, 1, out)
-            del self._buf[0]
-            out += self._process()
-        self._end_run(out)
-        return out
+        return flush_truncated(self._buf, self._run, self._process)
 
     def _process(self) -> list[LmsMessage]:
         buf = self._buf
@@ -839,7 +823,7 @@ class Decoder:
         pos = 0
         end = len(buf)
         while pos < end:
-            if self._run_reason is None:
+            if self._run.reason is None:
                 byte = buf[pos]
                 if byte in (ACK, NAK):
                     out.append(ACK_MESSAGE if byte == ACK else NAK_MESSAGE)
@@ -847,13 +831,13 @@ class Decoder:
                     pos += 1
                     continue
                 if byte != STX:
-                    self._start_run("garbage", out)
+                    self._run.start("garbage", out)
                     continue
             else:
                 found = buf.find(_STX_BYTE, pos)
                 stop = end if found < 0 else found
                 if stop > pos:
-                    self._absorb(buf, pos, stop, out)
+                    self._run.absorb(buf, pos, stop, out)
                     pos = stop
                     continue
             next_pos = self._candidate(buf, pos, end, out)
@@ -865,42 +849,6 @@ class Decoder:
 
     # -- discarded-byte runs ---------------------------------------------------------------
 
-    def _start_run(self, reason: str, out: list[LmsMessage]) -> None:
-        self._end_run(out)
-        self._run_reason = reason
-        self._run_size = 0
-        self._run_sample = bytearray()
-
-    def _absorb(self, buf: bytearray, start: int, stop: int, out: list[LmsMessage]) -> None:
-        if self._run_reason is None:
-            self._start_run("garbage", out)
-        while start < stop:
-            take = min(stop - start, MAX_DISCARD_RUN - self._run_size)
-            room = BAD_FRAME_SAMPLE_BYTES - len(self._run_sample)
-            if room > 0:
-                self._run_sample += buf[start : start + min(room, take)]
-            self._run_size += take
-            start += take
-            if self._run_size >= MAX_DISCARD_RUN:
-                self._emit_run(out)  # report it, but stay out of sync: the run goes on
-
-    def _emit_run(self, out: list[LmsMessage]) -> None:
-        if self._run_reason is not None and self._run_size:
-            bad = BadFrame(self._run_reason, self._run_size, bytes(self._run_sample))
-            out.append(self.stats.count_bad(bad))
-        self._run_size = 0
-        self._run_sample = bytearray()
-
-    def _end_run(self, out: list[LmsMessage]) -> None:
-        self._emit_run(out)
-        self._run_reason = None
-
-    def _reject(self, reason: str, buf: bytearray, pos: int, out: list[LmsMessage]) -> int:
-        """Discard the STX at ``pos`` for ``reason``; the search resumes right after it."""
-        self._start_run(reason, out)
-        self._absorb(buf, pos, pos + 1, out)
-        return pos + 1
-
     # -- telegrams -------------------------------------------------------------------------
 
     def _candidate(self, buf: bytearray, pos: int, end: int, out: list[LmsMessage]) -> int:
@@ -909,22 +857,20 @@ class Decoder:
             return -1
         address = buf[pos + 1]
         if address not in ADDRESSES:
-            if self._run_reason is None:
-                self._start_run("garbage", out)
-            self._absorb(buf, pos, pos + 1, out)
+            self._run.absorb(buf, pos, pos + 1, out)
             return pos + 1
         if end - pos < HEADER_BYTES:
             return -1
         length = buf[pos + 2] | buf[pos + 3] << 8
         if not (2 if address & 0x80 else 1) <= length <= MAX_LEN:
-            return self._reject("length", buf, pos, out)
+            return self._run.reject("length", buf, pos, out)
         stop = pos + HEADER_BYTES + length + CRC_BYTES
         if stop > end:
             return -1
         frame = bytes(buf[pos:stop])
         if crc16(frame[:-CRC_BYTES]) != frame[-2] | frame[-1] << 8:
-            return self._reject("crc", buf, pos, out)
-        self._end_run(out)
+            return self._run.reject("crc", buf, pos, out)
+        self._run.end(out)
         message = _decode_frame(frame, address)
         if isinstance(message, BadFrame):
             out.append(self.stats.count_bad(message))

@@ -20,7 +20,7 @@ from typing import Any, Final, Literal
 
 from baromap.errors import ConfigError, EncodeError
 from baromap.messages import Odometry, wrap_angle
-from baromap.protocols.framing import BAD_FRAME_SAMPLE_BYTES, BadFrame, DecoderStats
+from baromap.protocols.framing import BadFrame, DecoderStats, DiscardRun, flush_truncated
 from baromap.protocols.robot_models import RobotModel
 
 SYNC: Final = b"\xfa\xfb"
@@ -31,8 +31,6 @@ MIN_COUNT: Final = 1 + CHECKSUM_BYTES
 #: ARIA's receiver: "spec says packet max size is 200".
 MAX_COUNT: Final = 200
 MAX_DATA: Final = MAX_COUNT - CHECKSUM_BYTES
-#: A pending run of discarded bytes is reported once it reaches this many bytes.
-MAX_DISCARD_RUN: Final = 4096
 
 
 class Command(enum.IntEnum):
@@ -604,9 +602,7 @@ class Decoder:
         self.source: Source = source
         self.stats = DecoderStats()
         self._buf = bytearray()
-        self._run_reason: str | None = None
-        self._run_size = 0
-        self._run_sample = bytearray()
+        self._run = DiscardRun(self.stats)
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[P2osMessage]:
         self.stats.bytes_in += len(data)
@@ -614,22 +610,11 @@ class Decoder:
         return self._process()
 
     def flush(self) -> list[P2osMessage]:
-        """End of stream (or of a line setting): settle everything still pending.
+        """End of stream or of a line setting (baud switch): settle what is pending.
 
-        An unfinished frame can no longer complete, so its first byte is discarded as
-        ``truncated`` and the bytes after it are searched again: a complete frame that a
-        bogus length was holding up still decodes. Then the pending discard run is reported.
+        See :func:`baromap.protocols.framing.flush_truncated`.
         """
-        out: list[P2osMessage] = []
-        while self._buf:
-            if self._run_reason != "truncated":
-                self._end_run(out)
-                self._run_reason = "truncated"
-            self._absorb(self._buf, 0, 1, out)
-            del self._buf[0]
-            out += self._process()
-        self._end_run(out)
-        return out
+        return flush_truncated(self._buf, self._run, self._process)
 
     def _process(self) -> list[P2osMessage]:
         buf = self._buf
@@ -644,23 +629,23 @@ class Decoder:
                     stop = end - 1  # may be the first half of a header
                 if stop == pos:
                     break
-                self._absorb(buf, pos, stop, out)
+                self._run.absorb(buf, pos, stop, out)
                 pos = stop
                 continue
             if end - pos < HEADER_BYTES:
                 break
             count = buf[pos + 2]
             if not MIN_COUNT <= count <= MAX_COUNT:
-                pos = self._reject("length", buf, pos, out)
+                pos = self._run.reject("length", buf, pos, out)
                 continue
             stop = pos + HEADER_BYTES + count
             if stop > end:
                 break
             body = bytes(buf[pos + HEADER_BYTES : stop - CHECKSUM_BYTES])
             if checksum(body) != buf[stop - 2] << 8 | buf[stop - 1]:
-                pos = self._reject("checksum", buf, pos, out)
+                pos = self._run.reject("checksum", buf, pos, out)
                 continue
-            self._end_run(out)
+            self._run.end(out)
             message = self._decode(body)
             if message is None:
                 out.append(self.stats.count_bad(BadFrame.of("format", buf[pos:stop])))
@@ -675,37 +660,6 @@ class Decoder:
         if self.source == "host":
             return _decode_command(body)
         return _decode_robot_packet(body)
-
-    def _absorb(self, buf: bytearray, start: int, stop: int, out: list[P2osMessage]) -> None:
-        if self._run_reason is None:
-            self._run_reason = "garbage"
-        while start < stop:
-            take = min(stop - start, MAX_DISCARD_RUN - self._run_size)
-            room = BAD_FRAME_SAMPLE_BYTES - len(self._run_sample)
-            if room > 0:
-                self._run_sample += buf[start : start + min(room, take)]
-            self._run_size += take
-            start += take
-            if self._run_size >= MAX_DISCARD_RUN:
-                self._emit_run(out)
-
-    def _emit_run(self, out: list[P2osMessage]) -> None:
-        if self._run_reason is not None and self._run_size:
-            bad = BadFrame(self._run_reason, self._run_size, bytes(self._run_sample))
-            out.append(self.stats.count_bad(bad))
-        self._run_size = 0
-        self._run_sample = bytearray()
-
-    def _end_run(self, out: list[P2osMessage]) -> None:
-        self._emit_run(out)
-        self._run_reason = None
-
-    def _reject(self, reason: str, buf: bytearray, pos: int, out: list[P2osMessage]) -> int:
-        """Discard the FA at ``pos`` for ``reason``; the search resumes right after it."""
-        self._end_run(out)
-        self._run_reason = reason
-        self._absorb(buf, pos, pos + 1, out)
-        return pos + 1
 
 
 # ---------------------------------------------------------------------------------------------
