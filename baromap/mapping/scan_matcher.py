@@ -227,36 +227,34 @@ def correlative_search(
     coarse_half = math.ceil(half_cells / step)
     coarse_offsets = np.arange(-coarse_half, coarse_half + 1) * step
     coarse = _score_grid(coarse_field, points, guess, angles, coarse_offsets)
-    order = np.argsort(coarse.reshape(-1))[::-1]
+    cx, cy = guess[0] + coarse_offsets * res, guess[1] + coarse_offsets * res
+    # the prior is subtracted from the upper bound too; a bound stays a bound
+    coarse_objective = coarse - _prior_penalty(prior, angles, cx, cy)
+    order = np.argsort(coarse_objective.reshape(-1))[::-1]
     fine_offsets = np.arange(-(step // 2), step // 2 + 1)
-    found: list[tuple[float, FloatArray]] = []
+    found: list[tuple[float, float, FloatArray]] = []  # objective, score, pose
     for flat in order[: keep * 4]:
         a, iy, ix = np.unravel_index(int(flat), coarse.shape)
-        bound = float(coarse[a, iy, ix])
+        bound = float(coarse_objective[a, iy, ix])
         if len(found) >= keep and bound <= max(f[0] for f in found):
-            break  # an upper bound below the best fine score cannot win
-        center = np.array(
-            [guess[0] + coarse_offsets[ix] * res, guess[1] + coarse_offsets[iy] * res, angles[a]]
-        )
+            break  # an upper bound below the best fine objective cannot win
+        center = np.array([cx[ix], cy[iy], angles[a]])
         fine_angles = angles[a] + window.angle_step_rad * np.array([-0.5, 0.0, 0.5])
         scores = _score_grid(field, points, center, fine_angles, fine_offsets)
-        fa, fy, fx = np.unravel_index(int(np.argmax(scores)), scores.shape)
-        pose = np.array(
-            [
-                center[0] + fine_offsets[fx] * res,
-                center[1] + fine_offsets[fy] * res,
-                fine_angles[fa],
-            ]
-        )
-        found.append((float(scores[fa, fy, fx]), pose))
+        fx_all, fy_all = center[0] + fine_offsets * res, center[1] + fine_offsets * res
+        objective = scores - _prior_penalty(prior, fine_angles, fx_all, fy_all)
+        fa, fy, fx = np.unravel_index(int(np.argmax(objective)), objective.shape)
+        pose = np.array([fx_all[fx], fy_all[fy], fine_angles[fa]])
+        found.append((float(objective[fa, fy, fx]), float(scores[fa, fy, fx]), pose))
     if not found:
         return np.asarray(guess, dtype=np.float64).copy(), 0.0, 0.0
     found.sort(key=lambda f: f[0], reverse=True)
-    best_score, best_pose = found[0]
+    best_objective, best_score, best_pose = found[0]
     runner_up = 0.0
-    for score, pose in found[1:]:
+    for objective_value, _, pose in found[1:]:
         if np.hypot(*(pose[:2] - best_pose[:2])) > DISTINCT_M:
-            runner_up = score
+            # reported on the score's scale: how close a different answer came
+            runner_up = best_score - (best_objective - objective_value)
             break
     return best_pose, best_score, runner_up
 

@@ -77,6 +77,10 @@ class SlamConfig:
         )
     )
     loop_min_score: float = 0.55
+    #: a weak pull of closures towards the current estimate: among equally good corridor
+    #: alignments the one nearest the estimate wins
+    loop_prior_sigma_m: float = 0.5
+    loop_prior_sigma_rad: float = math.radians(5.0)
     #: a closure is ambiguous (a corridor with evenly spaced doors) when a pose at least
     #: 0.3 m away scores within this ratio of the best
     loop_max_ambiguity: float = 0.95
@@ -158,15 +162,23 @@ class _Keyframes:
 
 
 def _field_around(
-    points: FloatArray, center: FloatArray, config: SlamConfig, margin: float
+    points: FloatArray, center: FloatArray, config: SlamConfig, margin: float, fine: bool = False
 ) -> LikelihoodField:
+    """Likelihood field of submap points around where the scan can land.
+
+    ``fine`` halves cell and kernel for a small enclosed scan (the elevator car): its walls
+    are a metre away, where a degree of rotation moves points less than a 5 cm cell.
+    """
     reach = config.max_range_m + margin
     bounds = (center[0] - reach, center[1] - reach, center[0] + reach, center[1] + reach)
     if len(points):
         lo = np.maximum(points.min(axis=0), [bounds[0], bounds[1]])
         hi = np.minimum(points.max(axis=0), [bounds[2], bounds[3]])
         bounds = (lo[0], lo[1], max(hi[0], lo[0]), max(hi[1], lo[1]))
-    return LikelihoodField.from_points(points, config.resolution_m, config.sigma_m, bounds)
+    scale = 0.5 if fine else 1.0
+    return LikelihoodField.from_points(
+        points, config.resolution_m * scale, config.sigma_m * scale, bounds
+    )
 
 
 def _info(sigma_xy: float, sigma_theta: float) -> FloatArray:
@@ -240,7 +252,9 @@ def run_slam(
         if k == visit_start and _in_car(k - 1, k, clouds, config):
             # the ride: both scans see the closed car, which travels with the robot, so
             # matching them measures the little the robot turned while the floors changed
-            fld = _field_around(clouds.world_points([k - 1], graph.poses), guess, config, 1.5)
+            fld = _field_around(
+                clouds.world_points([k - 1], graph.poses), guess, config, 1.5, fine=True
+            )
             prior = Prior(guess, sigma_xy, sigma_theta, config.prior_weight)
             result = match(fld, clouds.points[k], guess, config.front_window, prior=prior)
             if result.score >= config.ride_min_score:
@@ -264,7 +278,13 @@ def run_slam(
         elif k > visit_start and len(clouds.points[k]) >= 10:
             ids = list(range(max(visit_start, k - config.submap_keyframes), k))
             ref = clouds.world_points(ids, graph.poses)
-            fld = _field_around(ref, guess, config, config.front_window.linear_m + 1.0)
+            fld = _field_around(
+                ref,
+                guess,
+                config,
+                config.front_window.linear_m + 1.0,
+                fine=bool(clouds.extent[k] < config.loop_min_extent_m),
+            )
             prior = Prior(guess, sigma_xy, sigma_theta, config.prior_weight)
             result = match(fld, clouds.points[k], guess, config.front_window, prior=prior)
             if result.score >= config.front_min_score:
@@ -361,13 +381,16 @@ def _try_loop(
     stats["loop_attempts"] += 1
     if clouds.extent[k] < config.loop_min_extent_m:
         window = config.front_window
-        fld = _field_around(ref, poses[k], config, window.linear_m + 1.0)
+        fld = _field_around(ref, poses[k], config, window.linear_m + 1.0, fine=True)
         result = match(fld, clouds.points[k], poses[k], window)
     else:
         window = config.loop_window
         fld = _field_around(ref, poses[k], config, window.linear_m + 1.0)
         coarse = fld.max_filtered(window.coarse_step_cells)
-        result = match(fld, clouds.points[k], poses[k], window, coarse_field=coarse)
+        prior = Prior(
+            poses[k], config.loop_prior_sigma_m, config.loop_prior_sigma_rad, config.prior_weight
+        )
+        result = match(fld, clouds.points[k], poses[k], window, coarse_field=coarse, prior=prior)
     if result.score < config.loop_min_score:
         return None
     if result.runner_up >= config.loop_max_ambiguity * result.score:
