@@ -271,3 +271,30 @@ def _map_scores(
     union = np.count_nonzero(est_free | true_free)
     iou = np.count_nonzero(est_free & true_free) / union if union else 0.0
     return occupied_precision, float(iou)
+
+
+def evaluate_recording(build: Any, recording: str | Path) -> SimReport:
+    """:func:`evaluate_sim` with the building and the truth read from a simulated recording."""
+    from baromap.errors import InputFormatError
+    from baromap.recording import read_messages, read_metadata
+    from baromap.sim.building import make_building
+
+    meta = read_metadata(recording).get("baromap.sim")
+    if meta is None:
+        raise InputFormatError(f"{recording} is not a simulated run (no baromap.sim metadata)")
+    building = make_building(int(meta["seed"]), int(meta["floors"]))
+    t: list[int] = []
+    xyt: list[tuple[float, float, float]] = []
+    floor: list[int] = []
+    for rec in read_messages(recording, ["/truth/pose"]):
+        m = rec.message
+        t.append(m.t_ns)
+        xyt.append((m.x_m, m.y_m, m.theta_rad))
+        floor.append(m.floor)
+    return evaluate_sim(
+        build,
+        building,
+        np.array(t, dtype=np.int64),
+        np.array(xyt, dtype=np.float64),
+        np.array(floor, dtype=np.int64),
+    )
