@@ -84,6 +84,10 @@ class SlamConfig:
     #: a closure is ambiguous (a corridor with evenly spaced doors) when a pose at least
     #: 0.3 m away scores within this ratio of the best
     loop_max_ambiguity: float = 0.95
+    #: largest plausible correction by a closure: this much plus this much per metre driven
+    #: between the two keyframes (the front end's drift)
+    loop_max_move_m: float = 0.1
+    loop_max_move_per_m: float = 0.03
     #: weight of the odometry prior in front-end matching (see scan_matcher.Prior)
     prior_weight: float = 0.01
     loop_sigma_xy: float = 0.02
@@ -144,17 +148,25 @@ def select_keyframes(
 class _Keyframes:
     """Per-keyframe point clouds, filtered once."""
 
-    def __init__(self, scans: ScanBlock, indices: IntArray, config: SlamConfig) -> None:
+    def __init__(
+        self, scans: ScanBlock, odom: FloatArray, indices: IntArray, config: SlamConfig
+    ) -> None:
         self.points = [
             voxel_filter(scans.endpoints(int(s), config.max_range_m), config.voxel_m)
             for s in indices
         ]
+        steps = np.hypot(*np.diff(odom[indices, :2], axis=0).T) if len(indices) > 1 else []
+        self.distance = np.concatenate([[0.0], np.cumsum(steps)])
         self.extent = np.array(
             [
                 float(np.percentile(np.hypot(p[:, 0], p[:, 1]), 90)) if len(p) else 0.0
                 for p in self.points
             ]
         )
+
+    def path_m(self, a: int, b: int) -> float:
+        """Odometric path length between keyframes a and b."""
+        return float(abs(self.distance[b] - self.distance[a]))
 
     def world_points(self, ids: list[int] | IntArray, poses: FloatArray) -> FloatArray:
         clouds = [se2.transform_points(poses[k], self.points[k]) for k in ids]
@@ -222,7 +234,7 @@ def run_slam(
     kf_scan = select_keyframes(odom, visit, floor, config)
     if len(kf_scan) == 0:
         raise ValueError("no scan is on a floor: nothing to map")
-    clouds = _Keyframes(scans, kf_scan, config)
+    clouds = _Keyframes(scans, odom, kf_scan, config)
     kf_floor = floor[kf_scan]
     kf_visit = visit[kf_scan]
     graph = PoseGraph()
@@ -238,11 +250,15 @@ def run_slam(
     pending_loops = 0
     last_loop_target = -(10**9)
     for k in range(1, len(kf_scan)):
+        if kf_visit[k] != kf_visit[k - 1]:
+            if _close_visit(visit_start, k - 1, graph, clouds, config):
+                loops.append((visit_start, k - 1))
+                graph.optimize(iterations=10)
+                pending_loops = 0
+            visit_start = k
         step = se2.between(odom[kf_scan[k - 1]], odom[kf_scan[k]])
         guess = se2.compose(graph.poses[k - 1], step)
         graph.add_node(guess)
-        if kf_visit[k] != kf_visit[k - 1]:
-            visit_start = k
         dist = math.hypot(step[0], step[1])
         sigma_xy = 0.02 + config.odom_sigma_xy_per_m * dist
         sigma_theta = math.radians(0.5) + config.odom_sigma_theta_per_m * dist + 0.05 * abs(step[2])
@@ -325,6 +341,8 @@ def run_slam(
             pending_loops = 0
         if progress is not None:
             progress(int(kf_scan[k]))
+    if _close_visit(visit_start, len(kf_scan) - 1, graph, clouds, config):
+        loops.append((visit_start, len(kf_scan) - 1))
     graph.optimize(iterations=30)
     stats["keyframes"] = len(kf_scan)
     stats["loops"] = len(loops)
@@ -340,6 +358,42 @@ def _in_car(a: int, b: int, clouds: _Keyframes, config: SlamConfig) -> bool:
         and clouds.extent[a] < config.loop_min_extent_m
         and clouds.extent[b] < config.loop_min_extent_m
     )
+
+
+def _close_visit(
+    first: int, last: int, graph: PoseGraph, clouds: _Keyframes, config: SlamConfig
+) -> bool:
+    """Close a floor visit that began and ends in the closed elevator car.
+
+    The robot leaves the car, explores, and comes back into the same car: the two car scans
+    are nearly the same scan, so matching them pins the visit's heading to within a tenth
+    of a degree, where the turns inside the car (which wheel odometry misjudges most) would
+    otherwise hand a degree or so of heading error to every floor that follows.
+    """
+    if last - first < config.loop_min_separation or not _in_car(first, last, clouds, config):
+        return False
+    poses = graph.poses
+    fld = _field_around(clouds.world_points([first], poses), poses[last], config, 1.5, fine=True)
+    prior = Prior(
+        poses[last], config.loop_prior_sigma_m, config.loop_prior_sigma_rad, config.prior_weight
+    )
+    result = match(fld, clouds.points[last], poses[last], config.front_window, prior=prior)
+    if result.score < config.ride_min_score:
+        return False
+    info = _match_info(
+        result.information, config.match_cov_scale, config.loop_sigma_xy, config.loop_sigma_theta
+    )
+    graph.add_edge(
+        Edge(
+            first,
+            last,
+            se2.between(poses[first], result.pose),
+            _rotate_info(info, result.pose[2]),
+            "loop",
+            robust_c=config.loop_robust_c,
+        )
+    )
+    return True
 
 
 def _try_loop(
@@ -393,6 +447,12 @@ def _try_loop(
         result = match(fld, clouds.points[k], poses[k], window, coarse_field=coarse, prior=prior)
     if result.score < config.loop_min_score:
         return None
+    moved = math.hypot(result.pose[0] - poses[k, 0], result.pose[1] - poses[k, 1])
+    if moved > config.loop_max_move_m + config.loop_max_move_per_m * clouds.path_m(target, k):
+        # a correction larger than the front end can have drifted since the target is an
+        # alias (a similar room, the next door along), not a loop
+        stats["loop_implausible"] = stats.get("loop_implausible", 0) + 1
+        return None
     if result.runner_up >= config.loop_max_ambiguity * result.score:
         stats["loop_ambiguous"] = stats.get("loop_ambiguous", 0) + 1
         return None
@@ -410,6 +470,7 @@ def _try_loop(
         )
     )
     log.debug("loop closure", frm=target, to=k, score=round(result.score, 3))
+
     return target
 
 
