@@ -2,9 +2,12 @@
 against the building's true floor plans. Shared by the tests and ``bench/mapping.py`` so both
 measure the same thing.
 
-Simulated-run measures (all after aligning the estimated frame to the building frame with ONE
-rigid transform for the whole run, fitted to all on-floor scan poses, so a floor that is
-misaligned with the others shows up as an error instead of being fitted away):
+Simulated-run measures. Each floor map is compared with its plan twice: after aligning it by
+its own rigid transform (fitted to that floor's scan poses: "does this map agree with the
+plan?"), and after aligning the whole building by ONE transform fitted to all floors (where any
+heading difference between floors also counts, magnified by the building's 60 m length: 0.2 deg
+moves a wall 30 m from the lobby by 10 cm). How the floors line up with each other is measured
+directly at the elevator lobby, under the one building-wide transform.
 
 - occupied precision: the fraction of a floor map's occupied cells whose centre lies within
   10 cm of a true wall face;
@@ -89,8 +92,10 @@ def intel_relations(
 class FloorScore:
     floor: int  # detected floor index
     true_floor: int
-    occupied_precision: float
-    free_iou: float
+    occupied_precision: float  # own alignment
+    free_iou: float  # own alignment
+    building_occupied_precision: float  # one transform for the whole building
+    building_free_iou: float
     lobby_error_m: float
     lobby_error_deg: float
     height_error_m: float
@@ -106,6 +111,7 @@ class SimReport:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def passed(self) -> bool:
+        """The issue's bar: each map agrees with its plan, floors align at the lobby."""
         return (
             all(
                 f.occupied_precision >= 0.9
@@ -120,12 +126,14 @@ class SimReport:
 
     def lines(self) -> list[str]:
         out = [
-            "floor true  occ<=10cm  freeIoU  lobby[m]  lobby[deg]  height err[m]",
+            "                 per-floor fit      one building fit",
+            "floor true  occ<=10cm  freeIoU  occ<=10cm  freeIoU  lobby[m] lobby[deg] height err[m]",
         ]
         for f in self.floors:
             out.append(
-                f"{f.floor:5d} {f.true_floor:5d}  {f.occupied_precision:9.3f}  {f.free_iou:7.3f}"
-                f"  {f.lobby_error_m:8.3f}  {f.lobby_error_deg:10.2f}  {f.height_error_m:+13.3f}"
+                f"{f.floor:5d} {f.true_floor:4d}  {f.occupied_precision:9.3f}  {f.free_iou:7.3f}"
+                f"  {f.building_occupied_precision:9.3f}  {f.building_free_iou:7.3f}"
+                f"  {f.lobby_error_m:8.3f} {f.lobby_error_deg:10.2f} {f.height_error_m:+13.3f}"
             )
         out.append(
             f"loop closures {self.loop_closures}, across floors {self.cross_floor_closures}; "
@@ -199,7 +207,9 @@ def evaluate_sim(
         mine = on_floor & (seg.scan_floor == info.index)
         kf = build.slam.keyframes[seg.scan_floor[build.slam.keyframes] == info.index]
         swept = build_grid(build.run.scans, kf, true_pose[kf], resolution=grid.resolution)
-        occ, iou = _map_scores(grid, align, plan, swept)
+        own = fit_rigid(est[mine, :2], true_pose[mine, :2])
+        occ, iou = _map_scores(grid, own, plan, swept)
+        b_occ, b_iou = _map_scores(grid, align, plan, swept)
         lobby = mine & (
             np.hypot(true_pose[:, 0] - building.lobby_xy[0], true_pose[:, 1] - building.lobby_xy[1])
             < LOBBY_RADIUS_M
@@ -212,7 +222,17 @@ def evaluate_sim(
             lobby_m = lobby_deg = float("nan")
         height_err = info.elevation_m - (plan.elevation_m - base_true)
         scores.append(
-            FloorScore(info.index, t_floor, occ, iou, lobby_m, lobby_deg, float(height_err))
+            FloorScore(
+                floor=info.index,
+                true_floor=t_floor,
+                occupied_precision=occ,
+                free_iou=iou,
+                building_occupied_precision=b_occ,
+                building_free_iou=b_iou,
+                lobby_error_m=lobby_m,
+                lobby_error_deg=lobby_deg,
+                height_error_m=float(height_err),
+            )
         )
     return SimReport(
         floors=scores,

@@ -1,15 +1,24 @@
 """Floor-aware graph SLAM over a whole run.
 
-Front end: keyframes (every ``keyframe_m`` metres or ``keyframe_rad`` of odometric motion, and
-the first scan of every floor visit) are matched against a local submap made of the previous
-keyframes of the same visit; the match becomes the sequential edge, or plain odometry when the
-match is poor. Loop closures: each keyframe looks for keyframes of the *same floor* (the
-barometer's verdict) that are near in the current estimate but not in its local submap, and
-matches against the submap around the nearest with a wide multi-resolution search; accepted
-closures enter the pose graph with a Cauchy kernel. Different floors never close against each
-other: their geometry can be identical (stacked offices), and only the barometer tells them
-apart. Floors are joined by the odometry edge across each elevator ride, so all floors share
-one frame and align at the lobby.
+Keyframes: every ``keyframe_m`` metres or ``keyframe_rad`` of odometric motion, plus the first
+and last scan of every floor visit (the robot in the elevator car, before and after a ride).
+
+Front end: each keyframe is matched against a local submap of the previous keyframes of the
+same visit, with odometry as a soft prior (so a featureless corridor cannot make it slide).
+Both the odometry and the match enter the pose graph, the match with the information of its
+own fit (weak along a corridor, strong across it).
+
+Loop closures: each keyframe looks for keyframes of the *same floor* (the barometer's
+verdict) that are near in the current estimate but outside its submap, and matches against
+the submap around the nearest with a wide multi-resolution search; ambiguous matches and
+corrections larger than the drift the front end can have accumulated are refused, and
+accepted closures carry a Cauchy kernel. Different floors never close against each other:
+stacked floors can look identical, and only the barometer tells them apart.
+
+Floors: the ride joins two floors through odometry, refined by matching the closed car before
+and after the ride (the car travels with the robot, so this is not a closure between floors);
+a visit that starts and ends in the car is closed car-to-car. Together they keep all floors
+in one frame, aligned at the lobby.
 
 Scans that are not keyframes get the pose of the nearest keyframe composed with the odometry
 motion between them: within a keyframe spacing odometry is good to a centimetre or two.
@@ -27,7 +36,13 @@ import structlog
 
 from baromap.mapping import se2
 from baromap.mapping.pose_graph import Edge, PoseGraph
-from baromap.mapping.scan_matcher import LikelihoodField, Prior, SearchWindow, match
+from baromap.mapping.scan_matcher import (
+    LikelihoodField,
+    MatchResult,
+    Prior,
+    SearchWindow,
+    match,
+)
 from baromap.mapping.scans import ScanBlock, voxel_filter
 
 log = structlog.get_logger(__name__)
@@ -46,7 +61,7 @@ class SlamConfig:
     max_range_m: float = 20.0
     voxel_m: float = 0.05
     resolution_m: float = 0.05
-    sigma_m: float = 0.06
+    sigma_m: float = 0.05
     submap_keyframes: int = 20
     front_window: SearchWindow = field(
         default_factory=lambda: SearchWindow(
@@ -248,7 +263,6 @@ def run_slam(
     }
     visit_start = 0
     pending_loops = 0
-    last_loop_target = -(10**9)
     for k in range(1, len(kf_scan)):
         if kf_visit[k] != kf_visit[k - 1]:
             if _close_visit(visit_start, k - 1, graph, clouds, config):
@@ -261,7 +275,11 @@ def run_slam(
         graph.add_node(guess)
         dist = math.hypot(step[0], step[1])
         sigma_xy = 0.02 + config.odom_sigma_xy_per_m * dist
-        sigma_theta = math.radians(0.5) + config.odom_sigma_theta_per_m * dist + 0.05 * abs(step[2])
+        sigma_theta = (
+            math.radians(0.5)
+            + config.odom_sigma_theta_per_m * dist
+            + config.odom_sigma_theta_per_rad * abs(step[2])
+        )
         # odometry always enters the graph: along a featureless corridor it is the only
         # measurement of the motion, and the match edge's information says so
         graph.add_edge(Edge(k - 1, k, step, _info(sigma_xy, sigma_theta), "odometry"))
@@ -275,21 +293,7 @@ def run_slam(
             result = match(fld, clouds.points[k], guess, config.front_window, prior=prior)
             if result.score >= config.ride_min_score:
                 graph.poses[k] = result.pose
-                info = _match_info(
-                    result.information,
-                    config.match_cov_scale,
-                    config.match_sigma_xy,
-                    config.match_sigma_theta,
-                )
-                graph.add_edge(
-                    Edge(
-                        k - 1,
-                        k,
-                        se2.between(graph.poses[k - 1], result.pose),
-                        _rotate_info(info, result.pose[2]),
-                        "ride",
-                    )
-                )
+                graph.add_edge(_match_edge(graph, k - 1, k, result, config=config, kind="ride"))
                 stats["ride_matches"] = stats.get("ride_matches", 0) + 1
         elif k > visit_start and len(clouds.points[k]) >= 10:
             ids = list(range(max(visit_start, k - config.submap_keyframes), k))
@@ -305,25 +309,11 @@ def run_slam(
             result = match(fld, clouds.points[k], guess, config.front_window, prior=prior)
             if result.score >= config.front_min_score:
                 graph.poses[k] = result.pose
-                info = _match_info(
-                    result.information,
-                    config.match_cov_scale,
-                    config.match_sigma_xy,
-                    config.match_sigma_theta,
-                )
-                graph.add_edge(
-                    Edge(
-                        k - 1,
-                        k,
-                        se2.between(graph.poses[k - 1], result.pose),
-                        _rotate_info(info, result.pose[2]),
-                        "match",
-                    )
-                )
+                graph.add_edge(_match_edge(graph, k - 1, k, result, config=config, kind="match"))
                 stats["front_matches"] += 1
             else:
                 stats["front_failures"] += 1
-        if k % config.loop_every == 0 and k - last_loop_target > 0:
+        if k % config.loop_every == 0:
             target = _try_loop(
                 k,
                 graph=graph,
@@ -348,6 +338,31 @@ def run_slam(
     stats["loops"] = len(loops)
     scan_poses = _all_scan_poses(odom, kf_scan, graph.poses, floor)
     return SlamResult(kf_scan, graph.poses.copy(), scan_poses, graph, loops, stats)
+
+
+def _match_edge(
+    graph: PoseGraph, i: int, j: int, result: MatchResult, *, config: SlamConfig, kind: str
+) -> Edge:
+    """Edge i -> j from a match of keyframe j (against a map in the frame of the graph).
+
+    Sequential and ride edges are trusted (plain least squares); loop closures get the
+    robust kernel, their floor sigmas, and can be outvoted.
+    """
+    loop = kind == "loop"
+    info = _match_info(
+        result.information,
+        config.match_cov_scale,
+        config.loop_sigma_xy if loop else config.match_sigma_xy,
+        config.loop_sigma_theta if loop else config.match_sigma_theta,
+    )
+    return Edge(
+        i,
+        j,
+        se2.between(graph.poses[i], result.pose),
+        _rotate_info(info, result.pose[2]),
+        kind,
+        robust_c=config.loop_robust_c if loop else None,
+    )
 
 
 def _in_car(a: int, b: int, clouds: _Keyframes, config: SlamConfig) -> bool:
@@ -380,19 +395,7 @@ def _close_visit(
     result = match(fld, clouds.points[last], poses[last], config.front_window, prior=prior)
     if result.score < config.ride_min_score:
         return False
-    info = _match_info(
-        result.information, config.match_cov_scale, config.loop_sigma_xy, config.loop_sigma_theta
-    )
-    graph.add_edge(
-        Edge(
-            first,
-            last,
-            se2.between(poses[first], result.pose),
-            _rotate_info(info, result.pose[2]),
-            "loop",
-            robust_c=config.loop_robust_c,
-        )
-    )
+    graph.add_edge(_match_edge(graph, first, last, result, config=config, kind="loop"))
     return True
 
 
@@ -456,19 +459,7 @@ def _try_loop(
     if result.runner_up >= config.loop_max_ambiguity * result.score:
         stats["loop_ambiguous"] = stats.get("loop_ambiguous", 0) + 1
         return None
-    info = _match_info(
-        result.information, config.match_cov_scale, config.loop_sigma_xy, config.loop_sigma_theta
-    )
-    graph.add_edge(
-        Edge(
-            target,
-            k,
-            se2.between(poses[target], result.pose),
-            _rotate_info(info, result.pose[2]),
-            "loop",
-            robust_c=config.loop_robust_c,
-        )
-    )
+    graph.add_edge(_match_edge(graph, target, k, result, config=config, kind="loop"))
     log.debug("loop closure", frm=target, to=k, score=round(result.score, 3))
 
     return target
