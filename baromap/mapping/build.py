@@ -270,6 +270,11 @@ def _write_pressure_png(result: BuildResult, path: Path) -> Path:
         rate_pa_per_s=rate,
         transitions=transitions,
         threshold_pa_per_s=threshold,
+        smoothed_label=(
+            "smoothed, weather removed with the reference station"
+            if len(run.reference_t_ns)
+            else "smoothed"
+        ),
     )
     return path
 

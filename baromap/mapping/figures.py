@@ -49,6 +49,7 @@ def pressure_figure(
     rate_pa_per_s: FloatArray | None,
     transitions: Sequence[Transition],
     threshold_pa_per_s: float | None = None,
+    smoothed_label: str = "smoothed",
 ) -> None:
     plt = _pyplot()
     rows = 2 if rate_pa_per_s is not None else 1
@@ -56,7 +57,7 @@ def pressure_figure(
     ax = axes[0, 0]
     ax.plot(t_s, raw_pa, color="0.7", lw=0.6, label="raw")
     if smoothed_pa is not None:
-        ax.plot(t_s, smoothed_pa, color="C0", lw=1.2, label="smoothed")
+        ax.plot(t_s, smoothed_pa, color="C0", lw=1.2, label=smoothed_label)
     ax.set_ylabel("pressure [Pa]")
     for k, tr in enumerate(transitions):
         for a in axes[:, 0]:
