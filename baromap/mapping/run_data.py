@@ -33,7 +33,6 @@ class RunData:
     pressure_t_ns: IntArray
     pressure_pa: FloatArray
     temperature_c: FloatArray  # NaN where absent
-    floor_events: tuple[messages.FloorEvent, ...]
     metadata: dict[str, dict[str, str]]
     reference_t_ns: IntArray  # fixed reference barometer, empty when none was recorded
     reference_pa: FloatArray
@@ -91,10 +90,9 @@ def load_run(path: str | Path) -> RunData:
     baro_t: list[int] = []
     baro_p: list[float] = []
     baro_temp: list[float] = []
-    events: list[messages.FloorEvent] = []
     ref_t: list[int] = []
     ref_p: list[float] = []
-    wanted = [topics.SCAN, topics.ODOM, topics.BARO, topics.FLOOR_EVENT, topics.REFERENCE_PRESSURE]
+    wanted = [topics.SCAN, topics.ODOM, topics.BARO, topics.REFERENCE_PRESSURE]
     for rec in read_messages(path, wanted):
         msg = rec.message
         if rec.topic == topics.REFERENCE_PRESSURE:
@@ -111,8 +109,6 @@ def load_run(path: str | Path) -> RunData:
             baro_t.append(msg.t_ns)
             baro_p.append(msg.pressure_pa)
             baro_temp.append(np.nan if msg.temperature_c is None else msg.temperature_c)
-        elif isinstance(msg, messages.FloorEvent):
-            events.append(msg)
     if not scans:
         raise InputFormatError(f"{path}: no laser scans on {topics.SCAN}")
     if not odom_t:
@@ -129,7 +125,6 @@ def load_run(path: str | Path) -> RunData:
         pressure_t_ns=np.array(baro_t, dtype=np.int64),
         pressure_pa=np.array(baro_p, dtype=np.float64),
         temperature_c=np.array(baro_temp, dtype=np.float64),
-        floor_events=tuple(events),
         metadata=metadata,
         reference_t_ns=np.array(ref_t, dtype=np.int64),
         reference_pa=np.array(ref_p, dtype=np.float64),

@@ -1,16 +1,19 @@
 """Which floor each scan was taken on, from the barometer.
 
 The cut is recomputed from the whole recorded pressure series (``baromap.floors.detect_floors``)
-rather than taken from the live events: the recomputation can use a reference station and the
-finished floor identities, and its default method ("online", the daemon's detector replayed)
-takes floor heights from the steps across transitions, which weather drift does not spoil.
+rather than taken from the live /floor/event messages, whose floor indices can shift while the
+run goes on (a newly found lower floor renumbers the others): the recomputation sees the whole
+run, can use a reference station and the finished floor identities, and its default method
+("online", the daemon's detector replayed) takes floor heights from the steps across
+transitions, which weather drift does not spoil.
 
 Scans inside a transition (the elevator moving) belong to no floor: they are
 neither mapped nor used for loop closure, only their odometry joins the floors. A run without
 a barometer (a public laser log) is one floor.
 
-A *visit* is one uninterrupted stay on a floor; the SLAM front end never matches across a
-visit boundary (the submap behind the robot is the floor it just left).
+A *visit* is one uninterrupted stay on a floor; the SLAM front end never matches a new visit
+against the previous one's submap (that is the floor it just left); only the closed car
+before and after a ride is matched across the boundary.
 """
 
 from __future__ import annotations
