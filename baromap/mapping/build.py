@@ -8,6 +8,7 @@ CLI, the demo, tests and the benchmark produce identical outputs.
 
 from __future__ import annotations
 
+import math
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -83,21 +84,54 @@ def map_floors(
     finally:
         if bar is not None:
             bar.close()
-    kf_floor = segmentation.scan_floor[slam.keyframes]
     grids: dict[int, OccupancyGrid] = {}
     max_range = (config or SlamConfig()).max_range_m
     for info in segmentation.floors:
-        mine = np.nonzero(kf_floor == info.index)[0]
-        if len(mine) == 0:
+        scans = grid_scans(slam.scan_poses, segmentation.scan_floor == info.index)
+        if len(scans) == 0:
             continue
         grids[info.index] = build_grid(
             run.scans,
-            slam.keyframes[mine],
-            slam.keyframe_poses[mine],
+            scans,
+            slam.scan_poses[scans],
             resolution=resolution,
             max_range_m=max_range,
         )
     return slam, grids
+
+
+#: Scans inserted into a grid are at least this far apart (in the corrected trajectory).
+GRID_SCAN_M = 0.1
+GRID_SCAN_RAD = math.radians(5.0)
+
+
+def grid_scans(
+    poses: FloatArray,
+    on_floor: npt.NDArray[np.bool_],
+    min_m: float = GRID_SCAN_M,
+    min_rad: float = GRID_SCAN_RAD,
+) -> npt.NDArray[np.int64]:
+    """Scans of a floor that go into its grid: about three per keyframe spacing.
+
+    Keyframes alone leave cells far from the path crossed by one or two beams, too little
+    evidence to call them free; every scan would repeat the same evidence ten times over a
+    standing robot. Scans between keyframes have poses good to a centimetre (odometry over a
+    few centimetres from a corrected keyframe), so a denser, motion-spaced subset is used.
+    """
+    chosen: list[int] = []
+    last: FloatArray | None = None
+    for s in np.nonzero(on_floor)[0]:
+        p = poses[s]
+        if last is None:
+            chosen.append(int(s))
+            last = p
+            continue
+        d = math.hypot(p[0] - last[0], p[1] - last[1])
+        turn = abs(math.remainder(p[2] - last[2], math.tau))
+        if d >= min_m or turn >= min_rad:
+            chosen.append(int(s))
+            last = p
+    return np.array(chosen, dtype=np.int64)
 
 
 def build_maps(

@@ -13,7 +13,7 @@ directly at the elevator lobby, under the one building-wide transform.
   10 cm of a true wall face;
 - free-space IoU: intersection over union of the map's free cells and the plan's free space,
   both on the plan's 5 cm raster, over the part of the plan the laser actually mapped: the
-  cells that a grid built from the same keyframes at the TRUE poses classifies (free or
+  cells that a grid built from the same scans at the TRUE poses classifies (free or
   occupied). Rooms never looked into are not the SLAM's fault; everything the same scans
   would have mapped from perfect poses is;
 - lobby alignment: per floor, the mean difference between aligned estimated and true poses of
@@ -205,8 +205,11 @@ def evaluate_sim(
             continue
         plan = building.floors[t_floor]
         mine = on_floor & (seg.scan_floor == info.index)
-        kf = build.slam.keyframes[seg.scan_floor[build.slam.keyframes] == info.index]
-        swept = build_grid(build.run.scans, kf, true_pose[kf], resolution=grid.resolution)
+        from baromap.mapping.build import grid_scans
+
+        # the same scans the map was made of, at their true poses
+        used = grid_scans(est, seg.scan_floor == info.index)
+        swept = build_grid(build.run.scans, used, true_pose[used], resolution=grid.resolution)
         own = fit_rigid(est[mine, :2], true_pose[mine, :2])
         occ, iou = _map_scores(grid, own, plan, swept)
         b_occ, b_iou = _map_scores(grid, align, plan, swept)
