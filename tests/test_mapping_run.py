@@ -73,9 +73,9 @@ def test_short_run_meets_the_geometry_bars(short_run: Path, tmp_path: Path) -> N
         assert floor.lobby_error_m <= 0.10
         assert floor.lobby_error_deg <= 1.0
         assert abs(floor.height_error_m) <= 0.3
-        # a short run maps little of each floor, so frontier cells weigh more; the 0.9 bar
-        # is measured on the 46-minute run by bench/mapping.py
-        assert floor.free_iou >= 0.75
+        # a short run maps little of each floor, so its frontier cells weigh more; the 0.9
+        # bar itself is measured on the 46-minute run by bench/mapping.py
+        assert floor.free_iou >= 0.85
 
 
 def test_intel_relations_beat_gmapping(shared_data: Path) -> None:
