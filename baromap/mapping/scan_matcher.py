@@ -196,6 +196,8 @@ def _prior_penalty(
     return out
 
 
+#: How much score a prior-weighted refinement may give up for agreement with odometry.
+PRIOR_SCORE_SLACK = 0.01
 #: Two lattice poses farther apart than this are different answers, not one blurred peak.
 DISTINCT_M = 0.3
 
@@ -338,7 +340,12 @@ def match(
     coarse_field: LikelihoodField | None = None,
     prior: Prior | None = None,
 ) -> MatchResult:
-    """Search the window, then refine; the refined pose is kept only if it scores better."""
+    """Search the window, then refine; the refined pose is kept unless refinement went astray.
+
+    Astray: it slid more than two cells from the lattice optimum, or lost score. With a prior
+    the refinement trades a little score for agreement with odometry, so it may lose up to
+    ``PRIOR_SCORE_SLACK`` (a 1 % lower mean likelihood) before it counts as a loss.
+    """
     lattice_pose, _, runner_up = correlative_search(
         field, points, guess, window, coarse_field=coarse_field, prior=prior
     )
@@ -346,6 +353,7 @@ def match(
     _, lattice_score, lattice_info = refine(field, points, lattice_pose, iterations=0)
     pose, score, info = refine(field, points, lattice_pose, prior=prior)
     moved = np.hypot(*(pose[:2] - lattice_pose[:2]))
-    if score < lattice_score - (0.0 if prior is None else 0.01) or moved > 2 * field.resolution:
+    slack = 0.0 if prior is None else PRIOR_SCORE_SLACK
+    if score < lattice_score - slack or moved > 2 * field.resolution:
         return MatchResult(lattice_pose, lattice_score, lattice_info, runner_up)
     return MatchResult(pose, score, info, runner_up)
