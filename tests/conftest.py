@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import subprocess
 import threading
 import time
 from collections.abc import Iterator
@@ -11,7 +12,30 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
-SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+def find_shared_data() -> Path | None:
+    """The project's outside data (../shared/data), wherever this checkout was cloned to.
+
+    Looked up in $BAROMAP_SHARED_DATA, next to this checkout, then next to the repository it
+    was cloned from (a CI clone in a scratch directory still tests against the real data).
+    """
+    candidates = []
+    if os.environ.get("BAROMAP_SHARED_DATA"):
+        candidates.append(Path(os.environ["BAROMAP_SHARED_DATA"]))
+    candidates.append(REPO.parent / "shared" / "data")
+    origin = subprocess.run(
+        ["git", "-C", str(REPO), "config", "--get", "remote.origin.url"],
+        capture_output=True,
+        text=True,
+        check=False,
+    ).stdout.strip()
+    if origin.startswith(("/", "file://")):
+        candidates.append(Path(origin.removeprefix("file://")).resolve().parent / "shared" / "data")
+    return next((c for c in candidates if c.is_dir()), None)
+
+
+SHARED_DATA = find_shared_data()
 
 HARDWARE_OPTIONS = {
     "--baro-port": "serial port (or URL) of a real barometer board",
@@ -87,6 +111,6 @@ def no_leaks(request: pytest.FixtureRequest) -> Iterator[None]:
 
 @pytest.fixture
 def shared_data() -> Path:
-    if not SHARED_DATA.is_dir():
-        pytest.skip(f"shared data not found at {SHARED_DATA}")
+    if SHARED_DATA is None:
+        pytest.skip("shared data not found: set BAROMAP_SHARED_DATA to the shared/data folder")
     return SHARED_DATA
