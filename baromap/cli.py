@@ -69,8 +69,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return run(args)
     except BaromapError as exc:
-        structlog.get_logger("baromap.cli").error("command failed", error=str(exc))
-        print(f"baromap: error: {exc}", file=sys.stderr)
+        if args.log_json:
+            structlog.get_logger("baromap.cli").error("command failed", error=str(exc))
+        else:
+            print(f"baromap: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         return 130
