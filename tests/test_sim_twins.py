@@ -265,8 +265,39 @@ def test_baro_frames_are_clean_and_match_the_model(board: BaroTwin, clock: SimCl
     die = samples[-1].temperature_c
     modelled = expected + chip.offset_pa + 1.5 * (die - 25.0)
     assert abs(samples[-1].pressure_pa - modelled) < 2.0
-    seqs = [f.seq for f in frames]
-    assert len(set(seqs)) == len(seqs)
+    # Each frame type counts on its own from 0 after power-up (PROTOCOL.md), so the SAMPLE
+    # numbers run on without a gap across the STATUS, ACK and HELLO frames between them.
+    for cls in (baro.SampleFrame, baro.StatusFrame, baro.AckFrame, baro.HelloFrame):
+        seqs = [f.seq for f in frames if isinstance(f, cls)]
+        assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), cls.__name__
+    assert [f.seq for f in acks] == [0, 1]
+    hellos = [f for f in frames if isinstance(f, baro.HelloFrame)]
+    assert hellos[-1].seq == 1  # IDENTIFY's; the power-up HELLO was number 0
+
+
+def test_baro_answers_unknown_and_short_commands_like_the_firmware(board: BaroTwin) -> None:
+    def raw(frame_type: int, seq: int, payload: bytes) -> bytes:
+        body = baro.HEADER.pack(baro.PROTOCOL_VERSION, frame_type, seq, 0) + payload
+        return b"\x00" + baro.cobs_encode(body + baro.CRC.pack(baro.crc16(body))) + b"\x00"
+
+    decoder = baro.Decoder()
+    with serial.serial_for_url(board.path, baudrate=115200, timeout=0.05) as port:
+        port.write(raw(0x90, 11, b"\x01") + raw(baro.FrameType.SET_RATE, 12, b""))
+        port.write(raw(baro.FrameType.SAMPLE, 13, bytes(6)) + b"\x55" * 80 + b"\x00")
+        acks = read_until(
+            port, decoder, lambda f: isinstance(f, baro.AckFrame) and f.command_seq == 13
+        )
+        # The first STATUS after the last ACK counts all three frames and the oversized run.
+        frames = acks + read_until(port, decoder, lambda f: isinstance(f, baro.StatusFrame))
+    last_ack = max(i for i, f in enumerate(frames) if isinstance(f, baro.AckFrame))
+    status = next(f for f in frames[last_ack:] if isinstance(f, baro.StatusFrame))
+    results = {(f.command, f.command_seq): f.result for f in acks if isinstance(f, baro.AckFrame)}
+    assert results == {
+        (0x90, 11): baro.AckResult.UNKNOWN_COMMAND,
+        (baro.FrameType.SET_RATE, 12): baro.AckResult.BAD_LENGTH,
+        (baro.FrameType.SAMPLE, 13): baro.AckResult.UNKNOWN_COMMAND,
+    }
+    assert (status.rx_frames, status.rx_overflows) == (3, 1)
 
 
 def test_baro_faults_unplug_and_replug(board: BaroTwin) -> None:

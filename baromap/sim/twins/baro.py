@@ -1,8 +1,10 @@
 """The barometer-board twin: our firmware's COBS frames at 115200 baud, from the scenario.
 
 Like the firmware it sends a lone 0x00 and a HELLO at power-up, a SAMPLE every 1/rate s of
-its own clock (default 25 Hz), a STATUS every second, and answers SET_RATE,
-SET_OVERSAMPLING and IDENTIFY with an ACK (IDENTIFY then with a HELLO). Readings come from
+its own clock (default 25 Hz), a STATUS every second, and answers every well-formed host frame
+with an ACK (IDENTIFY then with a HELLO; unknown types UNKNOWN_COMMAND, short payloads
+BAD_LENGTH). Each frame type has its own sequence counter, as PROTOCOL.md specifies, so a gap
+in SAMPLE numbers means lost samples and nothing else. Readings come from
 the same atmosphere and BMP280 models as ``pressure_run``, evaluated at the robot's route
 time (which stops while the base's watchdog holds the robot) and the weather's own time.
 """
@@ -22,6 +24,13 @@ from baromap.sim.twins.base import SimClock, Twin
 
 BAUD = 115200
 FIRMWARE = (1, 0, 0)
+DEVICE_FRAME_TYPES = (
+    baro.FrameType.HELLO,
+    baro.FrameType.SAMPLE,
+    baro.FrameType.STATUS,
+    baro.FrameType.ERROR,
+    baro.FrameType.ACK,
+)
 
 
 class BaroTwin(Twin):
@@ -37,11 +46,11 @@ class BaroTwin(Twin):
         self.decoder = baro.Decoder()
         self.rate_hz = self.default_rate
         self.osrs = (16, 2, 16)
-        self.seq = 0
+        self.seq = dict.fromkeys(DEVICE_FRAME_TYPES, 0)
         self.counters = dict.fromkeys(
             ("frames_sent", "frames_dropped", "i2c_errors", "samples_missed", "rx_bytes"), 0
         )
-        self.rx_frames = self.rx_crc = self.rx_bad = 0
+        self.rx_frames = self.rx_crc = self.rx_bad = self.rx_overflows = 0
         self.sensor = Bmp280.random(self.clock.scenario.rng(STREAM_ROBOT_BARO), float(self.rate_hz))
         self._boot = time.monotonic()
         self._next_sample = self._boot + self.clock.real_delay(1.0 / self.rate_hz)
@@ -52,14 +61,18 @@ class BaroTwin(Twin):
     def _time_us(self) -> int:
         return round((time.monotonic() - self._boot) * self.clock.speed * 1e6) % baro.TIME_MODULO
 
+    def _next_seq(self, frame_type: baro.FrameType) -> int:
+        seq = self.seq[frame_type]
+        self.seq[frame_type] = (seq + 1) % baro.SEQ_MODULO
+        return seq
+
     def _send(self, frame: baro.Frame) -> None:
         self.port.send(baro.encode(frame))
         self.counters["frames_sent"] += 1
-        self.seq = (self.seq + 1) % baro.SEQ_MODULO
 
     def _hello(self) -> baro.HelloFrame:
         return baro.HelloFrame(
-            self.seq,
+            self._next_seq(baro.FrameType.HELLO),
             self._time_us(),
             0,
             *FIRMWARE,
@@ -74,14 +87,33 @@ class BaroTwin(Twin):
     def on_bytes(self, data: bytes) -> None:
         self.counters["rx_bytes"] += len(data)
         for frame in self.decoder.feed(data):
-            if isinstance(frame, BadFrame):
-                if frame.reason == "crc":
-                    self.rx_crc += 1
-                else:
-                    self.rx_bad += 1
-                continue
-            self.rx_frames += 1
-            self._command(frame)
+            if not isinstance(frame, BadFrame):
+                self.rx_frames += 1
+                self._command(frame)
+            elif frame.reason in ("type", "length"):
+                # CRC and version good: the firmware counts it as received and answers it.
+                self.rx_frames += 1
+                self._refuse(frame)
+            elif frame.reason == "crc":
+                self.rx_crc += 1
+            elif frame.reason == "oversized":
+                self.rx_overflows += 1
+            else:
+                self.rx_bad += 1
+
+    def _refuse(self, bad: BadFrame) -> None:
+        """ACK UNKNOWN_COMMAND or BAD_LENGTH for a well-formed frame the codec cannot decode."""
+        raw = baro.cobs_decode(bad.sample)  # the whole frame: at most MAX_ENCODED bytes
+        if raw is None or len(raw) < baro.MIN_FRAME:
+            return
+        _, frame_type, seq, _ = baro.HEADER.unpack_from(raw)
+        known = frame_type in (baro.FrameType.SET_RATE, baro.FrameType.SET_OVERSAMPLING)
+        result = baro.AckResult.BAD_LENGTH if known else baro.AckResult.UNKNOWN_COMMAND
+        self._ack(frame_type, seq, result)
+
+    def _ack(self, command: int, command_seq: int, result: baro.AckResult) -> None:
+        seq = self._next_seq(baro.FrameType.ACK)
+        self._send(baro.AckFrame(seq, self._time_us(), command, command_seq, result))
 
     def _command(self, frame: object) -> None:
         result = baro.AckResult.OK
@@ -103,10 +135,7 @@ class BaroTwin(Twin):
                 result = baro.AckResult.BAD_VALUE
         elif not isinstance(frame, baro.IdentifyCommand):
             result = baro.AckResult.UNKNOWN_COMMAND
-        ftype = int(getattr(frame, "TYPE", 0))
-        self._send(
-            baro.AckFrame(self.seq, self._time_us(), ftype, getattr(frame, "seq", 0), result)
-        )
+        self._ack(int(getattr(frame, "TYPE", 0)), getattr(frame, "seq", 0), result)
         if isinstance(frame, baro.IdentifyCommand):
             self._send(self._hello())
 
@@ -116,7 +145,7 @@ class BaroTwin(Twin):
             self._next_status += self.clock.real_delay(1.0)
             self._send(
                 baro.StatusFrame(
-                    seq=self.seq,
+                    seq=self._next_seq(baro.FrameType.STATUS),
                     time_us=self._time_us(),
                     frames_sent=self.counters["frames_sent"],
                     frames_dropped=self.counters["frames_dropped"],
@@ -126,7 +155,7 @@ class BaroTwin(Twin):
                     rx_frames=self.rx_frames,
                     rx_crc_errors=self.rx_crc,
                     rx_bad_frames=self.rx_bad,
-                    rx_overflows=0,
+                    rx_overflows=self.rx_overflows,
                     sensor_state=baro.SensorState.RUNNING,
                 )
             )
@@ -138,7 +167,8 @@ class BaroTwin(Twin):
             self.counters["samples_missed"] += missed
             self._next_sample = now + self.clock.real_delay(1.0 / self.rate_hz)
         pressure, temperature = self.reading()
-        self._send(baro.SampleFrame.from_values(self.seq, self._time_us(), pressure, temperature))
+        seq = self._next_seq(baro.FrameType.SAMPLE)
+        self._send(baro.SampleFrame.from_values(seq, self._time_us(), pressure, temperature))
         self.samples_sent += 1
 
     def reading(self) -> tuple[float, float]:
