@@ -346,3 +346,34 @@ def test_cli_prints_paths_as_json(capsys: pytest.CaptureFixture[str], tmp_path: 
     assert set(paths) == {"lms200", "p3at", "baro"}
     assert paths["baro"] == str(tmp_path / "baro")
     assert not (tmp_path / "baro").exists()  # links go when the devices stop
+
+
+def test_a_link_that_cannot_be_made_is_a_clear_error_and_leaks_no_pty(tmp_path: Path) -> None:
+    from baromap.errors import ConfigError
+    from baromap.sim.twins import SimDevices
+
+    (tmp_path / "baro").mkdir()  # the third twin's link is taken by a directory
+    (tmp_path / "baro" / "x").touch()
+    with pytest.raises(ConfigError, match="baro"):
+        SimDevices(floors=3, minutes=5.0, link_dir=tmp_path)
+    # (the autouse leak check fails this test if the first two twins' ptys stay open)
+    assert not (tmp_path / "lms200").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--speed", "0"], "speed must be positive"),
+        (["--link-dir", "/proc/no-such-dir"], "cannot link"),
+    ],
+)
+def test_cli_refuses_bad_arguments_in_one_line(
+    args: list[str], message: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    try:
+        code = main(["sim", "--duration", "0.1", "--floors", "3", "--minutes", "5", *args])
+    finally:
+        structlog.reset_defaults()
+    assert code == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]

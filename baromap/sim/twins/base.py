@@ -10,6 +10,7 @@ from types import TracebackType
 
 import structlog
 
+from baromap.errors import ConfigError
 from baromap.sim.scenario import Scenario, make_scenario
 from baromap.sim.twins.pty_port import PtyPort
 
@@ -27,8 +28,8 @@ class SimClock:
     """
 
     def __init__(self, scenario: Scenario, speed: float = 1.0) -> None:
-        if speed <= 0:
-            raise ValueError("speed must be positive")
+        if not speed > 0:
+            raise ConfigError(f"speed must be positive, got {speed}")
         self.scenario = scenario
         self.speed = speed
         self._t0 = time.monotonic()

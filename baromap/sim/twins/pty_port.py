@@ -23,6 +23,8 @@ from pathlib import Path
 
 import structlog
 
+from baromap.errors import ConfigError
+
 log = structlog.get_logger(__name__)
 
 #: Largest chunk written to the master at once.
@@ -50,15 +52,21 @@ class PtyPort:
     # ---- lifetime ---------------------------------------------------------------------------
     def _open(self) -> None:
         master, slave = os.openpty()
-        tty.setraw(slave)
-        os.set_blocking(master, False)
+        try:
+            tty.setraw(slave)
+            os.set_blocking(master, False)
+            slave_path = os.ttyname(slave)
+            if self.link is not None:
+                self.link.parent.mkdir(parents=True, exist_ok=True)
+                with contextlib.suppress(FileNotFoundError):
+                    self.link.unlink()
+                self.link.symlink_to(slave_path)
+        except OSError as exc:
+            os.close(master)
+            os.close(slave)
+            raise ConfigError(f"cannot link {self.link} to a pseudo-terminal: {exc}") from exc
         self.master, self._slave = master, slave
-        self.slave_path = os.ttyname(slave)
-        if self.link is not None:
-            self.link.parent.mkdir(parents=True, exist_ok=True)
-            with contextlib.suppress(FileNotFoundError):
-                self.link.unlink()
-            self.link.symlink_to(self.slave_path)
+        self.slave_path = slave_path
         self._budget_t = time.monotonic()
         log.debug("pty open", path=self.slave_path, link=str(self.link))
 

@@ -37,9 +37,13 @@ class SimDevices:
         )
         self.clock = SimClock(scenario, speed)
         links = Path(link_dir) if link_dir is not None else None
-        self.lms200 = Lms200Twin(self.clock, links / "lms200" if links else None)
-        self.p3at = P2osTwin(self.clock, links / "p3at" if links else None)
-        self.baro = BaroTwin(self.clock, links / "baro" if links else None)
+        with contextlib.ExitStack() as undo:  # each twin opens a pty: close them if one fails
+            self.lms200 = Lms200Twin(self.clock, links / "lms200" if links else None)
+            undo.callback(self.lms200.stop)
+            self.p3at = P2osTwin(self.clock, links / "p3at" if links else None)
+            undo.callback(self.p3at.stop)
+            self.baro = BaroTwin(self.clock, links / "baro" if links else None)
+            undo.pop_all()
 
     @property
     def twins(self) -> tuple[Twin, ...]:
@@ -49,8 +53,12 @@ class SimDevices:
         return {t.name: t.path for t in self.twins}
 
     def start(self) -> SimDevices:
-        for t in self.twins:
-            t.start()
+        try:
+            for t in self.twins:
+                t.start()
+        except BaseException:
+            self.stop()
+            raise
         return self
 
     def stop(self) -> None:
