@@ -39,6 +39,9 @@ void configure() {
 
 // A slave reset in the middle of a read may hold SDA low forever. Nine clocks let it finish
 // its byte, then a STOP frees the bus (I2C specification, "bus clear"). About 100 us.
+// The lines are open drain: a pin is only ever an input (pulled up) or driven low. The port
+// bit is cleared before the pin becomes an output, never after, or the pin would drive the
+// line high for a cycle against a slave holding it low.
 void clear_bus() {
   const uint8_t SDA = _BV(PC4);
   const uint8_t SCL = _BV(PC5);
@@ -46,16 +49,16 @@ void clear_bus() {
   DDRC &= (uint8_t)~(SDA | SCL);  // released: pulled up
   PORTC |= SDA | SCL;
   for (uint8_t i = 0; i < 9 && !(PINC & SDA); ++i) {
-    DDRC |= SCL;
     PORTC &= (uint8_t)~SCL;
+    DDRC |= SCL;  // SCL low
     _delay_us(5);
     DDRC &= (uint8_t)~SCL;
-    PORTC |= SCL;
+    PORTC |= SCL;  // released
     _delay_us(5);
   }
   // STOP: SDA low to high while SCL is high.
-  DDRC |= SDA;
   PORTC &= (uint8_t)~SDA;
+  DDRC |= SDA;
   _delay_us(5);
   DDRC &= (uint8_t)~SDA;
   PORTC |= SDA;
