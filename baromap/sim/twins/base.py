@@ -155,13 +155,12 @@ class Twin:
                 continue
             try:
                 ready, _, _ = select.select([fd], [], [], TICK_S)
-            except (OSError, ValueError):
+            except (OSError, ValueError):  # unplugged or replugged meanwhile
                 continue
-            if ready:
-                data = self.port.read()
+            try:
+                data = self.port.read() if ready else b""
                 if data:
                     self.on_bytes(data)
-            try:
                 self.tick()
                 self.port.pump()
             except Exception:  # a twin must never die silently mid-test
