@@ -377,3 +377,33 @@ def test_cli_refuses_bad_arguments_in_one_line(
     assert code == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
+
+
+def test_output_a_line_cannot_carry_is_dropped_whole_not_queued_forever() -> None:
+    from baromap.sim.twins.pty_port import QUEUE_S, PtyPort
+
+    port = PtyPort(9600)
+    try:
+        port.send(b"x" * 2000)  # one message longer than the queue still goes out whole
+        assert port.pending == 2000
+        port.send(b"y" * 10)
+        assert (port.pending, port.bytes_dropped) == (2000, 10)
+        port.stall(0.0)  # empties the queue
+        for _ in range(1000):
+            port.send(b"z" * 31)  # a SIP a thousand times faster than 9600 baud carries
+        assert port.pending <= 9600 / 10 * QUEUE_S
+        assert port.pending + port.bytes_dropped == 10 + 31_000
+    finally:
+        port.close()
+
+
+def test_p2os_watchdog_judges_the_host_in_wall_time(tmp_path: Path) -> None:
+    """Sped up 8x, a host pulsing every 0.5 s (wall) keeps the robot driving."""
+    with P2osTwin(SimClock(SCENARIO, speed=8.0), tmp_path / "p3at") as fast:
+        with serial.serial_for_url(fast.path, baudrate=9600, timeout=0.05) as port:
+            p2os_connect(port, p2os.Decoder())
+            for _ in range(4):
+                read_for(port, 0.5)
+                port.write(p2os.pulse())
+            port.write(p2os.close_controller())
+        assert fast.watchdog_trips == 0  # type: ignore[attr-defined]

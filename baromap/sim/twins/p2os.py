@@ -5,9 +5,10 @@ host only listens. What the host controls is what P2OS lets it control: SYNC0-2 
 start the SIPs, ENABLE switches the motors flag, CLOSE ends the session, CONFIG asks for a
 CONFIG packet, SETO resets the odometry. The watchdog: while a session is open and nothing
 arrives from the host for 2 s, the robot stops (route time stands still for every twin)
-until the host is heard again. Before SYNC, the robot echoes the handshake; a SYNC0 that
-arrives while the session is open is a PULSE, as on the real robot, so a client that finds
-SIPs streaming sends CLOSE and starts again.
+until the host is heard again. The 2 s are wall seconds whatever the clock's speed: they judge
+the host, whose keepalives come in wall time. Before SYNC, the robot echoes the handshake; a
+SYNC0 that arrives while the session is open is a PULSE, as on the real robot, so a client
+that finds SIPs streaming sends CLOSE and starts again.
 """
 
 from __future__ import annotations
@@ -138,7 +139,7 @@ class P2osTwin(Twin):
         now = time.monotonic()
         if self.session != Session.OPEN:
             return
-        if now - self._last_heard > self.clock.real_delay(WATCHDOG_S) and not self.clock.halted:
+        if now - self._last_heard > WATCHDOG_S and not self.clock.halted:
             self.watchdog_trips += 1
             self.clock.halt()
         if now < self._next_sip:

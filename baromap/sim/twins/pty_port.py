@@ -29,6 +29,10 @@ log = structlog.get_logger(__name__)
 
 #: Largest chunk written to the master at once.
 WRITE_CHUNK = 1024
+#: A device's transmit buffer, in seconds of line time: output beyond it is lost whole, as a
+#: device that produces faster than its line can carry loses it (a twin sped up past what its
+#: baud rate allows). A lone message longer than that (a scan at 9600 baud) still goes out.
+QUEUE_S = 0.5
 
 
 class PtyPort:
@@ -132,10 +136,13 @@ class PtyPort:
             self._budget_t = max(self._budget_t, time.monotonic())
 
     def send(self, data: bytes) -> None:
-        """Queue bytes for output (paced by :meth:`pump`)."""
+        """Queue bytes for output (paced by :meth:`pump`); dropped whole if the queue is full."""
         if not data or self.stalled:
             return
         with self._lock:
+            if self._out and len(self._out) + len(data) > self.baud / 10.0 * QUEUE_S:
+                self.bytes_dropped += len(data)
+                return
             if self._drop:
                 cut = min(self._drop, len(data))
                 self._drop -= cut
