@@ -251,6 +251,23 @@ def test_truncated_frame_then_next_frame(frames: list[baro.Frame], cut: int) -> 
     assert len(bad) == 1
 
 
+def test_a_crc_good_frame_of_an_unknown_type_is_never_split_into_garbage_and_a_frame() -> None:
+    """A newer firmware's frame may end in bytes that are, by themselves, a valid frame."""
+    inner = baro.encode_raw(baro.IdentifyCommand(0x0101, 0x01010101))
+    assert 0 not in inner  # so its COBS form is one block: code byte, then the raw bytes
+    # An outer frame of type 0x06 ending in "00 <inner without its CRC>", whose own CRC is the
+    # inner frame's: two free payload bytes are searched until the CRCs agree.
+    head = baro.HEADER.pack(baro.PROTOCOL_VERSION, 0x06, 7, 0)
+    for free in range(1 << 16):
+        body = head + free.to_bytes(2, "little") + b"\x00" + inner[:-2]
+        if baro.CRC.pack(baro.crc16(body)) == inner[-2:]:
+            break
+    wire = baro.cobs_encode(body + inner[-2:]) + b"\x00"
+    assert wire.endswith(baro.encode(baro.IdentifyCommand(0x0101, 0x01010101)))
+    (bad,) = baro.Decoder().feed(wire)
+    assert isinstance(bad, BadFrame) and (bad.reason, bad.size) == ("type", len(wire) - 1)
+
+
 def test_flush_reports_a_frame_without_delimiter() -> None:
     decoder = baro.Decoder()
     wire = baro.encode(baro.IdentifyCommand(1, 2))

@@ -400,6 +400,8 @@ def decode_raw(raw: bytes) -> Frame | str:
 
 
 DecodedItem = Frame | BadFrame
+#: Bad-frame reasons of frames whose CRC is good.
+_CRC_GOOD_REASONS: Final = frozenset({"version", "type", "length"})
 
 
 class Decoder:
@@ -511,8 +513,9 @@ class Decoder:
             out.append(result)
             return
         # Line noise right before a frame glues onto it (the frame's own delimiter is at its
-        # end). Look for the longest suffix that is a whole valid frame before giving up.
-        found = _glued_frame_start(encoded, 1)
+        # end). Look for the longest suffix that is a whole valid frame before giving up. A
+        # frame whose CRC holds is one frame (of a newer version or type): nothing is glued.
+        found = None if result in _CRC_GOOD_REASONS else _glued_frame_start(encoded, 1)
         if found is None:
             out.append(self.stats.count_bad(BadFrame.of(result, encoded)))
             return
