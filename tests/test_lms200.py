@@ -347,6 +347,15 @@ def test_scan_geometry_and_units(
     assert laser.valid().all()
 
 
+@pytest.mark.parametrize("index", [0, 1, 2, 3])
+def test_partial_scans_start_a_quarter_degree_further_per_index(index: int) -> None:
+    (scan,) = decode(L.encode_scan(np.full(101, 500), partial=True, partial_index=index))
+    laser = scan.to_laser_scan(0)
+    assert scan.partial and scan.partial_index == index
+    assert math.isclose(laser.angle_min_rad, math.radians(-50.0 + 0.25 * index))
+    assert math.isclose(laser.angle_increment_rad, math.radians(1.0))
+
+
 def test_unknown_beam_count_needs_the_configured_field() -> None:
     (scan,) = decode(L.encode_scan(np.full(180, 100), units="cm"))
     with pytest.raises(ConfigError):

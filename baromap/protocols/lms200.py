@@ -250,6 +250,8 @@ _METRES_PER_UNIT: Final[dict[Units, float]] = {"cm": 0.01, "mm": 0.001}
 #: Longest range the default 8 m / 80 m mode reports, per unit.
 RANGE_MAX_M: Final[dict[Units, float]] = {"cm": 81.9, "mm": 8.19}
 
+#: Angular offset of each successive partial scan of an interlaced mode, degrees.
+PARTIAL_STEP_DEG: Final = 0.25
 #: Documented beam counts -> (angular field, resolution) in degrees.
 SCAN_GEOMETRY: Final[dict[int, tuple[float, float]]] = {
     181: (180.0, 1.0),
@@ -369,6 +371,8 @@ class ScanTelegram:
 
         The angular field comes from the beam count (181/361: 180 deg, 101/201/401: 100 deg);
         for any other count the configured field must be given, else :class:`ConfigError`.
+        A partial scan of an interlaced mode starts 0.25 deg x its partial index further
+        counter-clockwise (as SICK's telegram listing and the reference drivers read it).
         """
         n = self.beam_count
         if field_deg is None:
@@ -380,7 +384,7 @@ class ScanTelegram:
         ranges, flags = self.ranges_and_flags()
         return LaserScan(
             t_ns=t_ns,
-            angle_min_rad=-math.radians(field_deg) / 2.0,
+            angle_min_rad=math.radians(PARTIAL_STEP_DEG * self.partial_index - field_deg / 2.0),
             angle_increment_rad=math.radians(resolution_deg),
             range_max_m=RANGE_MAX_M[self.units],
             ranges_m=ranges,
