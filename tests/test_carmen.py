@@ -90,6 +90,10 @@ def test_odom_fields() -> None:
         "ODOM 1 2",
         "ODOM 1 2 3 0 0 0 1.08e-42 host 1.08e-42",
         "ROBOTLASER1 0 -1.5 3.1 0.01 81 0.01 0 2 1 2 1",
+        ROBOTLASER1.replace("0.0174533", "0"),  # no angular step
+        FLASER.replace("1.1 2.1 0.5", "nan 2.1 0.5"),  # a pose that would poison odometry
+        FLASER.replace("976052890.244111", "9" * 30),  # beyond int64 nanoseconds
+        "ODOM 1.5 inf 0.25 0.3 0.1 0 10.000001 host 10.000001",
     ],
 )
 def test_malformed_lines_are_counted_not_fatal(line: str) -> None:
@@ -112,6 +116,19 @@ def test_file_without_laser_is_an_input_error(tmp_path: Path) -> None:
     path.write_text(ODOM + "\n")
     with pytest.raises(InputFormatError):
         read_carmen(path)
+
+
+def test_broken_gzip_is_an_input_error(tmp_path: Path) -> None:
+    import gzip
+
+    whole = gzip.compress(("\n".join([FLASER] * 200) + "\n").encode())
+    truncated = tmp_path / "truncated.log.gz"
+    truncated.write_bytes(whole[: len(whole) // 2])
+    corrupt = tmp_path / "corrupt.log.gz"
+    corrupt.write_bytes(whole[:20] + bytes(b ^ 0x55 for b in whole[20:200]) + whole[200:])
+    for path in (truncated, corrupt, tmp_path):
+        with pytest.raises(InputFormatError, match="cannot read CARMEN log"):
+            read_carmen(path)
 
 
 def _reference_path(n: int = 400) -> np.ndarray:

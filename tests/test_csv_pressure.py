@@ -37,10 +37,35 @@ def test_header_comments_and_bad_rows() -> None:
     assert np.isnan(series.temperature_c[1]) and series.temperature_c[2] == 21.7
 
 
-@pytest.mark.parametrize("rows", [["0,970.0\n"], ["t,p\n"], []])
+@pytest.mark.parametrize(
+    "rows",
+    [
+        ["0,970.0\n"],  # hPa
+        ["t,p\n"],
+        [],
+        ["0,97000,293.1\n"],  # kelvin
+        ["0,97000,-500\n"],  # below absolute zero
+        ["1e12,97000\n"],  # not seconds (and beyond int64 nanoseconds)
+    ],
+)
 def test_wrong_units_or_empty_are_refused(rows: list[str]) -> None:
     with pytest.raises(InputFormatError):
         parse_csv_pressure(rows)
+
+
+@pytest.mark.parametrize("argv", [["import", "csv", "{missing}"], ["detect", "{missing}"]])
+def test_missing_file_is_one_line_not_a_traceback(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str]
+) -> None:
+    missing = tmp_path / "missing.csv"
+    args = [a.format(missing=missing) for a in argv] + (
+        ["-o", str(tmp_path / "x.mcap")] if argv[0] == "import" else []
+    )
+    assert main(args) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"baromap: error: cannot read {missing}: [Errno 2] No such file or directory: '{missing}'"
+    ]
 
 
 def test_import_then_detect(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

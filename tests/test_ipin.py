@@ -32,6 +32,27 @@ def test_parse_pressure_waypoints_and_phone() -> None:
     assert log.skipped["bad PRES"] == 2
 
 
+def test_garbage_numbers_are_skipped_not_raised() -> None:
+    lines = [
+        *SAMPLE.splitlines(),
+        "POSI;0.5;3;49.46;11.11;inf;100",  # int(inf) overflows
+        "POSI;nan;4;49.46;11.11;0;100",
+        "POSI;1e300;5;49.46;11.11;0;100",  # beyond int64 nanoseconds
+        "PRES;1e300;100.4;976.8;3",
+        "PRES;0.5;inf;976.8;3",
+    ]
+    log = parse_ipin(lines)
+    assert [w.index for w in log.waypoints] == [1, 2]
+    assert log.skipped["bad POSI"] == 3
+    assert log.skipped["bad PRES"] == 4
+    assert log.pressure_pa.size == 3
+
+
+def test_missing_file_is_an_input_error(tmp_path: Path) -> None:
+    with pytest.raises(InputFormatError, match="cannot read"):
+        read_ipin(tmp_path / "missing.txt")
+
+
 def test_not_ipin() -> None:
     assert not looks_like_ipin("time_s,pressure_pa\n0,97000\n")
     with pytest.raises(InputFormatError):

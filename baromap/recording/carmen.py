@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import gzip
 import math
+import zlib
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -43,6 +44,8 @@ log = structlog.get_logger(__name__)
 MAX_BEAMS = 4096
 #: Ranges at or above this are "no return" markers (the Intel log uses 81.83 m).
 NO_RETURN_M = 80.0
+#: Stamps are Unix seconds; int64 nanoseconds hold about 292 years either side of 1970.
+MAX_ABS_TIME_S = 9_200_000_000
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -100,6 +103,8 @@ def parse_time_ns(text: str) -> int:
     if frac and not frac.isdigit():
         raise ValueError(f"bad time {text!r}")
     frac_ns = int((frac + "000000000")[:9]) if frac else 0
+    if len(whole) > 10 or int(whole or "0") > MAX_ABS_TIME_S:
+        raise ValueError(f"time {text!r} out of range")
     return sign * (int(whole or "0") * NS_PER_S + frac_ns)
 
 
@@ -123,7 +128,11 @@ def _ranges(tokens: list[str], start: int, n: int) -> FloatArray:
 
 
 def _pose(tokens: list[str], start: int) -> tuple[float, float, float]:
-    return float(tokens[start]), float(tokens[start + 1]), float(tokens[start + 2])
+    pose = float(tokens[start]), float(tokens[start + 1]), float(tokens[start + 2])
+    if not all(math.isfinite(v) for v in pose):
+        # one NaN pose would poison every synthesised odometry pose after it
+        raise ValueError("pose is not finite")
+    return pose
 
 
 def _parse_flaser(tokens: list[str]) -> CarmenScan:
@@ -146,6 +155,8 @@ def _parse_flaser(tokens: list[str]) -> CarmenScan:
 
 def _parse_robotlaser1(tokens: list[str]) -> CarmenScan:
     start_angle, _fov, resolution, max_range = (float(v) for v in tokens[2:6])
+    if not (math.isfinite(start_angle) and 0.0 < resolution < math.pi):
+        raise ValueError("ROBOTLASER1 geometry out of range")
     n = int(tokens[8])
     ranges = _ranges(tokens, 9, n)
     k = 9 + n
@@ -169,7 +180,8 @@ def _parse_robotlaser1(tokens: list[str]) -> CarmenScan:
 def _parse_odom(tokens: list[str]) -> CarmenOdom:
     if len(tokens) < 8:
         raise ValueError("ODOM line too short")
-    x, y, theta, tv, rv = (float(v) for v in tokens[1:6])
+    x, y, theta = _pose(tokens, 1)
+    tv, rv = float(tokens[4]), float(tokens[5])
     return CarmenOdom(parse_time_ns(tokens[7]), x, y, theta, tv, rv)
 
 
@@ -211,7 +223,7 @@ def read_carmen(path: str | Path) -> CarmenLog:
     try:
         with _open_text(path) as handle:
             result = parse_lines(handle)
-    except OSError as exc:
+    except (OSError, EOFError, zlib.error) as exc:  # a truncated or corrupt .gz too
         raise InputFormatError(f"cannot read CARMEN log {path}: {exc}") from exc
     if not result.scans:
         raise InputFormatError(f"{path}: no FLASER or ROBOTLASER1 line")

@@ -3,7 +3,9 @@
 The lowest common denominator of barometer loggers (a phone app, a bench logger, a
 spreadsheet). A header line is optional; ``#`` starts a comment. Lines that do not parse are
 skipped and counted; pressures outside 300-1200 hPa mean the file is in another unit (hPa,
-kPa) and are refused with a message saying so, rather than silently treated as pascals.
+kPa) and are refused with a message saying so, rather than silently treated as pascals, and so
+are temperatures no air has (a kelvin column would make every height 2 % wrong, and below
+absolute zero the hypsometric equation has no answer).
 
 A reference station's log has the same shape; ``--reference`` puts it on
 ``/reference/pressure`` of the recording.
@@ -29,13 +31,21 @@ log = structlog.get_logger(__name__)
 
 MIN_PA = 30_000.0
 MAX_PA = 120_000.0
+#: Air temperatures a barometer can report (the BMP280's own operating range).
+MIN_C = -40.0
+MAX_C = 85.0
+#: Times must fit int64 nanoseconds: about 292 years either side of 1970.
+MAX_ABS_TIME_S = 9.2e9
 #: Longer lines are not this format (bounds the memory a bad file can take per line).
 MAX_LINE_CHARS = 1024
 
 
 def read_csv_pressure(path: str | Path) -> PressureSeries:
-    with open(path, encoding="utf-8", errors="replace") as handle:
-        return parse_csv_pressure(handle, source=str(path))
+    try:
+        with open(path, encoding="utf-8", errors="replace") as handle:
+            return parse_csv_pressure(handle, source=str(path))
+    except OSError as exc:
+        raise InputFormatError(f"cannot read {path}: {exc}") from exc
 
 
 def parse_csv_pressure(lines: Iterable[str], source: str = "<csv>") -> PressureSeries:
@@ -66,10 +76,17 @@ def parse_csv_pressure(lines: Iterable[str], source: str = "<csv>") -> PressureS
         if not (math.isfinite(t_s) and math.isfinite(p)):
             skipped["not finite"] += 1
             continue
+        if abs(t_s) > MAX_ABS_TIME_S:
+            raise InputFormatError(f"{source}: time {t_s} is not in seconds")
         if not MIN_PA <= p <= MAX_PA:
             raise InputFormatError(
                 f"{source}: pressure {p} is not in pascals (expected {MIN_PA:.0f}-{MAX_PA:.0f});"
                 " convert hPa/mbar by multiplying by 100"
+            )
+        if not (math.isnan(temp) or MIN_C <= temp <= MAX_C):
+            raise InputFormatError(
+                f"{source}: temperature {temp} is not in degrees Celsius "
+                f"(expected {MIN_C:.0f} to {MAX_C:.0f})"
             )
         times.append(round(t_s * NS_PER_S))
         pressures.append(p)

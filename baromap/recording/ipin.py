@@ -36,6 +36,9 @@ APP_SIGNATURE = "GetSensorData"
 PA_PER_MBAR = 100.0
 #: A sensor line is far shorter; a longer one is not this format (bounds memory per line).
 MAX_LINE_CHARS = 4096
+#: App and sensor clocks count seconds since the log (or the phone) started; beyond this a
+#: stamp is garbage, and it would not fit int64 nanoseconds anyway.
+MAX_ABS_TIME_S = 1e9
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,8 +73,18 @@ def looks_like_ipin(head: str) -> bool:
 
 def read_ipin(path: str | Path) -> IpinLog:
     """Read pressure samples and waypoints of an IPIN log."""
-    with open(path, encoding="utf-8", errors="replace") as handle:
-        return parse_ipin(handle, source=str(path))
+    try:
+        with open(path, encoding="utf-8", errors="replace") as handle:
+            return parse_ipin(handle, source=str(path))
+    except OSError as exc:
+        raise InputFormatError(f"cannot read {path}: {exc}") from exc
+
+
+def _time_s(text: str) -> float:
+    value = float(text)
+    if not abs(value) <= MAX_ABS_TIME_S:  # also NaN
+        raise ValueError(f"time {text!r} out of range")
+    return value
 
 
 def parse_ipin(lines: Iterable[str], source: str = "<ipin>") -> IpinLog:
@@ -96,11 +109,11 @@ def parse_ipin(lines: Iterable[str], source: str = "<ipin>") -> IpinLog:
         if kind == "PRES":
             fields = rest.split(";")
             try:
-                t_app, t_sensor, mbar = float(fields[0]), float(fields[1]), float(fields[2])
+                t_app, t_sensor, mbar = _time_s(fields[0]), _time_s(fields[1]), float(fields[2])
             except (IndexError, ValueError):
                 skipped["bad PRES"] += 1
                 continue
-            if not (np.isfinite(t_app) and np.isfinite(t_sensor) and 300.0 < mbar < 1200.0):
+            if not 300.0 < mbar < 1200.0:
                 skipped["bad PRES"] += 1
                 continue
             app_s.append(t_app)
@@ -111,7 +124,7 @@ def parse_ipin(lines: Iterable[str], source: str = "<ipin>") -> IpinLog:
             try:
                 waypoints.append(
                     Waypoint(
-                        t_ns=round(float(fields[0]) * NS_PER_S),
+                        t_ns=round(_time_s(fields[0]) * NS_PER_S),
                         index=int(fields[1]),
                         latitude_deg=float(fields[2]),
                         longitude_deg=float(fields[3]),
@@ -119,7 +132,7 @@ def parse_ipin(lines: Iterable[str], source: str = "<ipin>") -> IpinLog:
                         building=int(float(fields[5])) if len(fields) > 5 and fields[5] else 0,
                     )
                 )
-            except (IndexError, ValueError):
+            except (IndexError, ValueError, OverflowError):  # int(inf) overflows
                 skipped["bad POSI"] += 1
     if not pressure:
         raise InputFormatError(f"{source}: no PRES lines, not an IPIN pressure log")
