@@ -107,3 +107,27 @@ def test_eval_floors_command(shared_data: Path, capsys: pytest.CaptureFixture[st
     assert (result["found"], result["false"], result["storeys_right"]) == (8, 0, 8)
     assert main(["detect", str(log), "--method", "paper"]) == 0
     assert "8 transitions" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["eval-floors", "--real", "{missing}"], "is not a directory of IPIN logs"),
+        (["eval-floors", "--real", "{empty}"], "holds no IPIN log"),
+        (["eval-floors", "--real", "{empty}", "--sweep"], "holds no IPIN log"),
+        (["detect", "{csv}", "--plot", "{empty}"], "cannot write the plot"),
+        (["detect", "{csv}", "--plot", "{empty}/x.nosuchformat"], "cannot write the plot"),
+    ],
+)
+def test_bad_arguments_are_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str], message: str
+) -> None:
+    """Nothing to score is an error, not an empty table with exit status 0."""
+    csv = tmp_path / "p.csv"
+    csv.write_text("".join(f"{k / 10},97000.0\n" for k in range(50)))
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    paths = {"missing": tmp_path / "missing", "empty": empty, "csv": csv}
+    assert main([arg.format(**paths) for arg in argv]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("baromap: error: ") and message in err[0]

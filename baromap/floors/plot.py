@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from baromap.errors import ConfigError
 from baromap.floors.detection import FloorDetection
 from baromap.messages import NS_PER_S
 
@@ -44,5 +45,11 @@ def plot_detection(detection: FloorDetection, pressure_pa: npt.ArrayLike, path: 
     bottom.set_xlabel("time [s]")
     fig.suptitle(f"floor detection ({detection.method}): shaded = transitions, line = decided")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    try:
+        # a name without a suffix is written as PNG under that very name (matplotlib would
+        # otherwise add ".png" behind the caller's back)
+        fig.savefig(path, dpi=100, format=None if Path(path).suffix else "png")
+    except (OSError, ValueError) as exc:  # unwritable place, unknown image format
+        raise ConfigError(f"cannot write the plot {path}: {exc}") from exc
+    finally:
+        plt.close(fig)

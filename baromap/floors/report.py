@@ -2,12 +2,12 @@
 
 Each case is a pressure series with its truth; each method is scored on it
 (:mod:`baromap.floors.evaluation`) and one line per case and method is printed, then totals
-over the simulated seeds and a verdict against the bars of the floor-detection issue.
+over the simulated seeds.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,14 +39,24 @@ class Case:
     reference: tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]] | None = None
 
 
-def real_cases(directory: str | Path) -> Iterator[Case]:
+def real_cases(directory: str | Path) -> list[Case]:
+    """Every IPIN log with waypoints in ``directory``; none at all is an error, not a pass."""
     from baromap.floors.inputs import load_input
 
-    for path in sorted(Path(directory).glob("*.txt")):
+    folder = Path(directory)
+    if not folder.is_dir():
+        raise ConfigError(f"{folder} is not a directory of IPIN logs")
+    cases = []
+    for path in sorted(folder.glob("*.txt")):
         data = load_input(path)
         if data.truth is None:
             continue
-        yield Case(path.stem, "real", data.series.t_ns, data.series.pressure_pa, None, data.truth)
+        cases.append(
+            Case(path.stem, "real", data.series.t_ns, data.series.pressure_pa, None, data.truth)
+        )
+    if not cases:
+        raise ConfigError(f"{folder} holds no IPIN log (*.txt) with POSI waypoints")
+    return cases
 
 
 def sim_case(
@@ -172,11 +182,11 @@ def run_report(
     progress: bool = False,
 ) -> dict[str, Totals]:
     """Print the report; returns the simulated totals per method."""
+    cases = real_cases(real_dir) if real_dir is not None else []
     out(HEADER)
-    if real_dir is not None:
-        for case in real_cases(real_dir):
-            for method in methods:
-                out(line(case.name[-34:], method, evaluate(case, method, config)[1]))
+    for real in cases:
+        for method in methods:
+            out(line(real.name[-34:], method, evaluate(real, method, config)[1]))
     totals = {method: Totals() for method in methods}
     iterator: Iterable[int] = seeds
     if progress:
