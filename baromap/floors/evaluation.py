@@ -215,9 +215,11 @@ def with_settle_times(
 
     The car stopping is not the pressure settling: the doors are still shut (the car is
     slightly pressurised) and ventilation spikes fade over a second or two after they open.
-    ``true_pressure_pa`` should be free of weather (the simulator's noise-free pressure at the
-    robot minus the reference station's reading: gusts, about 1.5 Pa RMS, would otherwise
-    hide any settling). Settled is the first moment from which it stays within
+    ``true_pressure_pa`` should be free of weather and of any sensor (the simulator's
+    noise-free pressure at the robot minus its noise-free pressure at the reference station:
+    gusts, about 1.5 Pa RMS, would otherwise hide any settling, and a sensor's noise would
+    push the settle late and so flatter the delay). Settled is the first moment from which it
+    stays within
     ``SETTLED_BAND_PA`` of a line fitted to its last ``SETTLE_TAIL_S`` (the weather keeps
     drifting) up to ``SETTLE_SEARCH_S`` after the stop, or the next transition.
     """
@@ -226,6 +228,7 @@ def with_settle_times(
         limit = true.t_end_ns + round(SETTLE_SEARCH_S * NS_PER_S)
         if k + 1 < len(truth.transitions):
             limit = min(limit, truth.transitions[k + 1].t_begin_ns)
+        limit = min(limit, int(t_ns[-1]) + 1)  # the data may end sooner
         i0, i1 = np.searchsorted(t_ns, (true.t_end_ns, limit))
         j0 = np.searchsorted(t_ns, limit - round(SETTLE_TAIL_S * NS_PER_S))
         if i1 - i0 < 3 or i1 - j0 < 3:
@@ -235,7 +238,9 @@ def with_settle_times(
         slope, intercept = np.polyfit(tail_t, true_pressure_pa[j0:i1], 1)
         course = intercept + slope * (t_ns[i0:i1] - t_ns[i0]) / NS_PER_S
         outside = np.flatnonzero(np.abs(true_pressure_pa[i0:i1] - course) > SETTLED_BAND_PA)
-        settled = int(t_ns[i0 + outside[-1] + 1]) if outside.size else true.t_end_ns
+        settled = true.t_end_ns
+        if outside.size:  # the sample after the last one outside the band (if any is left)
+            settled = int(t_ns[min(i0 + int(outside[-1]) + 1, i1 - 1)])
         out.append(dataclasses.replace(true, t_settled_ns=settled))
     return dataclasses.replace(truth, transitions=tuple(out))
 

@@ -66,9 +66,10 @@ def sim_case(
     minutes: float = 46.0,
     use_reference: bool = False,
 ) -> Case:
-    from baromap.sim.scenario import pressure_run
+    from baromap.sim.scenario import make_scenario, pressure_run
 
     run = pressure_run(seed, minutes=minutes, drift_hpa_per_h=drift_hpa_per_h)
+    scenario = make_scenario(seed, minutes=minutes, drift_hpa_per_h=drift_hpa_per_h)
     floor = np.where(np.asarray(run.truth_floor) < 0, np.nan, np.asarray(run.truth_floor))
     truth = truth_from_series(run.t_ns, floor)
     truth = FloorTruth(
@@ -77,8 +78,10 @@ def sim_case(
         truth.floor,
         {k: float(z) for k, z in enumerate(np.asarray(run.elevations_m))},
     )
-    # Weather and gusts reach the reference station too: the difference is the robot's own.
-    own = np.asarray(run.true_pressure_pa) - np.asarray(run.reference_pa)
+    # Weather and gusts reach the reference station too: the difference of the noise-free
+    # pressures is the robot's own. (The station's *reading* would bring its sensor's noise
+    # and filter lag, up to 1 Pa, into the 1.2 Pa settling band and date settles late.)
+    own = np.asarray(run.true_pressure_pa) - scenario.reference_true_pa(run.t_s)
     truth = with_settle_times(truth, np.asarray(run.t_ns), own)
     reference = (run.t_ns, np.asarray(run.reference_pa)) if use_reference else None
     return Case(
