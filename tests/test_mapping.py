@@ -274,6 +274,38 @@ def test_relation_errors() -> None:
     np.testing.assert_allclose(err.rot_deg, [0.0, 1.0], atol=1e-9)
 
 
+def test_pose_error_does_not_cancel_as_the_robot_turns() -> None:
+    from baromap.mapping.evaluate import mean_pose_error
+
+    # the robot turns round on the spot; its estimate is 8 cm east and 0.5 deg off throughout
+    true = np.array([[30.0, 11.4, h] for h in np.linspace(-math.pi, math.pi, 36, endpoint=False)])
+    estimated = true + np.array([0.08, 0.0, math.radians(0.5)])
+    distance, degrees = mean_pose_error(estimated, true)
+    assert distance == pytest.approx(0.08)
+    assert degrees == pytest.approx(0.5)
+    # the old measure (errors in each pose's own frame, then averaged) saw almost nothing
+    local = se2.between(true, estimated)
+    assert math.hypot(local[:, 0].mean(), local[:, 1].mean()) < 0.01
+    # errors in opposite directions do not cancel either
+    spread = true + np.where(np.arange(36)[:, None] % 2 == 0, 1.0, -1.0) * [0.05, 0.0, 0.01]
+    assert mean_pose_error(spread, true) == pytest.approx((0.05, math.degrees(0.01)))
+
+
+def test_sim_bar_needs_one_map_per_visited_floor() -> None:
+    import dataclasses
+
+    from baromap.mapping.evaluate import FloorScore, SimReport
+
+    perfect = FloorScore(0, 0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
+    floors = [dataclasses.replace(perfect, floor=k, true_floor=k) for k in range(3)]
+    report = SimReport(floors, 0, 10, 1.0, np.zeros(3), true_floors=(0, 1, 2))
+    assert report.passed()
+    merged = SimReport(floors[:2], 0, 10, 1.0, np.zeros(3), true_floors=(0, 1, 2))
+    assert not merged.passed()  # a floor merged into another has no map of its own
+    split = SimReport([*floors, floors[2]], 0, 10, 1.0, np.zeros(3), true_floors=(0, 1, 2))
+    assert not split.passed()
+
+
 def test_label_scans_by_segments() -> None:
     t = np.array([0, 5, 10, 15, 20, 25, 30, 35], dtype=np.int64)
     floor, visit = label_scans(t, [(2, 12, 0), (18, 28, 1), (32, 40, 0)])
