@@ -256,6 +256,7 @@ def write_outputs(result: BuildResult, recording: Path, out: Path) -> list[Path]
     write_maps_mcap(
         maps,
         int(result.run.scans.t_ns[-1]),
+        floors=[f.index for f in order],
         grids=[result.grids[f.index] for f in order],
         elevations_m=[f.elevation_m for f in order],
         scan_poses=result.slam.scan_poses,

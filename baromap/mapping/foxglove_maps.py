@@ -34,6 +34,7 @@ def write_maps_mcap(
     path: Path,
     t_ns: int,
     *,
+    floors: Sequence[int],
     grids: Sequence[OccupancyGrid],
     elevations_m: Sequence[float],
     scan_poses: FloatArray,
@@ -67,7 +68,8 @@ def write_maps_mcap(
     context = foxglove.Context()
     writer = foxglove.open_mcap(str(path), allow_overwrite=True, context=context)
     try:
-        for k, (grid, z) in enumerate(zip(grids, elevations_m, strict=True)):
+        # channels are named by floor index, which skips a floor that has no map
+        for k, grid, z in zip(floors, grids, elevations_m, strict=True):
             w = grid.shape[1]
             channel = GridChannel(f"/map/floor_{k}", context=context)
             channel.log(
@@ -102,7 +104,7 @@ def write_maps_mcap(
             ),
             log_time=t_ns,
         )
-        for k, z in enumerate(elevations_m):
+        for k, z in zip(floors, elevations_m, strict=True):
             mine = sel[scan_floor[sel] == k]
             PosesInFrameChannel(f"/path/floor_{k}", context=context).log(
                 PosesInFrame(
