@@ -89,3 +89,13 @@ def test_intel_relations_beat_gmapping(shared_data: Path) -> None:
     assert len(loops) > 100
     assert np.all(np.isfinite(report.result.scan_poses))
     assert math.isfinite(report.seconds)
+
+
+def test_output_path_that_is_a_file_is_one_error_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    taken = tmp_path / "maps"
+    taken.write_text("not a directory\n")
+    assert cli.main(["build-maps", str(tmp_path / "run.mcap"), "-o", str(taken)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("baromap: error: cannot use ")

@@ -149,7 +149,10 @@ def build_maps(
     if not 0.005 <= resolution <= 1.0:
         raise ConfigError(f"resolution {resolution} m is outside 0.005..1")
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a file of that name, no permission
+        raise ConfigError(f"cannot use {out} as the output directory: {exc}") from exc
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     run = load_run(recording)
