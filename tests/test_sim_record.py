@@ -163,3 +163,29 @@ def test_cli_record(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
         assert main(["sim", "record", "-o", str(out), "--minutes", "1"]) == 1
     finally:
         structlog.reset_defaults()  # main() bound the logs to this test's captured stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--minutes", "nan"], "minutes must be"),
+        (["--minutes", "inf"], "minutes must be"),
+        (["--minutes", "1e9"], "minutes must be"),
+        (["--drift", "nan"], "drift must be"),
+        (["--rate", "inf"], "rate must be"),
+        (["--rate", "1e-9"], "fewer than two samples"),
+        (["--seed", "-5"], "seed must not be negative"),
+        (["--floors", "0"], "floors must be"),
+    ],
+)
+def test_cli_record_refuses_nonsense_in_one_line(
+    args: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    try:
+        code = main(["sim", "record", "-o", str(tmp_path / "x.mcap"), "--minutes", "0.05", *args])
+    finally:
+        structlog.reset_defaults()
+    assert code == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    assert not (tmp_path / "x.mcap").exists()

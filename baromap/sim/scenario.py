@@ -9,6 +9,7 @@ leaves the others as they were, and ``sim record``, the barometer twin and
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -17,7 +18,7 @@ import numpy.typing as npt
 
 from baromap.errors import ConfigError
 from baromap.messages import NS_PER_S
-from baromap.protocols.baro import Q24_8
+from baromap.protocols.baro import MAX_RATE_HZ, Q24_8
 from baromap.sim.atmosphere import AirTemperature, Ventilation, Weather, hydrostatic_pa
 from baromap.sim.bmp280 import Bmp280
 from baromap.sim.building import Building, make_building
@@ -33,6 +34,8 @@ SIM_EPOCH_NS = 1_700_000_000 * NS_PER_S
 ROBOT_SENSOR_HEIGHT_M = 0.4
 #: The reference station stands on a shelf on floor 0.
 REFERENCE_HEIGHT_M = 1.0
+#: Longest run simulated: a day (every sample of a run is held in memory at once).
+MAX_MINUTES = 24 * 60.0
 
 # Independent random streams of one seed.
 _STREAM_ROUTE, _STREAM_WEATHER, _STREAM_VENT, _STREAM_AIR = 1, 2, 3, 4
@@ -123,10 +126,12 @@ def _make_scenario(
     route: tuple[int, ...] | None,
     start_ns: int,
 ) -> Scenario:
-    if minutes <= 0:
-        raise ConfigError(f"minutes must be positive, got {minutes}")
-    if drift_hpa_per_h < 0:
-        raise ConfigError(f"drift must not be negative, got {drift_hpa_per_h}")
+    if seed < 0:
+        raise ConfigError(f"seed must not be negative, got {seed}")
+    if not 0 < minutes <= MAX_MINUTES:
+        raise ConfigError(f"minutes must be above 0 and at most {MAX_MINUTES}, got {minutes}")
+    if not 0 <= drift_hpa_per_h < math.inf:
+        raise ConfigError(f"drift must be a finite rate of at least 0, got {drift_hpa_per_h}")
     building = make_building(seed, floors)
     chosen = check_route(route if route is not None else default_route(floors), floors)
 
@@ -199,9 +204,12 @@ class PressureRun:
 
 
 def sample_times(duration_s: float, rate_hz: float) -> FloatArray:
-    if rate_hz <= 0:
-        raise ConfigError(f"rate must be positive, got {rate_hz}")
-    return np.arange(int(np.floor(duration_s * rate_hz))) / rate_hz
+    if not 0 < rate_hz <= MAX_RATE_HZ:
+        raise ConfigError(f"rate must be above 0 and at most {MAX_RATE_HZ} Hz, got {rate_hz}")
+    count = int(np.floor(duration_s * rate_hz))
+    if count < 2:
+        raise ConfigError(f"{duration_s:g} s at {rate_hz:g} Hz is fewer than two samples")
+    return np.arange(count) / rate_hz
 
 
 def pressure_run(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import select
 import threading
 import time
@@ -28,8 +29,8 @@ class SimClock:
     """
 
     def __init__(self, scenario: Scenario, speed: float = 1.0) -> None:
-        if not speed > 0:
-            raise ConfigError(f"speed must be positive, got {speed}")
+        if not 0 < speed < math.inf:
+            raise ConfigError(f"speed must be positive and finite, got {speed}")
         self.scenario = scenario
         self.speed = speed
         self._t0 = time.monotonic()
