@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
@@ -170,6 +171,31 @@ def test_detect_floors_rejects_bad_input() -> None:
         detect_floors([1, 2], [P0])
     with pytest.raises(ConfigError):
         detect_floors([1, 2], [P0, P0], method="magic")
+
+
+@pytest.mark.parametrize("method", ["online", "paper"])
+def test_non_finite_and_repeated_samples_are_left_out(method: str, tmp_path: Path) -> None:
+    from baromap.floors.plot import plot_detection
+
+    plan = [(0.0, 120), (STOREY_M, 120)]
+    t, p = series(plan, noise_pa=0.2)
+    temp = np.full(t.shape, 15.0)
+    clean = detect_floors(t, p, temp, method=method)
+    bad_t = np.concatenate([t, t[500:510]])  # repeated stamps, out of order
+    bad_p = np.concatenate([p, p[500:510]])
+    bad_p[[100, 1800]] = [np.nan, np.inf]
+    bad_temp = np.concatenate([temp, temp[500:510]])
+    dirty = detect_floors(bad_t, bad_p, bad_temp, method=method)
+    assert dirty.t_ns.size == t.size - 2
+    assert np.isfinite(dirty.smoothed_pa).all()
+    assert [f.elevation_m for f in dirty.floors] == pytest.approx(
+        [f.elevation_m for f in clean.floors], abs=0.05
+    )
+    assert [(x.from_floor, x.to_floor) for x in dirty.transitions] == [(0, 1)]
+    assert (dirty.threshold_pa_per_s is None) == (method == "online")
+    # the figure takes the raw series with its own times, longer than the detection's
+    plot_detection(dirty, bad_t, bad_p, tmp_path / "f.png")
+    assert (tmp_path / "f.png").stat().st_size > 10_000
 
 
 def test_config_min_height_is_honoured() -> None:

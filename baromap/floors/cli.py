@@ -97,7 +97,7 @@ def run_detect(args: argparse.Namespace) -> int:
     if args.plot:
         from baromap.floors.plot import plot_detection
 
-        plot_detection(detection, s.pressure_pa, args.plot)
+        plot_detection(detection, s.t_ns, s.pressure_pa, args.plot)
     if args.json:
         json.dump(detection.to_json(), sys.stdout, indent=2)
         print()

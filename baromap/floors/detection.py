@@ -80,6 +80,8 @@ class FloorDetection:
     t_ns: npt.NDArray[np.int64]
     smoothed_pa: npt.NDArray[np.float64]
     rate_pa_per_s: npt.NDArray[np.float64]
+    #: The paper's rate threshold (mean + 2 sigma of the run), for its Figure 4; None online.
+    threshold_pa_per_s: float | None = None
 
     def floor_of(self, t_ns: int) -> int | None:
         """Floor at a time, None between segments (during a transition) or outside the run."""
@@ -159,7 +161,9 @@ def detect_floors(
     """Detect floors in a whole run.
 
     ``reference`` is ``(t_ns, pressure_pa)`` of a reference station (a barometer that stays
-    put), which removes weather drift when present.
+    put), which removes weather drift when present. Non-finite pressures and repeated stamps
+    are left out, so the result's ``t_ns`` (with ``smoothed_pa`` and ``rate_pa_per_s``) holds
+    the samples actually used.
     """
     config = config or FloorDetectorConfig()
     if method not in METHODS:
@@ -168,15 +172,6 @@ def detect_floors(
     p = np.asarray(pressure_pa, dtype=np.float64)
     if t.ndim != 1 or t.shape != p.shape:
         raise InputFormatError("time and pressure must be 1-D arrays of equal length")
-    if t.size == 0:
-        raise InputFormatError("no pressure samples")
-    if np.any(np.diff(t) <= 0):
-        order = np.argsort(t, kind="stable")
-        t, p = t[order], p[order]
-        keep = np.concatenate(([True], np.diff(t) > 0))
-        t, p = t[keep], p[keep]
-        if temperature_c is not None:
-            temperature_c = np.asarray(temperature_c, dtype=np.float64)[order][keep]
     temp = (
         np.full(t.shape, np.nan)
         if temperature_c is None
@@ -184,6 +179,16 @@ def detect_floors(
     )
     if temp.shape != t.shape:
         raise InputFormatError("temperature must match the pressure samples")
+    # a NaN pressure would turn every smoothed value and every step fit after it into NaN
+    keep = np.isfinite(p)
+    t, p, temp = t[keep], p[keep], temp[keep]
+    if t.size == 0:
+        raise InputFormatError("no pressure samples")
+    if np.any(np.diff(t) <= 0):
+        order = np.argsort(t, kind="stable")
+        t, p, temp = t[order], p[order], temp[order]
+        keep = np.concatenate(([True], np.diff(t) > 0))
+        t, p, temp = t[keep], p[keep], temp[keep]
     if method == "online":
         return _online(t, p, temp, reference, config)
     return _paper(t, p, temp, reference, config)
@@ -270,6 +275,7 @@ def _paper(
         n_ids=len(levels),
         config=config,
         segment_levels=levels,
+        threshold_pa_per_s=seg.threshold_pa_per_s,
     )
 
 
@@ -295,6 +301,7 @@ def _assemble(
     n_ids: int,
     config: FloorDetectorConfig,
     segment_levels: npt.NDArray[np.float64] | None = None,
+    threshold_pa_per_s: float | None = None,
 ) -> FloorDetection:
     valid_temp = temp[np.isfinite(temp)]
     temperature = float(np.median(valid_temp)) if valid_temp.size else config.default_temperature_c
@@ -351,7 +358,9 @@ def _assemble(
         for tr in raw
     )
     segments = tuple(Segment(a, b, index_of[i]) for a, b, i in bounds if b >= a)
-    return FloorDetection(method, floors, transitions, segments, t, smoothed, rate)
+    return FloorDetection(
+        method, floors, transitions, segments, t, smoothed, rate, threshold_pa_per_s
+    )
 
 
 def _steps(

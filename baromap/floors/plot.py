@@ -12,17 +12,24 @@ from baromap.floors.detection import FloorDetection
 from baromap.messages import NS_PER_S
 
 
-def plot_detection(detection: FloorDetection, pressure_pa: npt.ArrayLike, path: str | Path) -> None:
-    """Write a PNG: pressure (raw, smoothed) with floor segments, and the rate below it."""
+def plot_detection(
+    detection: FloorDetection, t_ns: npt.ArrayLike, pressure_pa: npt.ArrayLike, path: str | Path
+) -> None:
+    """Write a PNG: pressure (raw, smoothed) with floor segments, and the rate below it.
+
+    The raw series comes with its own times: detection leaves out non-finite and repeated
+    samples, so its arrays can be shorter than the input's.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    t = (detection.t_ns - detection.t_ns[0]) / NS_PER_S
     t0 = detection.t_ns[0]
+    t = (detection.t_ns - t0) / NS_PER_S
+    raw_t = (np.asarray(t_ns, dtype=np.int64) - t0) / NS_PER_S
     fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(12, 6.5))
-    top.plot(t, np.asarray(pressure_pa) / 100.0, lw=0.5, color="0.6", label="raw")
+    top.plot(raw_t, np.asarray(pressure_pa) / 100.0, lw=0.5, color="0.6", label="raw")
     top.plot(t, detection.smoothed_pa / 100.0, lw=1.0, color="C0", label="smoothed")
     bottom.plot(t, detection.rate_pa_per_s, lw=0.7, color="C1")
     for tr in detection.transitions:

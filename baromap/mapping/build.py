@@ -286,12 +286,13 @@ def _write_pressure_png(result: BuildResult, path: Path) -> Path:
         return path
     t0 = run.pressure_t_ns[0]
     t_s = (run.pressure_t_ns - t0) / 1e9
-    smoothed = rate = threshold = None
+    smoothed = rate = threshold = series_t_s = None
     transitions: list[figures.Transition] = []
     if det is not None:
         smoothed = np.asarray(det.smoothed_pa, dtype=np.float64)
         rate = np.asarray(det.rate_pa_per_s, dtype=np.float64)
-        threshold = getattr(det, "threshold_pa_per_s", None)
+        series_t_s = (det.t_ns - t0) / 1e9
+        threshold = det.threshold_pa_per_s
         for tr in det.transitions:
             transitions.append(
                 figures.Transition(
@@ -308,6 +309,7 @@ def _write_pressure_png(result: BuildResult, path: Path) -> Path:
         rate_pa_per_s=rate,
         transitions=transitions,
         threshold_pa_per_s=threshold,
+        series_t_s=series_t_s,
         smoothed_label=(
             "smoothed, weather removed with the reference station"
             if len(run.reference_t_ns)

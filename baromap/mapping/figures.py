@@ -50,14 +50,18 @@ def pressure_figure(
     transitions: Sequence[Transition],
     threshold_pa_per_s: float | None = None,
     smoothed_label: str = "smoothed",
+    series_t_s: FloatArray | None = None,
 ) -> None:
+    """``series_t_s``: times of the smoothed and rate series when they are not those of the
+    raw samples (detection leaves out non-finite and repeated samples)."""
     plt = _pyplot()
+    series_t = t_s if series_t_s is None else series_t_s
     rows = 2 if rate_pa_per_s is not None else 1
     fig, axes = plt.subplots(rows, 1, figsize=(11, 3.2 * rows), sharex=True, squeeze=False)
     ax = axes[0, 0]
     ax.plot(t_s, raw_pa, color="0.7", lw=0.6, label="raw")
     if smoothed_pa is not None:
-        ax.plot(t_s, smoothed_pa, color="C0", lw=1.2, label=smoothed_label)
+        ax.plot(series_t, smoothed_pa, color="C0", lw=1.2, label=smoothed_label)
     ax.set_ylabel("pressure [Pa]")
     for k, tr in enumerate(transitions):
         for a in axes[:, 0]:
@@ -80,7 +84,7 @@ def pressure_figure(
     ax.set_title("Pressure over the run, and the detected floor transitions")
     if rate_pa_per_s is not None:
         ax2 = axes[1, 0]
-        ax2.plot(t_s, rate_pa_per_s, color="C2", lw=0.8, label="rate of change")
+        ax2.plot(series_t, rate_pa_per_s, color="C2", lw=0.8, label="rate of change")
         if threshold_pa_per_s is not None:
             ax2.axhline(threshold_pa_per_s, color="C3", ls="--", lw=0.8, label="threshold")
             ax2.axhline(-threshold_pa_per_s, color="C3", ls="--", lw=0.8)
