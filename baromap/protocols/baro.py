@@ -21,7 +21,12 @@ from typing import ClassVar, Final
 
 from baromap.errors import EncodeError
 from baromap.messages import PressureSample
-from baromap.protocols.framing import BAD_FRAME_SAMPLE_BYTES, BadFrame, DecoderStats
+from baromap.protocols.framing import (
+    BAD_FRAME_SAMPLE_BYTES,
+    MAX_DISCARD_RUN,
+    BadFrame,
+    DecoderStats,
+)
 
 PROTOCOL_VERSION: Final = 1
 DELIMITER: Final = 0x00
@@ -32,8 +37,6 @@ MIN_FRAME: Final = HEADER.size + CRC.size
 MAX_FRAME: Final = HEADER.size + MAX_PAYLOAD + CRC.size
 #: COBS adds one code byte per started 254 bytes; 58 decoded bytes need one.
 MAX_ENCODED: Final = MAX_FRAME + 1
-#: An over-long run is reported in blocks of this many bytes, so counters keep moving.
-_OVERSIZED_REPORT_EVERY = 4096
 CRC_INIT: Final = 0xFFFF
 Q24_8: Final = 256.0
 SEQ_MODULO: Final = 1 << 16
@@ -481,10 +484,10 @@ class Decoder:
         # An endless run is reported in fixed blocks so health counters keep moving and the
         # output does not depend on how the bytes were chunked. The last MAX_ENCODED bytes are
         # never reported early: they may still end in a frame.
-        while self._skipped - len(self._tail) >= _OVERSIZED_REPORT_EVERY:
-            bad = BadFrame("oversized", _OVERSIZED_REPORT_EVERY, self._skipped_sample)
+        while self._skipped - len(self._tail) >= MAX_DISCARD_RUN:
+            bad = BadFrame("oversized", MAX_DISCARD_RUN, self._skipped_sample)
             out.append(self.stats.count_bad(bad))
-            self._skipped -= _OVERSIZED_REPORT_EVERY
+            self._skipped -= MAX_DISCARD_RUN
             self._skipped_sample = b""
             self._sampling = False
 

@@ -851,8 +851,6 @@ class Decoder:
         del buf[:pos]
         return out
 
-    # -- discarded-byte runs ---------------------------------------------------------------
-
     # -- telegrams -------------------------------------------------------------------------
 
     def _candidate(self, buf: bytearray, pos: int, end: int, out: list[LmsMessage]) -> int:
