@@ -125,6 +125,19 @@ def test_bad_samples_are_counted_not_raised() -> None:
     assert detector.state.floor is None and detector.state.phase is FloorPhase.UNKNOWN
 
 
+def test_bad_temperatures_and_reference_readings_do_not_stop_the_detector() -> None:
+    t, p = series([(0.0, 60), (STOREY_M, 60)])
+    detector = OnlineFloorDetector()
+    events = []
+    for k, (ti, pi) in enumerate(zip(t.tolist(), p.tolist(), strict=True)):
+        glitch = [float("nan"), -300.0, 15.0][k % 3]  # NaN, below absolute zero, fine
+        detector.update_reference(PressureSample(ti, float("nan") if k == 5 else P0))
+        events += detector.update(PressureSample(ti, pi, glitch))
+    assert [(e.from_floor, e.to_floor) for e in events] == [(0, 1)]
+    assert events[0].delta_m == pytest.approx(STOREY_M, abs=0.1)
+    assert detector.ignored_samples == 1  # the NaN reference reading
+
+
 def test_detect_floors_result_is_consistent() -> None:
     plan = [(0.0, 60), (2 * STOREY_M, 60), (STOREY_M, 60), (2 * STOREY_M, 60)]
     t, p = series(plan)

@@ -38,6 +38,9 @@ from dataclasses import dataclass, fields
 from baromap.errors import ConfigError
 from baromap.floors.height import STANDARD_TEMPERATURE_C
 
+#: Air temperatures a barometer can plausibly report; outside them a reading is a glitch.
+MIN_AIR_C, MAX_AIR_C = -80.0, 80.0
+
 
 @dataclass(frozen=True, slots=True)
 class FloorDetectorConfig:
@@ -91,5 +94,5 @@ class FloorDetectorConfig:
         for name in ("paper_alpha", "paper_gamma"):
             if not 0.0 < getattr(self, name) <= 1.0:
                 raise ConfigError(f"{name} must be in (0, 1], not {getattr(self, name)}")
-        if not -80.0 < self.default_temperature_c < 80.0:
+        if not MIN_AIR_C < self.default_temperature_c < MAX_AIR_C:
             raise ConfigError("default_temperature_c must be a plausible air temperature")

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import structlog
 
-from baromap.floors.config import FloorDetectorConfig
+from baromap.floors.config import MAX_AIR_C, MIN_AIR_C, FloorDetectorConfig
 from baromap.floors.height import height_difference_m, pa_per_m, pressure_drop_pa
 from baromap.floors.identity import FloorRegistry
 from baromap.messages import NS_PER_S, FloorEvent, FloorPhase, FloorState, PressureSample
@@ -123,6 +123,10 @@ class OnlineFloorDetector:
 
     def update_reference(self, sample: PressureSample) -> None:
         """A reference station's reading: its change since the start is weather."""
+        if not math.isfinite(sample.pressure_pa):
+            # one NaN in the correction would make every later robot sample NaN (ignored)
+            self.ignored_samples += 1
+            return
         if math.isnan(self._ref_level):
             self._ref_level = self._ref_origin = sample.pressure_pa
             self._ref_t = sample.t_ns
@@ -139,8 +143,11 @@ class OnlineFloorDetector:
         """Feed one sample; returns the floor events it completes (usually none)."""
         t = sample.t_ns
         p = sample.pressure_pa - self._correction
-        if sample.temperature_c is not None:
-            self._temperature = sample.temperature_c
+        temperature = sample.temperature_c
+        if temperature is not None and MIN_AIR_C < temperature < MAX_AIR_C:
+            # a NaN or a sensor glitch below absolute zero would make the hypsometric
+            # thresholds raise; the last plausible reading stands
+            self._temperature = temperature
         if self._n == 0:
             return self._first(t, p)
         dt_ns = t - self._t
