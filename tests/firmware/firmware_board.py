@@ -219,9 +219,13 @@ class SimulatedBoard:
             path = write_trajectory(workdir / f"{name}-trajectory.csv", self.trajectory)
             args += ["--trajectory", str(path)]
         self._log: IO[Any] = self.log_path.open("w")
-        self.process = subprocess.Popen(
-            args, stdout=subprocess.PIPE, stderr=self._log, text=True, start_new_session=True
-        )
+        try:
+            self.process = subprocess.Popen(
+                args, stdout=subprocess.PIPE, stderr=self._log, text=True, start_new_session=True
+            )
+        except BaseException:
+            self._log.close()
+            raise
         self.link: BoardLink | None = None
         try:
             pty_path = self._read_pty_path()
