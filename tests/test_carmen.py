@@ -161,6 +161,8 @@ def test_synth_odometry_is_seeded() -> None:
     ref = _reference_path(50)
     np.testing.assert_array_equal(synthesize_odometry(ref, 7), synthesize_odometry(ref, 7))
     assert not np.array_equal(synthesize_odometry(ref, 7), synthesize_odometry(ref, 8))
+    with pytest.raises(ConfigError, match="must not be negative"):
+        synthesize_odometry(ref, -1)  # numpy would raise a bare ValueError
 
 
 @given(st.integers(0, 2**32 - 1))

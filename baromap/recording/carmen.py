@@ -263,6 +263,8 @@ def synthesize_odometry(
     Each step's motion (expressed in the robot frame of the previous pose) is degraded and
     integrated from the first reference pose, so errors accumulate the way odometry does.
     """
+    if seed < 0:
+        raise ConfigError(f"the odometry seed must not be negative, got {seed}")
     model = model or OdometryErrorModel()
     ref = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
     out = np.empty_like(ref)
