@@ -311,3 +311,26 @@ def test_label_scans_by_segments() -> None:
     floor, visit = label_scans(t, [(2, 12, 0), (18, 28, 1), (32, 40, 0)])
     assert floor.tolist() == [0, 0, 0, BETWEEN_FLOORS, 1, 1, BETWEEN_FLOORS, 0]
     assert visit.tolist() == [0, 0, 0, -1, 1, 1, -1, 2]
+
+
+@pytest.mark.parametrize(
+    "record",
+    [
+        {"laser_offset": "0.1 zero 0"},
+        {"laser_offset": "0.1 0.2"},
+        {"laser_mount": '{"x_m": NaN}'},
+        {"laser_mount": "[1, 2"},
+    ],
+)
+def test_bad_laser_mount_metadata_is_an_input_error(record: dict[str, str]) -> None:
+    """A mount read wrongly would shift every beam; say so rather than map with zeros."""
+    from baromap.errors import InputFormatError
+    from baromap.mapping.run_data import laser_offset_from_metadata
+
+    assert laser_offset_from_metadata({"x": {"laser_offset": "0.1 0 0.5"}}).tolist() == [
+        0.1,
+        0.0,
+        0.5,
+    ]
+    with pytest.raises(InputFormatError):
+        laser_offset_from_metadata({"x": record})

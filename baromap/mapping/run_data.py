@@ -63,22 +63,27 @@ def laser_offset_from_metadata(metadata: dict[str, dict[str, str]]) -> FloatArra
     for record in metadata.values():
         text = record.get("laser_offset")
         if text:
-            values = [float(v) for v in text.replace(",", " ").split()]
-            if len(values) == 3:
-                return np.array(values)
+            try:
+                values = [float(v) for v in text.replace(",", " ").split()]
+            except ValueError as exc:
+                raise InputFormatError(f"laser_offset metadata {text!r}: {exc}") from exc
+            if len(values) != 3 or not np.all(np.isfinite(values)):
+                raise InputFormatError(f"laser_offset metadata {text!r} is not 'x y theta'")
+            return np.array(values)
         mount = record.get("laser_mount")
         if mount:
             try:
                 data = json.loads(mount)
-                return np.array(
-                    [
-                        float(data.get("x_m", 0.0)),
-                        float(data.get("y_m", 0.0)),
-                        float(data.get("yaw_rad", 0.0)),
-                    ]
-                )
+                values = [
+                    float(data.get("x_m", 0.0)),
+                    float(data.get("y_m", 0.0)),
+                    float(data.get("yaw_rad", 0.0)),
+                ]
             except (ValueError, TypeError, AttributeError) as exc:
                 raise InputFormatError(f"laser_mount metadata is not valid JSON: {exc}") from exc
+            if not np.all(np.isfinite(values)):
+                raise InputFormatError(f"laser_mount metadata {mount!r} is not finite")
+            return np.array(values)
     return np.zeros(3)
 
 
