@@ -1,10 +1,11 @@
 """``baromap sim record``: a whole simulated run written straight to MCAP, with the truth.
 
 Nothing waits on a clock: the run is sampled in time windows, scans are ray cast in batches,
-and every message goes through the same codec the live daemon would decode it with (B0
-telegrams for scans, SIPs and the host's odometry integrator for /odom, SAMPLE frames for
-/baro), so a recording made here holds exactly what the daemon would have recorded from the
-twins, plus the truth (/truth/pose at every scan, /truth/floor every second and at every
+and every message is built by the same protocol objects and conversions the live daemon
+uses (LMS200 range words to a LaserScan, SIPs through the host's odometry integrator for
+/odom, SAMPLE frames for /baro). Only the byte framing around them is skipped for speed; the
+twins exercise it, and its round trips are tested on their own. So a recording made here holds
+what the daemon would have recorded from the twins, plus the truth (/truth/pose at every scan, /truth/floor every second and at every
 change) and a "baromap.sim" metadata record from which an evaluator rebuilds the building.
 
 Laser choice: 180 deg at 1 deg in mm units at 38400 baud, as the paper's era of Pioneer
