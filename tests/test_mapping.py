@@ -304,6 +304,10 @@ def test_sim_bar_needs_one_map_per_visited_floor() -> None:
     assert not merged.passed()  # a floor merged into another has no map of its own
     split = SimReport([*floors, floors[2]], 0, 10, 1.0, np.zeros(3), true_floors=(0, 1, 2))
     assert not split.passed()
+    assert report.passed_in_one_frame()
+    turned = [*floors[:2], dataclasses.replace(floors[2], building_occupied_precision=0.6)]
+    loose = SimReport(turned, 0, 10, 1.0, np.zeros(3), true_floors=(0, 1, 2))
+    assert loose.passed() and not loose.passed_in_one_frame()
 
 
 def test_label_scans_by_segments() -> None:
