@@ -74,6 +74,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             print(f"baromap: error: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:
+        # Last resort: a file or device problem no part turned into a BaromapError.
+        print(f"baromap: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
 

@@ -5,8 +5,9 @@ and every message is built by the same protocol objects and conversions the live
 uses (LMS200 range words to a LaserScan, SIPs through the host's odometry integrator for
 /odom, SAMPLE frames for /baro). Only the byte framing around them is skipped for speed; the
 twins exercise it, and its round trips are tested on their own. So a recording made here holds
-what the daemon would have recorded from the twins, plus the truth (/truth/pose at every scan, /truth/floor every second and at every
-change) and a "baromap.sim" metadata record from which an evaluator rebuilds the building.
+what the daemon would have recorded from the twins, plus the truth (/truth/pose at every scan,
+/truth/floor every second and at every change) and a "baromap.sim" metadata record from which
+an evaluator rebuilds the building.
 
 Laser choice: 180 deg at 1 deg in mm units at 38400 baud, as the paper's era of Pioneer
 setups ran it over RS-232: 372-byte telegrams give 10.3 scans per second. At 0.3-0.6 m/s and
