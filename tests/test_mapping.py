@@ -312,9 +312,17 @@ def test_sim_bar_needs_one_map_per_visited_floor() -> None:
 
 def test_label_scans_by_segments() -> None:
     t = np.array([0, 5, 10, 15, 20, 25, 30, 35], dtype=np.int64)
-    floor, visit = label_scans(t, [(2, 12, 0), (18, 28, 1), (32, 40, 0)])
+    floor, visit = label_scans(t, [(2, 12, 0), (18, 28, 1), (32, 40, 0)], guard_s=0.0)
     assert floor.tolist() == [0, 0, 0, BETWEEN_FLOORS, 1, 1, BETWEEN_FLOORS, 0]
     assert visit.tolist() == [0, 0, 0, -1, 1, 1, -1, 2]
+
+
+def test_label_scans_keeps_a_guard_around_transitions_only() -> None:
+    s = 1_000_000_000
+    t = np.array([0, 9, 11, 19, 21, 29, 31, 60], dtype=np.int64) * s
+    floor, _ = label_scans(t, [(5 * s, 12 * s, 0), (18 * s, 32 * s, 1)], guard_s=2.0)
+    # the run's own start and end are no transition: no guard there
+    assert floor.tolist() == [0, 0, BETWEEN_FLOORS, BETWEEN_FLOORS, 1, 1, 1, 1]
 
 
 @pytest.mark.parametrize(

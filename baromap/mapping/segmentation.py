@@ -31,6 +31,12 @@ IntArray = npt.NDArray[np.int64]
 #: Fewest pressure samples worth running a detector on.
 MIN_PRESSURE_SAMPLES = 10
 
+#: Scans this close to a detected transition belong to no floor. A car slows over its last
+#: metre or so, and that tail of the pressure change is easily dated a second or two early;
+#: the robot is in the closed car then, so these scans add nothing to a floor's map, and
+#: keeping them out of loop closure keeps a scan taken between floors from being paired.
+TRANSITION_GUARD_S = 3.0
+
 
 @dataclass(frozen=True, slots=True)
 class FloorInfo:
@@ -59,21 +65,24 @@ def single_floor(n_scans: int, source: str = "no barometer: one floor") -> Segme
 
 
 def label_scans(
-    scan_t_ns: IntArray, segments: list[tuple[int, int, int]]
+    scan_t_ns: IntArray,
+    segments: list[tuple[int, int, int]],
+    guard_s: float = TRANSITION_GUARD_S,
 ) -> tuple[IntArray, IntArray]:
     """Floor and visit of each scan from (t_start_ns, t_end_ns, floor) segments in time order.
 
     Scans before the first segment belong to it, scans after the last to the last (the robot
-    was on a floor before the barometer's first sample); scans between two segments are in a
-    transition.
+    was on a floor before the barometer's first sample); scans between two segments, or
+    within ``guard_s`` of their ends there, are in a transition.
     """
     floor = np.full(len(scan_t_ns), BETWEEN_FLOORS, dtype=np.int64)
     visit = np.full(len(scan_t_ns), -1, dtype=np.int64)
     if not segments:
         return np.zeros_like(floor), np.zeros_like(visit)
+    guard = round(guard_s * 1e9)
     for k, (t0, t1, f) in enumerate(segments):
-        lo = -np.inf if k == 0 else t0
-        hi = np.inf if k == len(segments) - 1 else t1
+        lo = -np.inf if k == 0 else t0 + guard
+        hi = np.inf if k == len(segments) - 1 else t1 - guard
         inside = (scan_t_ns >= lo) & (scan_t_ns <= hi)
         floor[inside] = f
         visit[inside] = k
