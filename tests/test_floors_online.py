@@ -215,3 +215,12 @@ def test_config_min_height_is_honoured() -> None:
     t, p = series([(0.0, 60), (STOREY_M, 60)])
     _, events = run(t, p, FloorDetectorConfig(min_transition_m=4.0, start_m=0.5))
     assert events == []
+
+
+def test_a_long_stop_at_an_offset_is_no_landing_of_the_next_trip() -> None:
+    # A 1 m ramp, a minute there, then 0.6 m more and soon after a storey up: the trip that
+    # reaches the next floor began with the 0.6 m leg, not with the ramp a minute earlier.
+    t, p = series([(0.0, 60), (1.0, 60), (1.6, 8), (1.6 + STOREY_M, 60)], noise_pa=0.2)
+    _, events = run(t, p)
+    assert [(e.from_floor, e.to_floor) for e in events] == [(0, 1)]
+    assert 115.0 < events[0].t_start_ns / NS_PER_S < 125.0

@@ -392,7 +392,13 @@ class OnlineFloorDetector:
         offset = settled - floor_level
         if abs(offset) < self._start_pa:
             self._departed_ns = -1  # back at (or never left) the floor's level
-        elif self._departed_ns < 0 or offset * self._offset <= 0.0:
+        elif (
+            self._departed_ns < 0
+            or offset * self._offset <= 0.0
+            or self._change_start - self._landed_ns > self._landing_ns
+        ):
+            # a new trip: the first leg, a turn back, or a leg after a stop too long for a
+            # landing (the robot stayed at the old offset; that was no part of this trip)
             self._departed_ns = self._change_start
         self._landed_ns = t_end
         self._enter(t, settled, offset)
