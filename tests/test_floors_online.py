@@ -8,9 +8,12 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from baromap.floors import FloorDetectorConfig, OnlineFloorDetector, detect_floors
 from baromap.floors.height import pressure_drop_pa
+from baromap.floors.online import StillWindow
 from baromap.messages import NS_PER_S, FloorPhase, PressureSample
 
 RATE_HZ = 10.0
@@ -224,3 +227,104 @@ def test_a_long_stop_at_an_offset_is_no_landing_of_the_next_trip() -> None:
     _, events = run(t, p)
     assert [(e.from_floor, e.to_floor) for e in events] == [(0, 1)]
     assert 115.0 < events[0].t_start_ns / NS_PER_S < 125.0
+
+
+def test_the_decision_comes_one_window_after_the_pressure_stops() -> None:
+    """Stillness is one test over settle_s, not a lagging rate and then a hold."""
+    config = FloorDetectorConfig()
+    for seed in range(3):
+        t, p = series([(0.0, 60), (STOREY_M, 60)], seed=seed)
+        _, events = run(t, p, config)
+        stopped = 60 + STOREY_M
+        assert len(events) == 1
+        # settle_s of stillness plus the smoothing's catching up (level_tau_s); a Holt rate
+        # quiet for settle_s took about 4.5 s here
+        assert events[0].t_ns / NS_PER_S - stopped < config.settle_s + 2 * config.level_tau_s
+
+
+@pytest.mark.parametrize("spike_pa", [-15.0, 15.0])
+def test_a_spike_after_the_stop_is_not_taken_for_the_floor(spike_pa: float) -> None:
+    t, p = series([(0.0, 60), (STOREY_M, 60)], noise_pa=0.2)
+    p = p.copy()
+    after = (t / NS_PER_S - (60 + STOREY_M + 0.5)).clip(0.0, None)
+    p += np.where(after > 0.0, spike_pa * np.exp(-after / 0.7), 0.0)  # fading over seconds
+    detector, events = run(t, p)
+    assert [(e.from_floor, e.to_floor) for e in events] == [(0, 1)]
+    final = float(np.median(p[-200:]))
+    assert abs(events[0].level_pa - final) < pressure_drop_pa(0.3, P0)
+    assert detector.state.level_pa == pytest.approx(final, abs=0.5)
+
+
+def test_a_floor_level_decided_before_the_doors_opened_is_corrected() -> None:
+    # The car stays 4 Pa above the floor's pressure for 3 s after the stop, then the doors
+    # open: the decision may come first, but the floor's level is the open floor's.
+    plan = [(0.0, 60), (STOREY_M, 60), (0.0, 60), (STOREY_M, 60)]
+    t, p = series(plan, noise_pa=0.2)
+    p = p.copy()
+    s = t / NS_PER_S
+    stop = 60 + STOREY_M
+    p += np.where((s > stop - 5.0) & (s < stop + 3.0), 4.0, 0.0)
+    detector, events = run(t, p)
+    assert [(e.from_floor, e.to_floor) for e in events] == [(0, 1), (1, 0), (0, 1)]
+    first = events[0]
+    assert first.t_ns / NS_PER_S < stop + 3.0  # decided while the doors were shut
+    level = float(np.median(p[(s > stop + 10.0) & (s < stop + 50.0)]))
+    expected = -pressure_drop_pa(STOREY_M, P0)
+    assert detector.registry.relative_pa(1) == pytest.approx(expected, abs=1.0)
+    assert detector.transitions[0].level_pa == pytest.approx(level, abs=1.0)
+
+
+def test_a_decision_in_a_lull_of_the_ride_moves_the_new_floor_to_where_it_ended() -> None:
+    # The car pauses for 3 s at 2.2 m (above the minimum height) and goes on to 3.2 m.
+    plan = [(0.0, 60), (2.2, 3), (STOREY_M, 60), (0.0, 60), (STOREY_M, 60)]
+    t, p = series(plan, noise_pa=0.2)
+    detector, events = run(t, p)
+    assert [(e.from_floor, e.to_floor) for e in events] == [(0, 1), (1, 0), (0, 1)]
+    assert detector.state.elevation_m == pytest.approx(STOREY_M, abs=0.1)
+    assert events[0].delta_m < 2.5  # what was known when it was decided
+
+
+def test_samples_before_a_gap_do_not_count_as_stillness() -> None:
+    t, p = series([(0.0, 60), (STOREY_M, 60)])
+    s = t / NS_PER_S
+    keep = (s < 61.0) | (s > 75.0)  # 14 s without data during and after the ride
+    _, events = run(t[keep], p[keep])
+    assert [(e.from_floor, e.to_floor) for e in events] == [(0, 1)]
+    assert events[0].t_ns / NS_PER_S >= 75.0 + FloorDetectorConfig().settle_s
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(
+        st.tuples(st.floats(0.001, 8.0), st.floats(-50.0, 50.0), st.floats(-5.0, 5.0)),
+        min_size=1,
+        max_size=300,
+    )
+)
+def test_still_window_matches_a_direct_computation(
+    steps: list[tuple[float, float, float]],
+) -> None:
+    """Running sums and monotonic queues agree with a fit over the samples kept."""
+    window_ns = round(1.5 * NS_PER_S)
+    window = StillWindow(window_ns)
+    times: list[int] = []
+    raw: list[float] = []
+    smooth: list[float] = []
+    t = 1_700_000_000 * NS_PER_S
+    for dt, p, s in steps:
+        t += max(1, round(dt * NS_PER_S))
+        times.append(t)
+        raw.append(97_000.0 + p)
+        smooth.append(97_000.0 + p + s)
+        window.push(t, raw[-1], smooth[-1])
+        # the shortest run of latest samples that spans the window (or all there are)
+        k = len(times) - 1
+        while k > 0 and times[-1] - times[k] < window_ns:
+            k -= 1
+        assert window.count == len(times) - k
+        assert window.start_ns == times[k]
+        assert window.spread() == pytest.approx(max(smooth[k:]) - min(smooth[k:]), abs=1e-9)
+        if window.count >= 2:
+            x = (np.asarray(times[k:]) - times[k]) / NS_PER_S
+            slope = np.polyfit(x, np.asarray(raw[k:]) - 97_000.0, 1)[0]
+            assert window.slope() == pytest.approx(slope, rel=1e-6, abs=1e-6)

@@ -13,19 +13,24 @@ Why the defaults are what they are:
 - ``start_m = 0.5`` and ``start_rate_m_s = 0.15``: a change begins when the smoothed pressure
   leaves the floor's level by half a metre, or moves faster than a slow walk up a ramp. Either
   is far above sensor noise (a few tenths of a pascal for a BMP280 filtered over a second).
-- ``settle_rate_m_s = 0.1`` held for ``settle_s = 1.5``: "settled" means vertical speed below
-  10 cm/s for a second and a half. An elevator moves at 0.5-2 m/s and stairs at 0.1-0.3 m/s;
-  the short hold keeps the decision within a few seconds of the pressure settling. A person
-  carrying a phone is never still for long (the IPIN logs fail with a 3 s hold).
-- ``level_tau_s = 0.5`` / ``trend_tau_s = 1.5``: the smoother's time constants. A shorter
-  trend constant makes the rate noisy enough to miss settles on a hand-held phone; longer
-  ones delay the decision.
+- ``settle_rate_m_s = 0.1`` over ``settle_s = 1.5``: "settled" means that over the last second
+  and a half the pressure moved as little as a vertical speed of 10 cm/s would move it: the
+  smoothed pressure stayed within that band and the least-squares slope of the raw pressure is
+  below that speed (one window, so one lag). An elevator moves at 0.5-2 m/s and stairs at
+  0.1-0.3 m/s; the short window keeps the decision within a couple of seconds of the pressure
+  settling. A person carrying a phone is never still for long.
+- ``level_tau_s = 0.5`` / ``trend_tau_s = 1.5``: the smoothers' time constants. The level
+  constant smooths the pressure the settle band is judged on (and the Holt level); the trend
+  constant only sets how fast the Holt rate that starts a change reacts. A shorter trend
+  constant makes that rate noisy on a hand-held phone.
 - ``drift_tau_s = 60``: while the robot stays on a floor, slow changes are weather (up to
   ~3 hPa/h, i.e. 0.08 Pa/s) and the floor's level follows them with this time constant; the
   drift rate itself is averaged over ``drift_rate_tau_s``.
 - ``landing_s = 15``: a stop shorter than this between two legs of vertical motion in the same
-  direction (a stair landing) is part of one trip, which is then dated from its first leg. It
-  changes only the transition's start time, never whether there is one.
+  direction (a stair landing) is part of one trip, which is then dated from its first leg.
+  For as long after a transition the trip may still be ending (doors opening, a ventilation
+  spike fading, a landing), so the new floor's level follows the pressure within ``start_m``
+  and a first visit's level moves to where a continuing leg ends.
 - The paper's constants (``paper_alpha``, ``paper_gamma``, ``paper_sigmas``) are per sample, as
   the paper states them.
 """

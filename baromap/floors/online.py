@@ -3,24 +3,40 @@
 How it decides, and why:
 
 1. A Holt (double exponential) smoother with *time-based* gains gives the pressure level and
-   its rate in Pa/s, so irregular sample spacing does not change its behaviour.
+   its rate in Pa/s, so irregular sample spacing does not change its behaviour. It decides
+   when a change begins. A plain exponential average with the same level constant (no trend,
+   so it never overshoots a stop) is the "smoothed pressure" the end of a change is judged on.
 2. While settled on a floor, slow changes are weather: the floor's level follows them with a
    critically damped second-order tracker (level and drift rate; no lag on a steady drift),
    its drift rate clipped to what weather can do.
-3. A change *begins* when the smoothed pressure leaves the tracked level by ``start_m`` or moves
+3. A change *begins* when the Holt level leaves the tracked level by ``start_m`` or moves
    faster than ``start_rate_m_s``. From then on the level is only extrapolated with the drift
    rate; nothing the robot does moves it.
-4. The change *ends* when the rate has stayed under ``settle_rate_m_s`` for ``settle_s``. The
-   settled level is the mean pressure over that quiet stretch.
+4. The change *ends* when the last ``settle_s`` seconds (all after the change began) were
+   still: the smoothed pressure stayed within the band a vertical speed of ``settle_rate_m_s``
+   would cross in that time, and the least-squares slope of the raw pressures over the same
+   window is below that speed. One window, one test, one lag: the band catches a bump or a dip
+   inside the window (where a slope alone reads zero), the slope catches pressure still moving
+   at the window's end that the smoothing has not shown yet. (A Holt rate that must stay quiet
+   for ``settle_s`` puts two lags in a row: the trend's exponential memory of the ride, about
+   a second after the sensor has settled, then the hold.) The settled level is the smoothed
+   pressure at that moment. The window holds only samples taken since the change began and
+   is kept with running sums and monotonic queues, so the test costs O(1) per sample.
 5. Only if the settled level differs from the current floor's by at least
    ``min_transition_m`` (hypsometric, measured temperature) is a transition emitted. An
    elevator ventilation spike or a door draught goes and comes back: no event. A settle short
    of that height (a ramp, a stair landing) is kept as an offset from the floor, so several
    small steps in a row still add up against the floor's own level.
-6. A stop of less than ``landing_s`` between two legs in the same direction (a stair landing)
+6. Arrival: a decision comes as soon as the robot is still, which in an elevator is often
+   before the doors open (the car is slightly pressurised) or while a ventilation spike is
+   still fading. For ``landing_s`` after a transition the new floor's level therefore follows
+   the smoothed pressure, as long as it stays within ``start_m`` of the decided level (beyond
+   that it is a new change); then the floor keeps the level it arrived at (a new floor's
+   relative level is corrected by as much) and the weather tracker takes over.
+7. A stop of less than ``landing_s`` between two legs in the same direction (a stair landing)
    belongs to the trip: the transition is dated from the first leg; and if a first visit to a
    floor was decided on such a landing, the floor's level is moved to where the trip ended.
-7. The destination is matched against known floors by level relative to the floor just left
+8. The destination is matched against known floors by level relative to the floor just left
    (:mod:`baromap.floors.identity`), so revisits get their old index back despite drift.
 
 With a reference station (a barometer that does not move), its smoothed pressure change since
@@ -33,6 +49,7 @@ something happens (an event) or someone asks (:attr:`OnlineFloorDetector.state`)
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import structlog
@@ -46,6 +63,11 @@ log = structlog.get_logger(__name__)
 
 #: Fastest weather trend the drift tracker will follow, Pa/s (7 hPa/h, beyond a strong storm).
 MAX_WEATHER_RATE_PA_S = 0.2
+#: Fewest samples in the settle window: a line through two points says nothing about stillness.
+MIN_WINDOW_SAMPLES = 3
+#: How often the window's running sums are recomputed around a new origin, ns (keeps the sums
+#: small, so subtracting the samples that leave the window loses no precision).
+_REBASE_NS = 60 * NS_PER_S
 
 _UNKNOWN, _SETTLED, _CHANGING = 0, 1, 2
 _PHASES = (FloorPhase.UNKNOWN, FloorPhase.SETTLED, FloorPhase.CHANGING)
@@ -56,7 +78,9 @@ class TransitionRecord:
     """What the detector concluded about one transition (by floor id, not index).
 
     ``at_end`` says the stream ended before the pressure
-    had settled, and the decision was taken on what there was.
+    had settled, and the decision was taken on what there was. ``delta_pa`` and ``level_pa``
+    are refined after the decision while the robot arrives; ``completed`` says a first visit
+    decided before its trip ended has been moved to where the trip ended (that happens once).
     """
 
     t_ns: int
@@ -96,6 +120,7 @@ class OnlineFloorDetector:
         self._start_pa = 0.0
         self._start_rate = 0.0
         self._settle_rate = 0.0
+        self._settle_band = 0.0  # how far a still pressure may wander over settle_s
         self._temperature = c.default_temperature_c
         self._n = 0
         self._t = 0
@@ -104,9 +129,8 @@ class OnlineFloorDetector:
         self._phase = _UNKNOWN
         self._since = 0
         self._calm_ns = 0  # last time the rate was quiet while settled
-        self._quiet_since = -1
-        self._quiet_sum = 0.0
-        self._quiet_n = 0
+        self.smoothed = math.nan  # exponential average of the pressure, Pa (no trend)
+        self._window = StillWindow(self._settle_ns)
         self._anchor = math.nan  # tracked level of where the robot is, Pa
         self._drift = 0.0  # Pa/s
         self._offset = 0.0  # anchor minus the current floor's level, Pa
@@ -114,6 +138,10 @@ class OnlineFloorDetector:
         self._change_start = 0
         self._departed_ns = -1  # when the current offset from the floor's level began
         self._landed_ns = 0  # when the robot stopped at that offset
+        self._arrival_until = -1  # while t < this, the floor's level follows the pressure
+        self._arrival_level = 0.0  # the level decided on arrival (drift-extrapolated), Pa
+        self._arrival_record: TransitionRecord | None = None
+        self._continued: TransitionRecord | None = None  # arrival a change broke into
         self._ref_level = math.nan
         self._ref_origin = math.nan
         self._ref_t = 0
@@ -167,9 +195,15 @@ class OnlineFloorDetector:
         rate = self.rate + dt / (self._trend_tau + dt) * ((smoothed - level) / dt - self.rate)
         self.level = smoothed
         self.rate = rate
+        average = self.smoothed + dt / (self._level_tau + dt) * (p - self.smoothed)
+        self.smoothed = average
         quiet = -self._settle_rate < rate < self._settle_rate
         phase = self._phase
         if phase == _SETTLED:
+            if t < self._arrival_until:
+                return self._arriving(dt, smoothed, rate, quiet)
+            if self._arrival_until >= 0:
+                self._arrived()
             anchor = self._anchor + self._drift * dt
             error = smoothed - anchor
             if (
@@ -195,31 +229,32 @@ class OnlineFloorDetector:
             else:
                 self._anchor = anchor
             return []
-        # Changing (or not yet settled at the start): wait for a quiet stretch.
+        # Changing (or not yet settled at the start): wait until the last settle_s were still.
         self._anchor += self._drift * dt
-        if not quiet:
-            self._quiet_since = -1
+        window = self._window
+        window.push(t, p, average)
+        if (
+            t - window.start_ns < self._settle_ns
+            or window.count < MIN_WINDOW_SAMPLES
+            or window.spread() > self._settle_band
+        ):
             return []
-        if self._quiet_since < 0:
-            self._quiet_since = t
-            self._quiet_sum = p
-            self._quiet_n = 1
+        slope = window.slope()
+        if not -self._settle_rate < slope < self._settle_rate:
             return []
-        self._quiet_sum += p
-        self._quiet_n += 1
-        if t - self._quiet_since < self._settle_ns:
-            return []
-        return self._settled(t, at_end=False)
+        # The Holt smoother still remembers the ride (its trend decays with trend_tau): start
+        # it afresh from what the window has shown, or that memory would read as a new change.
+        self.level = average
+        self.rate = slope
+        return self._settled(t, average, window.start_ns, at_end=False)
 
     def finish(self) -> list[FloorEvent]:
         """The stream ended: decide on a change in progress from the samples there were."""
+        if self._phase == _SETTLED and self._arrival_until >= 0:
+            self._arrived()
         if self._phase != _CHANGING or self._n == 0:
             return []
-        if self._quiet_since < 0 or self._quiet_n == 0:
-            self._quiet_since = self._t
-            self._quiet_sum = self.level
-            self._quiet_n = 1
-        return self._settled(self._t, at_end=True)
+        return self._settled(self._t, self.smoothed, self._t, at_end=True)
 
     # -- state ---------------------------------------------------------------------------
 
@@ -269,8 +304,9 @@ class OnlineFloorDetector:
             return []
         self._n = 1
         self._t = self._since = t
-        self.level = p
+        self.level = self.smoothed = p
         self.rate = 0.0
+        self._window.push(t, p, p)
         self._anchor = p
         self._thresholds(p)
         return []
@@ -281,6 +317,7 @@ class OnlineFloorDetector:
         self._start_pa = c.start_m * gradient
         self._start_rate = c.start_rate_m_s * gradient
         self._settle_rate = c.settle_rate_m_s * gradient
+        self._settle_band = self._settle_rate * c.settle_s
 
     def _gap(self, t: int, p: float) -> None:
         """No data for longer than ``max_gap_s``: the robot may have moved meanwhile."""
@@ -288,34 +325,78 @@ class OnlineFloorDetector:
         previous = self._t
         self._n += 1
         self._t = t
-        self.level = p
+        self.level = self.smoothed = p
         self.rate = 0.0
+        self._continued = None
         if self._phase == _SETTLED:
+            if self._arrival_until >= 0:
+                self._arrived()
             self._anchor += self._drift * (t - previous) * 1e-9
             self._calm_ns = previous
             self._begin_change()
+        else:
+            self._window.clear()  # what came before the gap says nothing about now
+        self._window.push(t, p, p)
 
     def _begin_change(self) -> None:
+        self._window.clear()  # stillness is judged on what came after the change began
         self._phase = _CHANGING
         self._since = self._t
         self._change_start = self._calm_ns
-        self._quiet_since = -1
 
-    def _settled(self, t: int, *, at_end: bool) -> list[FloorEvent]:
-        settled = self._quiet_sum / self._quiet_n
-        t_end = self._quiet_since
-        self._quiet_since = -1
+    def _arriving(self, dt: float, smoothed: float, rate: float, quiet: bool) -> list[FloorEvent]:
+        """Just arrived: the floor's level follows the pressure while the air settles."""
+        self._arrival_level += self._drift * dt
+        error = smoothed - self._arrival_level
+        if (
+            error > self._start_pa
+            or error < -self._start_pa
+            or rate > self._start_rate
+            or rate < -self._start_rate
+        ):
+            self._anchor += self._drift * dt
+            self._continued = self._arrival_record
+            self._arrived()
+            self._begin_change()
+            return []
+        self._anchor = self.smoothed
+        if quiet:
+            self._calm_ns = self._t
+        return []
+
+    def _arrived(self) -> None:
+        """The arrival is over: the level the floor has now is the one it arrived at."""
+        self._arrival_until = -1
+        moved = self._anchor - self._arrival_level
+        record = self._arrival_record
+        self._arrival_record = None
+        if record is None:
+            return
+        record.delta_pa += moved
+        record.level_pa += moved
+        if record.new_floor and record.to_id == self._floor:
+            self.registry.move(self._floor, moved)
+
+    def _arrive(self, t: int, settled: float, record: TransitionRecord | None) -> None:
+        self._arrival_until = t + self._landing_ns
+        self._arrival_level = settled
+        self._arrival_record = record
+
+    def _settled(self, t: int, settled: float, t_end: int, *, at_end: bool) -> list[FloorEvent]:
         self._thresholds(settled)
+        continued = self._continued
+        self._continued = None
         if self._floor < 0:
             # First settle of the run: this is where we are.
             self._floor = self.registry.add(0.0)
             self._enter(t, settled, 0.0)
+            self._arrive(t, settled, None)
             return []
         floor_level = self._anchor - self._offset
         step = settled - floor_level
         min_pa = pressure_drop_pa(self.config.min_transition_m, settled, self._temperature)
         if abs(step) < min_pa:
-            self._sub_threshold(t, t_end, settled, step, floor_level)
+            self._sub_threshold(t, t_end, settled, step, floor_level, last=continued)
             return []
         relative = self.registry.relative_pa(self._floor) + step
         to_id = self.registry.match(relative, min_pa, exclude=self._floor)
@@ -362,25 +443,34 @@ class OnlineFloorDetector:
         )
         self._floor = to_id
         self._enter(t, settled, 0.0)
+        self._arrive(t, settled, record)
         return [event]
 
     def _sub_threshold(
-        self, t: int, t_end: int, settled: float, step: float, floor_level: float
+        self,
+        t: int,
+        t_end: int,
+        settled: float,
+        step: float,
+        floor_level: float,
+        *,
+        last: TransitionRecord | None,
     ) -> None:
-        """Settled short of a floor change: a landing, a ramp, or a spike that went away."""
-        last = self.transitions[-1] if self.transitions else None
+        """Settled short of a floor change: a landing, a ramp, or a spike that went away.
+
+        ``last`` is the transition whose arrival this change interrupted, if it did.
+        """
         if (
             last is not None
             and last.new_floor
             and not last.completed
             and last.to_id == self._floor
-            and self._change_start - last.t_end_ns <= self._landing_ns
             and step * last.delta_pa > 0.0
-            and abs(step) >= self._start_pa
         ):
-            # A first visit decided on a landing: the trip went on, the floor is where it
-            # ended. Only once, and only for a floor never seen before (a known floor's
-            # level is already known).
+            # A first visit decided on a landing (or in a lull of the ride): the change began
+            # while the robot was still arriving and went on the same way, so the trip went
+            # on and the floor is where it ended. Only once, and only for a floor never seen
+            # before (a known floor's level is already known: a leg away from it is a trip).
             last.completed = True
             last.t_end_ns = t_end
             last.delta_pa += step
@@ -388,6 +478,7 @@ class OnlineFloorDetector:
             self.registry.move(self._floor, step)
             self._departed_ns = -1
             self._enter(t, settled, 0.0)
+            self._arrive(t, settled, last)
             return
         offset = settled - floor_level
         if abs(offset) < self._start_pa:
@@ -409,3 +500,114 @@ class OnlineFloorDetector:
         self._calm_ns = t
         self._anchor = settled
         self._offset = offset
+
+
+class StillWindow:
+    """The latest samples spanning at least ``window_ns``: were they still all along?
+
+    Holds the shortest run of recent samples that spans the window, with running sums for a
+    least-squares line through the raw pressures (:meth:`slope`) and monotonic queues for the
+    highest and lowest smoothed pressure (:meth:`spread`), so each sample costs O(1) amortised
+    at any sample rate. Sums are taken about an origin that is moved every ``_REBASE_NS``, so
+    they stay small and removing old samples does not eat their precision.
+    """
+
+    __slots__ = (
+        "_highs",
+        "_lows",
+        "_p0",
+        "_samples",
+        "_sx",
+        "_sxx",
+        "_sxy",
+        "_sy",
+        "_t0",
+        "window_ns",
+    )
+
+    def __init__(self, window_ns: int) -> None:
+        self.window_ns = window_ns
+        self._samples: deque[tuple[int, float, float]] = deque()  # (t_ns, x s, y Pa)
+        self._highs: deque[tuple[int, float]] = deque()  # (t_ns, smoothed), decreasing
+        self._lows: deque[tuple[int, float]] = deque()  # (t_ns, smoothed), increasing
+        self._t0 = 0
+        self._p0 = 0.0
+        self._sx = self._sxx = self._sy = self._sxy = 0.0
+
+    @property
+    def count(self) -> int:
+        return len(self._samples)
+
+    @property
+    def start_ns(self) -> int:
+        """Time of the oldest sample in the window (-1 when empty)."""
+        return self._samples[0][0] if self._samples else -1
+
+    def clear(self) -> None:
+        self._samples.clear()
+        self._highs.clear()
+        self._lows.clear()
+        self._sx = self._sxx = self._sy = self._sxy = 0.0
+
+    def push(self, t: int, p: float, smoothed: float) -> None:
+        samples = self._samples
+        if not samples:
+            self._t0, self._p0 = t, p
+        elif t - self._t0 > _REBASE_NS:
+            self._rebase(t, p)
+        x = (t - self._t0) * 1e-9
+        y = p - self._p0
+        samples.append((t, x, y))
+        self._sx += x
+        self._sxx += x * x
+        self._sy += y
+        self._sxy += x * y
+        highs = self._highs
+        while highs and highs[-1][1] <= smoothed:
+            highs.pop()
+        highs.append((t, smoothed))
+        lows = self._lows
+        while lows and lows[-1][1] >= smoothed:
+            lows.pop()
+        lows.append((t, smoothed))
+        limit = t - self.window_ns
+        while len(samples) > 1 and samples[1][0] <= limit:
+            _, x, y = samples.popleft()
+            self._sx -= x
+            self._sxx -= x * x
+            self._sy -= y
+            self._sxy -= x * y
+        oldest = samples[0][0]
+        while highs[0][0] < oldest:
+            highs.popleft()
+        while lows[0][0] < oldest:
+            lows.popleft()
+
+    def slope(self) -> float:
+        """Least-squares slope of the raw pressures over the window, Pa/s (0 if undefined)."""
+        n = len(self._samples)
+        sxx = n * self._sxx - self._sx * self._sx
+        if n < 2 or sxx <= 0.0:
+            return 0.0
+        return (n * self._sxy - self._sx * self._sy) / sxx
+
+    def spread(self) -> float:
+        """Highest minus lowest smoothed pressure over the window, Pa."""
+        if not self._samples:
+            return 0.0
+        return self._highs[0][1] - self._lows[0][1]
+
+    def _rebase(self, t: int, p: float) -> None:
+        shift_y = self._p0 - p
+        self._t0, self._p0 = t, p
+        old = list(self._samples)
+        self._samples.clear()
+        self._sx = self._sxx = self._sy = self._sxy = 0.0
+        for ti, _, yi in old:
+            x = (ti - t) * 1e-9
+            y = yi + shift_y
+            self._samples.append((ti, x, y))
+            self._sx += x
+            self._sxx += x * x
+            self._sy += y
+            self._sxy += x * y
