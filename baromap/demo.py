@@ -105,6 +105,10 @@ def run(args: argparse.Namespace) -> int:
     )
 
     print("\n2/3 online floor detection, replayed sample by sample (times are run time)")
+    print(
+        "  detector floors count from the lowest floor visited so far (they renumber when a "
+        "lower one turns up);\n  true floors are the simulator's, 0 = ground"
+    )
     events, truth_changes = replay_floor_events(recording)
     print(f"  {events} floor events; the simulator's truth has {truth_changes} floor changes")
 
