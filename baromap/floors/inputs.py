@@ -63,22 +63,29 @@ def load_input(path: str | Path) -> FloorInput:
 
 
 def _load_mcap(path: str | Path) -> FloorInput:
-    from baromap.messages import TruthFloor
-    from baromap.recording import load_pressure, read_messages, topics
+    """Pressure, reference station and truth in one pass: each pass decompresses the file."""
+    from baromap.messages import PressureSample, TruthFloor
+    from baromap.recording import pressure_series, read_messages, topics
 
-    series = load_pressure(path)
-    if series.t_ns.size == 0:
-        raise InputFormatError(f"{path}: no pressure samples on {topics.BARO}")
-    reference = load_pressure(path, topics.REFERENCE_PRESSURE)
+    samples: dict[str, list[PressureSample]] = {topics.BARO: [], topics.REFERENCE_PRESSURE: []}
     t: list[int] = []
     floors: list[float] = []
     z: list[float] = []
-    for rec in read_messages(path, [topics.TRUTH_FLOOR]):
+    wanted = [topics.BARO, topics.REFERENCE_PRESSURE, topics.TRUTH_FLOOR]
+    for rec in read_messages(path, wanted):
         msg = rec.message
         if isinstance(msg, TruthFloor):
             t.append(msg.t_ns)
             floors.append(math.nan if msg.floor is None else float(msg.floor))
             z.append(msg.z_m)
+        elif isinstance(msg, PressureSample) and rec.topic in samples:
+            samples[rec.topic].append(msg)
+        elif rec.topic != topics.TRUTH_FLOOR:
+            raise InputFormatError(f"{rec.topic} in {path} does not hold pressure samples")
+    series = pressure_series(samples[topics.BARO])
+    if series.t_ns.size == 0:
+        raise InputFormatError(f"{path}: no pressure samples on {topics.BARO}")
+    reference = pressure_series(samples[topics.REFERENCE_PRESSURE])
     truth = truth_from_series(t, floors, z) if t else None
     return FloorInput("mcap", series, truth, reference if reference.t_ns.size else None)
 

@@ -4,6 +4,7 @@ from baromap.recording.reader import (
     PressureSeries,
     Record,
     load_pressure,
+    pressure_series,
     read_messages,
     read_metadata,
 )
@@ -14,6 +15,7 @@ __all__ = [
     "Record",
     "RecordingWriter",
     "load_pressure",
+    "pressure_series",
     "read_messages",
     "read_metadata",
 ]

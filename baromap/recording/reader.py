@@ -207,17 +207,24 @@ class PressureSeries:
     temperature_c: npt.NDArray[np.float64]  # NaN where the sample had none
 
 
-def load_pressure(path: str | Path, topic: str = topics.BARO) -> PressureSeries:
+def pressure_series(samples: Iterable[messages.PressureSample]) -> PressureSeries:
+    """Samples (in time order) as arrays."""
     t: list[int] = []
     p: list[float] = []
     temp: list[float] = []
-    for rec in read_messages(path, [topic]):
-        sample = rec.message
-        if not isinstance(sample, messages.PressureSample):
-            raise InputFormatError(f"{topic} in {path} does not hold pressure samples")
+    for sample in samples:
         t.append(sample.t_ns)
         p.append(sample.pressure_pa)
         temp.append(np.nan if sample.temperature_c is None else sample.temperature_c)
     return PressureSeries(
         np.asarray(t, dtype=np.int64), np.asarray(p, dtype=np.float64), np.asarray(temp)
     )
+
+
+def load_pressure(path: str | Path, topic: str = topics.BARO) -> PressureSeries:
+    samples = []
+    for rec in read_messages(path, [topic]):
+        if not isinstance(rec.message, messages.PressureSample):
+            raise InputFormatError(f"{topic} in {path} does not hold pressure samples")
+        samples.append(rec.message)
+    return pressure_series(samples)
