@@ -6,18 +6,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import structlog
 
 from baromap.cli import main
 from baromap.errors import InputFormatError
 from baromap.recording.csv_pressure import parse_csv_pressure
-
-
-@pytest.fixture(autouse=True)
-def _fresh_logging():
-    """``main()`` points structlog at the captured stderr; undo that after each test."""
-    yield
-    structlog.reset_defaults()
 
 
 def test_header_comments_and_bad_rows() -> None:

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import structlog
 
 from baromap.cli import main
 from baromap.floors.detection import FloorDetection, Transition
@@ -21,13 +20,6 @@ from baromap.floors.evaluation import (
 from baromap.floors.report import evaluate, real_cases, sim_case
 
 S = 1_000_000_000
-
-
-@pytest.fixture(autouse=True)
-def _fresh_logging():
-    """``main()`` points structlog at the captured stderr; undo that after each test."""
-    yield
-    structlog.reset_defaults()
 
 
 def _detection(transitions: list[Transition], t_end_s: int = 100) -> FloorDetection:

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import structlog
 
 from baromap.cli import main
 from baromap.messages import BeamFlag, LaserScan, Odometry, PressureSample, TruthFloor, TruthPose
@@ -149,20 +148,15 @@ def test_odometry_has_the_p3at_error_model(messages: dict[str, list]) -> None:  
 
 def test_cli_record(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "cli.mcap"
-    try:
-        code = main(
-            ["sim", "record", "-o", str(out), "--minutes", "1", "--floors", "2", "--seed", "3"]
-        )
-        assert code == 0
-        printed = capsys.readouterr().out
-        assert "simulated minutes" in printed
-        assert "/scan" in printed
-        meta = read_metadata(out)[METADATA_NAME]
-        assert meta["floors"] == "2"
-        # Refuses to overwrite without --force.
-        assert main(["sim", "record", "-o", str(out), "--minutes", "1"]) == 1
-    finally:
-        structlog.reset_defaults()  # main() bound the logs to this test's captured stderr
+    code = main(["sim", "record", "-o", str(out), "--minutes", "1", "--floors", "2", "--seed", "3"])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "simulated minutes" in printed
+    assert "/scan" in printed
+    meta = read_metadata(out)[METADATA_NAME]
+    assert meta["floors"] == "2"
+    # Refuses to overwrite without --force.
+    assert main(["sim", "record", "-o", str(out), "--minutes", "1"]) == 1
 
 
 @pytest.mark.parametrize(
@@ -181,10 +175,7 @@ def test_cli_record(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
 def test_cli_record_refuses_nonsense_in_one_line(
     args: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    try:
-        code = main(["sim", "record", "-o", str(tmp_path / "x.mcap"), "--minutes", "0.05", *args])
-    finally:
-        structlog.reset_defaults()
+    code = main(["sim", "record", "-o", str(tmp_path / "x.mcap"), "--minutes", "0.05", *args])
     assert code == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0], err

@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import serial
-import structlog
 
 from baromap.cli import main
 from baromap.protocols import baro, lms200, p2os
@@ -342,10 +341,7 @@ def test_faster_than_real_time(tmp_path: Path) -> None:
 
 def test_cli_prints_paths_as_json(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     args = ["sim", "--json", "--duration", "0.3", "--floors", "3", "--minutes", "5"]
-    try:
-        code = main([*args, "--link-dir", str(tmp_path)])
-    finally:
-        structlog.reset_defaults()  # main() bound the logs to this test's captured stderr
+    code = main([*args, "--link-dir", str(tmp_path)])
     assert code == 0
     paths = json.loads(capsys.readouterr().out)
     assert set(paths) == {"lms200", "p3at", "baro"}
@@ -375,10 +371,7 @@ def test_a_link_that_cannot_be_made_is_a_clear_error_and_leaks_no_pty(tmp_path: 
 def test_cli_refuses_bad_arguments_in_one_line(
     args: list[str], message: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    try:
-        code = main(["sim", "--duration", "0.1", "--floors", "3", "--minutes", "5", *args])
-    finally:
-        structlog.reset_defaults()
+    code = main(["sim", "--duration", "0.1", "--floors", "3", "--minutes", "5", *args])
     assert code == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
