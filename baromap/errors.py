@@ -29,7 +29,3 @@ class RecordingError(BaromapError):
 
 class DeviceError(BaromapError):
     """A device could not be opened or did not complete its handshake."""
-
-
-class ToolchainError(BaromapError):
-    """A build tool (avr-gcc, simavr) needed for this operation is missing."""

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import enum
 import math
-import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -21,11 +20,6 @@ import numpy as np
 import numpy.typing as npt
 
 NS_PER_S = 1_000_000_000
-
-
-def now_ns() -> int:
-    """Wall-clock time in the messages' convention."""
-    return time.time_ns()
 
 
 def seconds(t_ns: int) -> float:

@@ -6,7 +6,7 @@
 Simulated run: records it (``baromap sim record``), then runs ``build-maps`` in a child
 process and prints its wall time and peak memory (ru_maxrss of that child: the targets are
 <= 60 s and <= 2 GB on 2 cores), then scores the maps against the true floor plans
-(baromap.mapping.evaluate). Intel: for each seed, odometry synthesised from the corrected
+(baromap.evaluation.mapping). Intel: for each seed, odometry synthesised from the corrected
 poses (5 % scale, 2 deg/m heading drift, seeded noise), SLAM over the 910 scans, and the
 Kuemmerle relation errors of the SLAM and of the odometry alone, side by side. GMapping's own
 poses score 0.036 m / 0.51 deg on the same 92 relations; the bar is SLAM <= 0.036 m and
@@ -38,8 +38,8 @@ def child_build(recording: str, out: str) -> None:
     import structlog
 
     structlog.configure(wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING))
+    from baromap.evaluation.mapping import evaluate_recording
     from baromap.mapping.build import build_maps
-    from baromap.mapping.evaluate import evaluate_recording
 
     start = time.perf_counter()
     result = build_maps(recording, out)
@@ -128,7 +128,7 @@ def bench_intel(seeds: list[int]) -> bool:
     import structlog
 
     structlog.configure(wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING))
-    from baromap.mapping.evaluate import intel_relations
+    from baromap.evaluation.mapping import intel_relations
 
     print("Intel (92 usable Kuemmerle relations): mean +- std")
     print(f"{'seed':>4}  {'odometry only':>32}  {'SLAM':>32}  {'time':>6}")

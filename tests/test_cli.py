@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from baromap.cli import COMMAND_MODULES, main
+from baromap.cli.main import COMMAND_MODULES, main
 
 EXPECTED_COMMANDS = (
     "demo",

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from baromap.cli import main
+from baromap.cli.main import main
 from baromap.errors import InputFormatError
 from baromap.recording.csv_pressure import parse_csv_pressure
 

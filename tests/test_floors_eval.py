@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from baromap.cli import main
+from baromap.cli.main import main
+from baromap.evaluation.floors import evaluate, real_cases, sim_case
 from baromap.floors.detection import FloorDetection, Transition
 from baromap.floors.evaluation import (
     Score,
@@ -17,7 +18,6 @@ from baromap.floors.evaluation import (
     truth_from_waypoints,
     with_settle_times,
 )
-from baromap.floors.report import evaluate, real_cases, sim_case
 
 S = 1_000_000_000
 

@@ -275,7 +275,7 @@ def test_relation_errors() -> None:
 
 
 def test_pose_error_does_not_cancel_as_the_robot_turns() -> None:
-    from baromap.mapping.evaluate import mean_pose_error
+    from baromap.evaluation.mapping import mean_pose_error
 
     # the robot turns round on the spot; its estimate is 8 cm east and 0.5 deg off throughout
     true = np.array([[30.0, 11.4, h] for h in np.linspace(-math.pi, math.pi, 36, endpoint=False)])
@@ -294,7 +294,7 @@ def test_pose_error_does_not_cancel_as_the_robot_turns() -> None:
 def test_sim_bar_needs_one_map_per_visited_floor() -> None:
     import dataclasses
 
-    from baromap.mapping.evaluate import FloorScore, SimReport
+    from baromap.evaluation.mapping import FloorScore, SimReport
 
     perfect = FloorScore(0, 0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
     floors = [dataclasses.replace(perfect, floor=k, true_floor=k) for k in range(3)]

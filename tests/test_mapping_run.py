@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import yaml
 
-from baromap import cli
+from baromap.cli import main as cli
+from baromap.evaluation.mapping import evaluate_recording, intel_relations
 from baromap.mapping.build import build_maps
-from baromap.mapping.evaluate import evaluate_recording, intel_relations
 from baromap.mapping.export import read_pgm
 from baromap.recording import read_messages
 from baromap.sim.record import record_run

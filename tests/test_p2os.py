@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from baromap.errors import ConfigError, EncodeError
+from baromap.odometry.integrator import OdometryIntegrator, position_delta
 from baromap.protocols import p2os as P
 from baromap.protocols.framing import BadFrame
 from baromap.protocols.robot_models import MODELS, P2AT, P3AT, P3DX, robot_model
@@ -381,7 +382,7 @@ def _sip(
     ],
 )
 def test_position_delta_unwraps_like_aria(previous: int, current: int, delta: int) -> None:
-    assert P.position_delta(previous, current) == delta
+    assert position_delta(previous, current) == delta
 
 
 @st.composite
@@ -403,7 +404,7 @@ def drives(draw: st.DrawFn) -> list[tuple[int, int, int]]:
     start=st.tuples(st.integers(0, 0x7FFF), st.integers(0, 0x7FFF), st.integers(0, 4095)),
 )
 def test_long_drives_cross_the_wrap_without_losing_a_tick(model, steps, start) -> None:
-    integrator = P.OdometryIntegrator(model, origin_at_start=True)
+    integrator = OdometryIntegrator(model, origin_at_start=True)
     x, y, th = start
     integrator.update(_sip(x, y, th), 0)
     tx = ty = tth = 0
@@ -425,7 +426,7 @@ def test_long_drives_cross_the_wrap_without_losing_a_tick(model, steps, start) -
 def test_ten_kilometre_drive_in_both_directions() -> None:
     """A P3-AT at full speed, 100 ms SIPs, 5 km out and 5 km back: 330 wraps each way."""
     model = P3AT
-    integrator = P.OdometryIntegrator(model)
+    integrator = OdometryIntegrator(model)
     step = round(model.max_velocity_mmps * 0.1 / model.dist_conv_factor)  # ticks per SIP
     ticks, n = 0, 42_000
     first = integrator.update(_sip(0, 0, 0), 0)
@@ -444,15 +445,15 @@ def test_ten_kilometre_drive_in_both_directions() -> None:
 
 
 def test_first_sip_uses_the_counters_as_aria_does() -> None:
-    odom = P.OdometryIntegrator(P2AT).update(_sip(1000, 2000, 1024), 5)
+    odom = OdometryIntegrator(P2AT).update(_sip(1000, 2000, 1024), 5)
     assert odom.x_m == pytest.approx(1.32) and odom.y_m == pytest.approx(2.64)
     assert odom.theta_rad == pytest.approx(math.pi / 2, abs=1e-12) and odom.t_ns == 5
-    zeroed = P.OdometryIntegrator(P2AT, origin_at_start=True).update(_sip(1000, 2000, 1024), 5)
+    zeroed = OdometryIntegrator(P2AT, origin_at_start=True).update(_sip(1000, 2000, 1024), 5)
     assert (zeroed.x_m, zeroed.y_m) == (0, 0)
 
 
 def test_rotation_rate_from_firmware_or_wheels() -> None:
-    integrator = P.OdometryIntegrator(P3AT)
+    integrator = OdometryIntegrator(P3AT)
     wheels = integrator.update(_sip(0, 0, 0, lvel=-100, rvel=100), 0)
     assert wheels.omega_radps == pytest.approx(100 * 0.0034)
     firmware = integrator.update(_sip(0, 0, 0, lvel=-100, rvel=100, rot_vel=-450), 1)
@@ -460,7 +461,7 @@ def test_rotation_rate_from_firmware_or_wheels() -> None:
 
 
 def test_reset_starts_a_new_track() -> None:
-    integrator = P.OdometryIntegrator(P3AT, origin_at_start=True)
+    integrator = OdometryIntegrator(P3AT, origin_at_start=True)
     integrator.update(_sip(100, 0, 0), 0)
     integrator.update(_sip(300, 0, 0), 1)
     integrator.reset()

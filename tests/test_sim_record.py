@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from baromap.cli import main
+from baromap.cli.main import main
 from baromap.messages import BeamFlag, LaserScan, Odometry, PressureSample, TruthFloor, TruthPose
 from baromap.recording import read_messages, read_metadata
 from baromap.sim.building import make_building

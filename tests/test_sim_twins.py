@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 import serial
 
-from baromap.cli import main
+from baromap.cli.main import main
+from baromap.odometry.integrator import OdometryIntegrator
 from baromap.protocols import baro, lms200, p2os
 from baromap.protocols.framing import BadFrame
 from baromap.protocols.robot_models import P3AT
@@ -202,7 +203,7 @@ def test_p2os_handshake_sips_and_odometry(base: P2osTwin) -> None:
     assert sips[-1].motors_enabled
     config = next(m for m in messages if isinstance(m, p2os.ConfigPacket))
     assert config.watchdog_ms == 2000
-    integrator = p2os.OdometryIntegrator(P3AT, origin_at_start=True)
+    integrator = OdometryIntegrator(P3AT, origin_at_start=True)
     poses = [integrator.update(s, i) for i, s in enumerate(sips)]
     # The route drives at most 0.6 m/s: no step between 100 ms SIPs is longer than 6 cm (plus
     # slip), whatever the 15-bit counters did meanwhile.

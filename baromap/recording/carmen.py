@@ -21,7 +21,6 @@ laser line at all is an :class:`~baromap.errors.InputFormatError`.
 
 from __future__ import annotations
 
-import argparse
 import gzip
 import math
 import zlib
@@ -372,30 +371,3 @@ def import_carmen(
         for message in merged:
             writer.write(message)
     return {"scans": len(scans), "odometry": len(odometry), "skipped": dict(carmen.skipped)}
-
-
-def register_import(import_subparsers: Any) -> None:
-    """Add ``carmen`` under the lead's ``baromap import`` group."""
-    parser = import_subparsers.add_parser(
-        "carmen", help="import a CARMEN log (FLASER, ROBOTLASER1, ODOM) as a recording"
-    )
-    parser.add_argument("log", help="CARMEN log, plain or .gz")
-    parser.add_argument("-o", "--output", required=True, help="recording to write (.mcap)")
-    parser.add_argument(
-        "--synth-odometry",
-        type=int,
-        default=None,
-        metavar="SEED",
-        help="replace missing odometry by the reference poses degraded with a seeded error "
-        "model (5 %% scale, 2 deg/m heading drift, random noise)",
-    )
-    parser.set_defaults(run=_run_import)
-
-
-def _run_import(args: argparse.Namespace) -> int:
-    counts = import_carmen(args.log, args.output, args.synth_odometry)
-    print(
-        f"wrote {args.output}: {counts['scans']} scans, {counts['odometry']} odometry poses"
-        + (f", skipped {counts['skipped']}" if counts["skipped"] else "")
-    )
-    return 0

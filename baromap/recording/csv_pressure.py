@@ -13,12 +13,10 @@ A reference station's log has the same shape; ``--reference`` puts it on
 
 from __future__ import annotations
 
-import argparse
 import math
 from collections import Counter
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import structlog
@@ -127,22 +125,3 @@ def import_csv(path: str | Path, output: str | Path, reference: str | Path | Non
             for sample in samples(ref):
                 writer.write(sample, topic=topics.REFERENCE_PRESSURE)
     return int(series.t_ns.size)
-
-
-def register_import(import_subparsers: Any) -> None:
-    """Add ``csv`` under the lead's ``baromap import`` group."""
-    parser = import_subparsers.add_parser(
-        "csv", help="import a time_s,pressure_pa[,temperature_c] CSV as a recording"
-    )
-    parser.add_argument("csv", help="CSV pressure log")
-    parser.add_argument("-o", "--output", required=True, help="recording to write (.mcap)")
-    parser.add_argument(
-        "--reference", default=None, help="a reference station's CSV, for /reference/pressure"
-    )
-    parser.set_defaults(run=_run_import)
-
-
-def _run_import(args: argparse.Namespace) -> int:
-    count = import_csv(args.csv, args.output, args.reference)
-    print(f"wrote {args.output}: {count} pressure samples")
-    return 0

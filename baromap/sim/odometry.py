@@ -9,7 +9,7 @@ what scan matching has to correct.
 
 The robot integrates its belief in its own units and reports it every SIP cycle (100 ms) as
 15-bit position counters (wrapping at 0x8000, about every 15 m on a P3-AT) and a 12-bit
-heading; the host unwraps them (``baromap.protocols.p2os.OdometryIntegrator``).
+heading; the host unwraps them (``baromap.protocols.OdometryIntegrator``).
 """
 
 from __future__ import annotations

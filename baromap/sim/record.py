@@ -32,7 +32,8 @@ import numpy.typing as npt
 import structlog
 
 from baromap.messages import Message, PressureSample, TruthFloor, TruthPose
-from baromap.protocols import baro, p2os
+from baromap.odometry.integrator import OdometryIntegrator
+from baromap.protocols import baro
 from baromap.protocols.robot_models import P3AT
 from baromap.sim.building import CAR_DOOR_WIDTH_M, CAR_RECT, ELEVATOR_XY, INTERIOR_WALL_M
 from baromap.sim.laser import LaserConfig, Lms200Model
@@ -190,7 +191,7 @@ class RunGenerator:
         odo_rng = self.sc.rng(STREAM_ODOMETRY)
         self.odo_errors = OdometryErrors.random(odo_rng)
         self.odometry = OdometryModel(self.odo_errors, odo_rng)
-        self.integrator = p2os.OdometryIntegrator(P3AT)
+        self.integrator = OdometryIntegrator(P3AT)
         self.baro_clock_ppm = float(odo_rng.uniform(-800.0, 800.0))
         self.baro_boot_us = int(odo_rng.uniform(0.9e6, 1.6e6))
         dur = self.sc.duration_s

@@ -12,7 +12,7 @@ from types import TracebackType
 import structlog
 
 from baromap.errors import ConfigError
-from baromap.sim.scenario import Scenario, make_scenario
+from baromap.sim.scenario import Scenario
 from baromap.sim.twins.pty_port import PtyPort
 
 log = structlog.get_logger(__name__)
@@ -67,12 +67,6 @@ class SimClock:
 
     def t_ns(self, sim_seconds: float) -> int:
         return int(self.scenario.start_ns + round(sim_seconds * 1e9))
-
-
-def default_clock(
-    seed: int = 0, floors: int = 6, minutes: float = 46.0, speed: float = 1.0
-) -> SimClock:
-    return SimClock(make_scenario(seed, floors=floors, minutes=minutes), speed)
 
 
 class Twin:

@@ -154,10 +154,6 @@ class PtyPort:
     def pending(self) -> int:
         return len(self._out)
 
-    def idle_at(self) -> float:
-        """Monotonic time when everything queued will have left the line."""
-        return max(self._budget_t, time.monotonic()) + len(self._out) * 10.0 / self.baud
-
     def pump(self) -> None:
         """Write what the line could have carried by now."""
         with self._lock:

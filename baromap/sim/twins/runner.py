@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-import argparse
 import contextlib
-import json
-import signal
-import threading
 from collections.abc import Sequence
 from pathlib import Path
 from types import TracebackType
@@ -75,30 +71,3 @@ class SimDevices:
         tb: TracebackType | None,
     ) -> None:
         self.stop()
-
-
-def run_from_args(args: argparse.Namespace) -> int:
-    from baromap.sim.cli import parse_route
-
-    devices = SimDevices(
-        seed=args.seed,
-        floors=args.floors,
-        minutes=args.minutes,
-        drift_hpa_per_h=args.drift,
-        route=parse_route(args.route),
-        speed=args.speed,
-        link_dir=args.link_dir,
-    )
-    done = threading.Event()
-    previous = signal.signal(signal.SIGTERM, lambda *_: done.set())
-    with devices:
-        paths = devices.paths()
-        if args.json:
-            print(json.dumps(paths), flush=True)
-        else:
-            for name, path in paths.items():
-                print(f"{name} {path}", flush=True)
-        with contextlib.suppress(KeyboardInterrupt):
-            done.wait(args.duration)
-    signal.signal(signal.SIGTERM, previous)
-    return 0

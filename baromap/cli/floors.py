@@ -120,14 +120,14 @@ def run_detect(args: argparse.Namespace) -> int:
 
 def run_eval(args: argparse.Namespace) -> int:
     from baromap.errors import ConfigError
-    from baromap.floors.report import HEADER, evaluate, line, run_report
+    from baromap.evaluation.floors import HEADER, evaluate, line, run_report
 
     methods = ("online", "paper") if args.method == "both" else (args.method,)
     if args.input is None and args.real is None and args.sim_seeds <= 0:
         raise ConfigError("give an INPUT, --real DIR or --sim-seeds N")
     if args.input is not None:
+        from baromap.evaluation.floors import Case
         from baromap.floors.inputs import load_input
-        from baromap.floors.report import Case
 
         data = load_input(args.input)
         if data.truth is None:
@@ -151,7 +151,7 @@ def run_eval(args: argparse.Namespace) -> int:
         for m, sc in results.items():
             print(line(str(args.input)[-34:], m, sc))
     if args.sweep:
-        from baromap.floors.report import real_sweep
+        from baromap.evaluation.floors import real_sweep
 
         if args.real is None:
             raise ConfigError("--sweep needs --real DIR")

@@ -8,6 +8,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from baromap.errors import ConfigError
+
 
 def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
@@ -67,8 +69,6 @@ def register(subparsers: Any) -> None:
 
 
 def parse_route(text: str | None) -> list[int] | None:
-    from baromap.errors import ConfigError
-
     if text is None:
         return None
     try:
@@ -110,7 +110,34 @@ def run_record(args: argparse.Namespace) -> int:
 
 
 def run_twins(args: argparse.Namespace) -> int:
-    from baromap.sim.twins.runner import run_from_args
+    import contextlib
+    import json
+    import signal
+    import threading
 
-    code: int = run_from_args(args)
-    return code
+    from baromap.sim.twins.runner import SimDevices
+
+    devices = SimDevices(
+        seed=args.seed,
+        floors=args.floors,
+        minutes=args.minutes,
+        drift_hpa_per_h=args.drift,
+        route=parse_route(args.route),
+        speed=args.speed,
+        link_dir=args.link_dir,
+    )
+    done = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda *_: done.set())
+    try:
+        with devices:
+            paths = devices.paths()
+            if args.json:
+                print(json.dumps(paths), flush=True)
+            else:
+                for name, path in paths.items():
+                    print(f"{name} {path}", flush=True)
+            with contextlib.suppress(KeyboardInterrupt):
+                done.wait(args.duration)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    return 0

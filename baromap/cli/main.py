@@ -20,27 +20,20 @@ from baromap.errors import BaromapError
 
 #: Modules that contribute subcommands, in the order ``--help`` lists them.
 COMMAND_MODULES: tuple[str, ...] = (
-    "baromap.demo",
-    "baromap.sim.cli",
-    "baromap.floors.cli",
-    "baromap.mapping.cli",
-    "baromap.recording.cli",
+    "baromap.cli.demo",
+    "baromap.cli.sim",
+    "baromap.cli.floors",
+    "baromap.cli.mapping",
+    "baromap.cli.recording",
 )
 
-Subparsers = "argparse._SubParsersAction[argparse.ArgumentParser]"
 Runner = Callable[[argparse.Namespace], int]
 
 
 def register_modules(subparsers: Any, modules: Sequence[str]) -> None:
-    """Let each module add its subcommands; a module not written yet is simply absent."""
+    """Let each module add its subcommands (a missing one is a packaging fault: it raises)."""
     for name in modules:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name == name:
-                continue
-            raise
-        module.register(subparsers)
+        importlib.import_module(name).register(subparsers)
 
 
 def build_parser() -> argparse.ArgumentParser:

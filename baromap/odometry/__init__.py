@@ -1,0 +1,1 @@
+"""Wheel odometry on the host: integration of the robot's counters into poses."""
