@@ -18,13 +18,13 @@ import baromap
 #: import each other either. A module may import any module of a lower layer.
 LAYERS: tuple[str | set[str], ...] = (
     "baromap.cli",
-    {"baromap.evaluation", "baromap.export"},
+    {"baromap.evaluation", "baromap.export", "baromap.live"},
     "baromap.sim",
     "baromap.mapping",
     "baromap.floors",
     "baromap.recording",
     "baromap.odometry",
-    {"baromap.protocols", "baromap.jsonmsg"},
+    {"baromap.protocols", "baromap.jsonmsg", "baromap.discovery"},
     "baromap.messages",
     {"baromap.errors", "baromap.logs"},
 )
