@@ -241,7 +241,7 @@ class Lms200Twin(Twin):
             return
         self._last_scan = now
         taken_ns = time.monotonic_ns()
-        taken_s = self.clock.now()
+        taken_s = self.clock.robot_time()
         if self.port.send(self.scan_telegram()):
             self.truth.record(taken_ns, taken_s, boot=self.boot)
             self.scans_sent += 1

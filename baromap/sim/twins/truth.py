@@ -44,7 +44,8 @@ class FrameTruth:
     ``index`` counts the frames of this kind the twin has sent since it started (0-based,
     across power cycles); ``boot`` counts power-ups before this frame (0 = the first);
     ``seq`` is the frame's own sequence number where the protocol has one (barometer SAMPLE).
-    ``t_sim_s`` is the simulated time of the same instant.
+    ``t_sim_s`` is the simulated time the content belongs to: route time for a SIP's pose and a
+    scan (it stands still while the robot's watchdog holds it), the run's clock for a sample.
     """
 
     device: str
