@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
+from baromap.odometry.errors import OdometryErrorModel
 from baromap.protocols import p2os
 from baromap.sim.odometry import (
     SIP_PERIOD_S,
-    OdometryErrors,
     OdometryModel,
     counters,
     sip,
@@ -70,7 +70,7 @@ class P2osTwin(Twin):
         super().__init__(clock, link, truth_sink=truth_sink)
         self.model = self.settings.robot_model
         rng = clock.scenario.rng(STREAM_ODOMETRY)
-        self.errors = OdometryErrors.random(rng)
+        self.errors = OdometryErrorModel.random(rng)
         self._rng = rng
         self.sips_sent = 0
         self.watchdog_trips = 0
