@@ -81,7 +81,7 @@ class DiscardRun:
         self.end(out)
         self.reason = reason
 
-    def absorb(self, buf: bytearray, start: int, stop: int, out: list[Any]) -> None:
+    def absorb(self, buf: bytes | bytearray, start: int, stop: int, out: list[Any]) -> None:
         """Discard ``buf[start:stop]``; a decoder in sync starts a ``garbage`` run."""
         if self.reason is None:
             self.reason = "garbage"
