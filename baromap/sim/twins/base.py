@@ -103,6 +103,7 @@ class Twin:
         self._replug_at: float | None = None
         self._power_on_at: float | None = None
         self._faults = list(self.settings.faults_of(self.name))
+        self.setup()
 
     # ---- lifetime -------------------------------------------------------------------------------
     @property
@@ -184,6 +185,9 @@ class Twin:
             self.replug()
 
     # ---- the device -----------------------------------------------------------------------------
+    def setup(self) -> None:
+        """What the device keeps across power cycles (models, counters): once, at creation."""
+
     def _power_up(self) -> None:
         self.boot += 1
         self.power_on()

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import enum
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -40,8 +39,7 @@ from baromap.sim.odometry import (
     true_increments,
 )
 from baromap.sim.scenario import STREAM_ODOMETRY
-from baromap.sim.twins.base import SimClock, Twin
-from baromap.sim.twins.truth import TruthSink
+from baromap.sim.twins.base import Twin
 
 WATCHDOG_S = 2.0
 #: Three bare SYNC0s, each closer than this to the last, on an open session: a client is
@@ -60,16 +58,9 @@ class P2osTwin(Twin):
     name = "p3at"
     initial_baud = 9600
 
-    def __init__(
-        self,
-        clock: SimClock,
-        link: str | Path | None = None,
-        *,
-        truth_sink: TruthSink | None = None,
-    ) -> None:
-        super().__init__(clock, link, truth_sink=truth_sink)
+    def setup(self) -> None:
         self.model = self.settings.robot_model
-        rng = clock.scenario.rng(STREAM_ODOMETRY)
+        rng = self.clock.scenario.rng(STREAM_ODOMETRY)
         self.errors = OdometryErrorModel.random(rng)
         self._rng = rng
         self.sips_sent = 0
