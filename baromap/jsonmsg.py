@@ -4,6 +4,10 @@ One mapping for both so a floor event looks the same in a recording and on the w
 object carries ``schema`` (this format's version), so a reader can refuse what it does not
 understand instead of misreading it. Laser scans are not here: they travel as Foxglove's
 standard ``foxglove.LaserScan`` so recordings open in Foxglove without a plugin.
+
+A float that has no value (NaN, or an infinity) is written as ``null`` and read back as NaN:
+``NaN`` is not JSON, and a reader in another language (a dashboard, a Zenoh subscriber in
+JavaScript or Rust) would reject the whole object for it.
 """
 
 from __future__ import annotations
@@ -12,6 +16,7 @@ import dataclasses
 import enum
 import functools
 import json
+import math
 import types
 import typing
 from collections.abc import Mapping
@@ -63,6 +68,8 @@ def to_dict(message: Any) -> dict[str, Any]:
             value = value.value
         elif isinstance(value, Mapping):
             value = dict(value)
+        elif isinstance(value, float) and not math.isfinite(value):
+            value = None
         out[f.name] = value
     return out
 
@@ -78,8 +85,10 @@ def from_dict(cls: type, data: Mapping[str, Any]) -> Any:
         if f.name not in data:
             continue
         value = data[f.name]
-        base, _ = _base_type(hints[f.name])
-        if value is not None and isinstance(base, type) and issubclass(base, enum.Enum):
+        base, nullable = _base_type(hints[f.name])
+        if value is None and base is float and not nullable:
+            value = math.nan  # written as null: JSON has no NaN
+        elif value is not None and isinstance(base, type) and issubclass(base, enum.Enum):
             value = base(value)
         kwargs[f.name] = value
     try:
@@ -89,7 +98,7 @@ def from_dict(cls: type, data: Mapping[str, Any]) -> Any:
 
 
 def dumps(message: Any) -> bytes:
-    return json.dumps(to_dict(message), separators=(",", ":")).encode()
+    return json.dumps(to_dict(message), separators=(",", ":"), allow_nan=False).encode()
 
 
 def loads(cls: type, payload: bytes | str) -> Any:
@@ -112,6 +121,7 @@ def _json_type(annotation: Any) -> dict[str, Any]:
         spec = {"type": "integer"}
     elif base is float:
         spec = {"type": "number"}
+        nullable = True  # null: no value (NaN)
     elif base is str:
         spec = {"type": "string"}
     elif typing.get_origin(base) in (Mapping, dict) or base in (Mapping, dict):
