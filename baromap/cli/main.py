@@ -26,6 +26,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "baromap.cli.mapping",
     "baromap.cli.recording",
     "baromap.cli.watch",
+    "baromap.cli.export",
 )
 
 Runner = Callable[[argparse.Namespace], int]

@@ -57,6 +57,13 @@ def offer_everything(publisher: LivePublisher, count: int) -> None:
             publisher.offer(state(i * S // 50, i % 2))
 
 
+def wait_open(*publishers: LivePublisher) -> None:
+    deadline = time.monotonic() + 20
+    while any(p.health()["state"] != "open" for p in publishers):
+        assert time.monotonic() < deadline, "a publisher's session did not open"
+        time.sleep(0.02)
+
+
 def accounted(health: dict[str, int | str]) -> None:
     """Every offer is ignored, dropped, or went through the schedule."""
     assert isinstance(health["offered"], int)
@@ -128,6 +135,7 @@ def test_offer_never_waits_for_a_subscriber_that_stopped_reading(
     settings = LiveSettings(listen=(robot_ep,), config_file=zenoh_file)
     publisher = LivePublisher(settings, "r1")
     publisher.start()
+    wait_open(publisher)
     listener = Child.node(
         "listener", ["listener", "--mode", "client", "--connect", robot_ep], tmp_path
     )
@@ -162,7 +170,12 @@ def test_a_late_watcher_gets_the_state_then_events_then_sees_the_robot_go(
     publisher = LivePublisher(LiveSettings(listen=(robot_ep,)), "r1")
     publisher.start()
     try:
+        wait_open(publisher)
         publisher.offer(state(S, 1))
+        deadline = time.monotonic() + 10
+        while publisher.health()["published"] == 0:  # the worker has taken the state
+            assert time.monotonic() < deadline
+            time.sleep(0.02)
         with FloorWatch(LiveSettings.client((robot_ep,)), "r1") as watch:
             first = [watch.next(10.0) for _ in range(3)]
             assert RobotUp("r1", returned=False) in first
@@ -192,10 +205,8 @@ def test_a_robot_following_a_station_gets_its_pressure() -> None:
     station.start()
     robot.start()
     try:
+        wait_open(robot, station)
         deadline = time.monotonic() + 20
-        while robot.health()["state"] != "open" or station.health()["state"] != "open":
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
         i = 0
         while len(received) < 5 and time.monotonic() < deadline:
             station.offer(PressureSample(i * S, 100_000.0 + i, 18.0))
