@@ -120,10 +120,13 @@ def _text_line(report: Any, connect: tuple[str, ...]) -> str:
             return f"{now} state known for {', '.join(report.robots)}"
         case w.StateReport(robot=robot, state=s, answered=answered):
             how = "state" if answered else "state published"
+            since = f"{s.phase.value} since {_clock(s.since_ns)}"
+            if s.floor is None:
+                return f"{now} {robot}: {how}: floor not known yet ({since})"
             return (
-                f"{now} {robot}: {how}: floor {_floor(s.floor)} ({s.phase.value} since "
-                f"{_clock(s.since_ns)}), {s.elevation_m:+.2f} m above the lowest, "
-                f"{s.floors_known} floor(s) known, level {s.level_pa:.1f} Pa"
+                f"{now} {robot}: {how}: floor {s.floor} ({since}), "
+                f"{s.elevation_m:+.2f} m above the lowest, {s.floors_known} floor(s) known, "
+                f"level {s.level_pa:.1f} Pa"
             )
         case w.EventReport(robot=robot, event=e):
             return (
