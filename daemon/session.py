@@ -96,6 +96,7 @@ class DeviceSession(abc.ABC):
         self._last_bad_ns = 0
         self._bytes_since_good = 0
         self._last_write_ns = 0
+        self._in_shutdown = False
 
     # ---- lifetime ---------------------------------------------------------------------------
     def start(self) -> None:
@@ -114,7 +115,8 @@ class DeviceSession(abc.ABC):
 
     @property
     def stopping(self) -> bool:
-        return self._stop.is_set()
+        """Asked to stop, and not in the polite shutdown sequence that follows."""
+        return self._stop.is_set() and not self._in_shutdown
 
     # ---- health -----------------------------------------------------------------------------
     def health(self, t_ns: int) -> DeviceHealth:
@@ -174,7 +176,9 @@ class DeviceSession(abc.ABC):
 
     def sleep(self, seconds: float) -> None:
         """Wait, but wake for a stop request (handshake pauses)."""
-        if self._stop.wait(seconds):
+        if self._in_shutdown:
+            time.sleep(seconds)
+        elif self._stop.wait(seconds):
             raise _Stopping
         self.heartbeat_ns = time.monotonic_ns()
 
@@ -294,10 +298,13 @@ class DeviceSession(abc.ABC):
             return str(exc), up
         finally:
             if self._stop.is_set() and self._serial is not None and up:
+                self._in_shutdown = True
                 try:
                     self.shutdown()
-                except (BaromapError, serial.SerialException, OSError, _Stopping) as exc:
-                    log.debug("shutdown sequence failed", device=self.name, error=str(exc))
+                except (BaromapError, serial.SerialException, OSError) as exc:
+                    log.warning("shutdown sequence failed", device=self.name, error=str(exc))
+                finally:
+                    self._in_shutdown = False
             self._close()
 
     def _stream(self) -> None:
