@@ -20,6 +20,7 @@ from baromap.discovery import USB_IDENTITY
 from baromap.errors import ConfigError
 from baromap.floors import FloorDetectorConfig
 from baromap.protocols import baro, lms200
+from baromap.protocols.robot_models import MODELS, find_model
 
 Role = Literal["robot", "station"]
 ROLES: Final = ("robot", "station")
@@ -263,11 +264,25 @@ def _laser(r: _Reader, data: dict[str, Any]) -> LaserConfig | None:
     return LaserConfig(port, baud, variant[0], variant[1], units, mount, restore, retry)
 
 
+def _model_problem(value: str) -> str | None:
+    if value.strip().lower() == "auto" or find_model(value) is not None:
+        return None
+    return f"no parameter set for robot model {value!r}"
+
+
 def _base(r: _Reader, data: dict[str, Any]) -> BaseConfig | None:
     p = "base."
     port = r.take(data, p, "port", str, "", port_problem, PORT_HINT)
     baud = r.take(data, p, "baud", int, 9600, _one_of([9600, 19200, 38400, 57600, 115200]))
-    model = r.take(data, p, "model", str, "auto", None, '"auto" takes the robot\'s SYNC2 subclass')
+    model = r.take(
+        data,
+        p,
+        "model",
+        str,
+        "auto",
+        _model_problem,
+        f'"auto" takes the robot\'s SYNC2 subclass; models: {", ".join(sorted(MODELS))}',
+    )
     mismatch = r.take(data, p, "allow_model_mismatch", bool, False)
     motors = r.take(data, p, "enable_motors", bool, False)
     retry = _retry(r, data, p, silence_s=2.0)

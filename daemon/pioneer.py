@@ -23,7 +23,7 @@ from baromap.errors import ConfigError, DeviceError
 from baromap.odometry.integrator import OdometryIntegrator
 from baromap.protocols import p2os
 from baromap.protocols.framing import BadFrame
-from baromap.protocols.robot_models import RobotModel, robot_model
+from baromap.protocols.robot_models import RobotModel, find_model, select_model
 from daemon.config import BaseConfig
 from daemon.session import DeviceRefused, DeviceSession, wait_for
 
@@ -38,44 +38,27 @@ FIRST_SIP_WAIT_S: Final = 1.5
 P2OS_OVERHEAD: Final = p2os.HEADER_BYTES + p2os.CHECKSUM_BYTES
 
 
-def select_model(subclass: str, configured: str, allow_mismatch: bool) -> tuple[RobotModel, str]:
+def choose_model(subclass: str, configured: str, allow_mismatch: bool) -> tuple[RobotModel, str]:
     """The model to integrate odometry with, and a note for health and metadata.
 
-    ``configured`` is "auto" (take the robot's subclass) or a model name. Raises
-    :class:`DeviceRefused` when the pinned model differs from the reported one and the
-    mismatch is not allowed, and when "auto" meets a subclass the model table does not know.
+    ``configured`` is "auto" (the robot's subclass decides, as in ARIA) or a model name.
+    :func:`~baromap.protocols.robot_models.select_model` makes the choice; its refusals (a
+    pinned model the robot contradicts, a subclass without a parameter set) become
+    :class:`DeviceRefused`, retried at the longest delay: restarting cannot change them.
     """
+    pinned = None if configured == "auto" else configured
     try:
-        reported: RobotModel | None = robot_model(subclass)
-    except ConfigError:
-        reported = None
-    if configured == "auto":
-        if reported is None:
-            raise DeviceRefused(
-                f"the robot reports subclass {subclass!r}, which the model table does not "
-                "know; pin base.model to the robot's model"
-            )
-        return reported, f"model {reported.name} from the robot's subclass {subclass!r}"
-    try:
-        pinned = robot_model(configured)
+        model = select_model(subclass, pinned, allow_mismatch=allow_mismatch)
     except ConfigError as exc:
-        raise DeviceRefused(str(exc)) from None
-    if reported is not None and reported.name == pinned.name:
-        return pinned, f"model {pinned.name}, as configured and reported"
-    reported_text = (
-        f"subclass {subclass!r}"
-        if reported is None
-        else f"subclass {subclass!r} (model {reported.name})"
-    )
-    message = (
-        f"base.model is {configured!r} (model {pinned.name}) but the robot reports {reported_text}"
-    )
-    if not allow_mismatch:
-        raise DeviceRefused(
-            f"{message}; set base.allow_model_mismatch = true to use {pinned.name} anyway"
-        )
-    log.warning("robot model mismatch allowed by configuration", detail=message)
-    return pinned, f"{message}; mismatch allowed by configuration"
+        raise DeviceRefused(f"{exc} (base.model, base.allow_model_mismatch)") from None
+    reported = find_model(subclass)
+    if pinned is None:
+        return model, f"model {model.name} from the robot's subclass {subclass!r}"
+    if reported is model:
+        return model, f"model {model.name}, as configured and reported"
+    note = f"configured model {model.name} overrides the reported subclass {subclass!r}"
+    log.warning("robot model mismatch allowed by configuration", detail=note)
+    return model, note
 
 
 class PioneerSession(DeviceSession):
@@ -88,15 +71,17 @@ class PioneerSession(DeviceSession):
         self._fed = 0
         self._consumed = 0
         self._session_open = False
+        self._sips_seen = 0
 
     # ---- handshake ----------------------------------------------------------------------------
     def handshake(self) -> None:
         self._session_open = False
+        self._sips_seen = 0
         self.set_baud(self.config.baud)
         self.discard_input()
         self.decoder = p2os.Decoder()
         info = self._sync()
-        model, note = select_model(
+        model, note = choose_model(
             info.subclass, self.config.model, self.config.allow_model_mismatch
         )
         self.model = model
@@ -108,8 +93,10 @@ class PioneerSession(DeviceSession):
         config = wait_for(self, self._find(p2os.ConfigPacket), CONFIG_WAIT_S)
         if self.config.enable_motors:
             self.write(p2os.enable_motors(True))
-        sip = wait_for(self, self._find(p2os.StandardSip), FIRST_SIP_WAIT_S)
-        if sip is None:
+        if (
+            not self._sips_seen
+            and wait_for(self, self._find(p2os.StandardSip), FIRST_SIP_WAIT_S) is None
+        ):
             raise DeviceError("no SIP after OPEN")
         self.identity = {
             "device": "Pioneer (P2OS/ARCOS)",
@@ -196,6 +183,7 @@ class PioneerSession(DeviceSession):
         if self.integrator is None:
             return
         self.good_frame()
+        self._sips_seen += 1
         self.set_counter("battery_dv", round(sip.battery_v * 10))
         self.publish(self.integrator.update(sip, self.clock.unix_ns(end_ns)), read_ns)
 
