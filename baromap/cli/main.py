@@ -25,6 +25,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "baromap.cli.floors",
     "baromap.cli.mapping",
     "baromap.cli.recording",
+    "baromap.cli.devices",
 )
 
 Runner = Callable[[argparse.Namespace], int]
