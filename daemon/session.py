@@ -133,6 +133,8 @@ class DeviceSession(abc.ABC):
             changed = state is not self.state or detail != self.detail
             self.state, self.detail = state, detail
         if changed:
+            # Recorded at once: a state can be shorter than the once-a-second health beat.
+            self._publish(self.health(self.clock.now_unix_ns()), time.monotonic_ns())
             failed = state is DeviceState.DOWN and detail != "stopped"
             level = log.warning if failed else log.info
             level(
