@@ -27,6 +27,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "baromap.cli.recording",
     "baromap.cli.watch",
     "baromap.cli.export",
+    "baromap.cli.devices",
 )
 
 Runner = Callable[[argparse.Namespace], int]
