@@ -11,6 +11,8 @@ barometer instead.
     python tests/live/nodes.py router --listen tcp/127.0.0.1:PORT
     python tests/live/nodes.py robot ID --listen EP --connect EP --seed 1 [--rate 3000]
     python tests/live/nodes.py station ID --connect EP --seed 1
+    python tests/live/nodes.py router --config router.json5
+    python tests/live/nodes.py robot ID --table baromapd.toml --seed 1
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import json
 import queue
 import sys
 import time
+import tomllib
 from collections.abc import Sequence
 
 from baromap import jsonmsg, logs
@@ -43,6 +46,9 @@ def wait_for(word: str) -> None:
 
 
 def settings(args: argparse.Namespace) -> LiveSettings:
+    if args.table:  # a daemon configuration's [zenoh] table, as the daemon will read it
+        with open(args.table, "rb") as file:
+            return LiveSettings.from_table(tomllib.load(file)["zenoh"])
     mode = ZenohMode(args.mode)
     return LiveSettings(
         mode=mode,
@@ -56,10 +62,13 @@ def settings(args: argparse.Namespace) -> LiveSettings:
 def run_router(args: argparse.Namespace) -> int:
     import zenoh
 
-    config = zenoh.Config()
-    config.insert_json5("mode", '"router"')
-    config.insert_json5("listen/endpoints", json.dumps(args.listen))
-    config.insert_json5("scouting/multicast/enabled", "false")
+    if args.config:
+        config = zenoh.Config.from_file(args.config)
+    else:
+        config = zenoh.Config()
+        config.insert_json5("mode", '"router"')
+        config.insert_json5("listen/endpoints", json.dumps(args.listen))
+        config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("transport/shared_memory/enabled", "false")
     session = zenoh.open(config)
     say(ready="router")
@@ -165,6 +174,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=3000.0, help="samples per second, 0: max")
     parser.add_argument("--state-period", type=float, default=5.0)
     parser.add_argument("--follow", help="reference station to follow")
+    parser.add_argument("--table", help="TOML file whose [zenoh] table configures the node")
+    parser.add_argument("--config", help="Zenoh JSON5 file of the router")
     args = parser.parse_args(argv)
     logs.configure("console", "INFO")  # to stderr: stdout is the JSON lines
     if args.role == "router":
