@@ -217,8 +217,10 @@ def test_flush_interval_writes_chunks_while_recording(tmp_path: Path) -> None:
     with RecordingWriter(path, robot="r1", flush_interval_s=0.0) as writer:
         writer.write(m.PressureSample(T0, 100000.0))
         size_after_one = path.stat().st_size
+        assert writer.size_bytes == size_after_one
         writer.write(m.PressureSample(T0 + 1, 100000.0))
         assert path.stat().st_size > size_after_one
+        assert not writer.flush_if_due()  # nothing new since the last flush
 
 
 def test_clear_errors_for_bad_paths_and_inputs(tmp_path: Path) -> None:

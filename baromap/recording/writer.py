@@ -164,6 +164,16 @@ class RecordingWriter:
         self.close()
 
     @property
+    def size_bytes(self) -> int:
+        """Bytes on disk so far (what has been flushed), for a recorder that rotates by size."""
+        try:
+            if self._sync_fd >= 0:
+                return os.fstat(self._sync_fd).st_size
+            return self.path.stat().st_size
+        except OSError as exc:
+            raise RecordingError(f"cannot stat recording {self.path}: {exc}") from exc
+
+    @property
     def laser_mount(self) -> LaserMount | None:
         return self._laser_mount
 
