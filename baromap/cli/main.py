@@ -26,6 +26,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "baromap.cli.mapping",
     "baromap.cli.recording",
     "baromap.cli.export",
+    "baromap.cli.devices",
 )
 
 Runner = Callable[[argparse.Namespace], int]
