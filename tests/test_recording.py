@@ -326,6 +326,17 @@ def test_static_laser_transform_is_in_every_chunk_and_every_second(tmp_path: Pat
         assert LaserMount.from_metadata(read_metadata(path)) == mount
 
 
+def test_a_mount_stated_in_metadata_becomes_the_static_transform(tmp_path: Path) -> None:
+    path = tmp_path / "daemon.mcap"
+    mount = LaserMount(0.2, 0.0, -0.1)
+    with RecordingWriter(path, robot="r", metadata={"laser_mount": mount.to_json()}) as writer:
+        writer.write(m.PressureSample(T0, 1.0))
+    (static,) = [rec.message for rec in read_messages(path, [t.TF_STATIC])]
+    assert static.translation.x == pytest.approx(0.2)
+    with pytest.raises(RecordingError):
+        RecordingWriter(tmp_path / "bad.mcap", robot="r", metadata={"laser_mount": "{x"})
+
+
 def test_a_recording_states_one_laser_mount(tmp_path: Path) -> None:
     with RecordingWriter(tmp_path / "a.mcap", robot="r") as writer:
         writer.write(m.PressureSample(T0, 1.0))
