@@ -318,11 +318,22 @@ class DeviceSession(abc.ABC):
             self.keepalive()
             quiet_s = (read_ns - self._last_good_ns) / 1e9
             if quiet_s > retry.garbage_s and self._bytes_since_good > 0:
-                raise DeviceError(
+                self._stream_failed(
                     f"garbage: {self._bytes_since_good} bytes and no good frame for {quiet_s:.1f} s"
                 )
             if quiet_s > retry.silence_s:
-                raise DeviceError(f"silent: no data for {quiet_s:.1f} s")
+                self._stream_failed(f"silent: no data for {quiet_s:.1f} s")
+
+    def _stream_failed(self, reason: str) -> None:
+        note = self.reinitialise_note(reason)
+        if note is not None:
+            raise DeviceRestarted(f"{reason}; {note}")
+        raise DeviceError(reason)
+
+    def reinitialise_note(self, reason: str) -> str | None:
+        """Why a stream failure should be met by setting the device up again on the same port
+        (without closing it or backing off), or None to close and retry as usual."""
+        return None
 
     def _publish_identity(self) -> None:
         if self._identify is not None and self.identity:
