@@ -8,8 +8,10 @@ standard ``foxglove.LaserScan`` so recordings open in Foxglove without a plugin.
 Decoding is untrusted input (a recording from anywhere, a Zenoh peer): msgspec checks every
 field's type against the message's dataclass while it parses, in C, so the check costs
 nothing next to the parse and whole topics can be decoded at once (:func:`loads_many`).
-Writing stays with the standard library's ``json``, whose ``NaN`` a message may need (an
-unknown elevation); such payloads take the slower path that accepts them.
+A float that has no value (NaN, or an infinity) is written as ``null`` and read back as NaN:
+``NaN`` is not JSON, and a reader in another language (a dashboard, a Zenoh subscriber in
+JavaScript or Rust) would reject the whole object for it. Such payloads, and older ones that
+carry a bare ``NaN``, take the slower path that accepts them.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import dataclasses
 import enum
 import functools
 import json
+import math
 import types
 import typing
 from collections.abc import Mapping, Sequence
@@ -71,6 +74,8 @@ def to_dict(message: Any) -> dict[str, Any]:
             value = value.value
         elif isinstance(value, Mapping):
             value = dict(value)
+        elif isinstance(value, float) and not math.isfinite(value):
+            value = None
         out[f.name] = value
     return out
 
@@ -104,6 +109,11 @@ def from_dict(cls: type, data: Mapping[str, Any]) -> Any:
     """Rebuild a message, checking every field's type; unknown keys are ignored so newer
     writers stay readable."""
     _check_version(cls, data.get("schema", SCHEMA_VERSION))
+    hints = _field_types(cls)
+    data = {
+        key: math.nan if value is None and _base_type(hints.get(key)) == (float, False) else value
+        for key, value in data.items()
+    }
     try:
         return msgspec.convert(data, cls)
     except (msgspec.ValidationError, TypeError, ValueError) as exc:
@@ -111,17 +121,17 @@ def from_dict(cls: type, data: Mapping[str, Any]) -> Any:
 
 
 def dumps(message: Any) -> bytes:
-    return json.dumps(to_dict(message), separators=(",", ":")).encode()
+    return json.dumps(to_dict(message), separators=(",", ":"), allow_nan=False).encode()
 
 
 def loads(cls: type, payload: bytes | str) -> Any:
     try:
         message = _decoder(cls).decode(payload)
         version = _ENVELOPE.decode(payload).schema
-    except msgspec.ValidationError as exc:
-        raise InputFormatError(f"{cls.__name__}: {exc}") from exc
-    except msgspec.DecodeError:
-        return _loads_lenient(cls, payload)  # NaN and Infinity, or not JSON at all
+    except (msgspec.ValidationError, msgspec.DecodeError):
+        # null for a float without a value, an older bare NaN, or a payload that is wrong:
+        # the lenient path accepts the first two and names what is wrong with the third
+        return _loads_lenient(cls, payload)
     _check_version(cls, version)
     return message
 
@@ -165,6 +175,7 @@ def _json_type(annotation: Any) -> dict[str, Any]:
         spec = {"type": "integer"}
     elif base is float:
         spec = {"type": "number"}
+        nullable = True  # null: no value (NaN)
     elif base is str:
         spec = {"type": "string"}
     elif typing.get_origin(base) in (Mapping, dict) or base in (Mapping, dict):
