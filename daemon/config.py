@@ -397,7 +397,8 @@ def parse_config(text: str, source: str = "<config>") -> DaemonConfig:
     base = _base(r, sections["base"]) if sections["base"] is not None else None
     barometer = _barometer(r, sections["barometer"]) if sections["barometer"] is not None else None
     floors = _floors(r, sections["floors"] or {})
-    for key, message in config_problems(sections["zenoh"], sections["reference"], role=role):
+    live = config_problems(sections["zenoh"], sections["reference"], robot=robot, role=role)
+    for key, message in live:
         r.problem(key, message)
     if role == "station" and (laser is not None or base is not None):
         r.problem("role", "a station records a barometer only", "remove [laser] and [base]")

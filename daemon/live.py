@@ -360,11 +360,19 @@ def create_publisher(
 
 
 def config_problems(
-    zenoh: Mapping[str, Any] | None, reference: Mapping[str, Any] | None, *, role: str
+    zenoh: Mapping[str, Any] | None,
+    reference: Mapping[str, Any] | None,
+    *,
+    robot: str,
+    role: str,
 ) -> list[tuple[str, str]]:
-    """(key, message) of each problem of the ``[zenoh]`` and ``[reference]`` tables."""
+    """(key, message) of each problem of the ``[zenoh]`` and ``[reference]`` tables, and of
+    the robot id as a Zenoh key."""
     problems = []
+    keys = NodeKeys.reference if role == "station" else NodeKeys.robot
     checks: list[Callable[[], object]] = [lambda: LiveSettings.from_table(zenoh or {})]
+    if robot:  # a missing id is the configuration's own problem
+        checks.append(lambda: keys(robot))
     if reference is not None:
         checks.append(lambda: ReferenceSettings.from_table(reference))
         if role == "station":
@@ -374,5 +382,5 @@ def config_problems(
             check()
         except ConfigError as exc:
             key, _, message = str(exc).partition(": ")
-            problems.append((key, message))
+            problems.append(("robot" if key.endswith(" id") else key, message))
     return problems

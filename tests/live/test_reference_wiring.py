@@ -101,6 +101,8 @@ def test_reference_and_zenoh_tables_are_checked_with_the_configuration() -> None
         )
     keys = {p.key for p in problems.value.problems}
     assert {"zenoh.connect", "reference", "reference.station"} <= keys
+    with pytest.raises(ConfigProblems, match="robot: 'reference' is reserved"):
+        parse_config('robot = "reference"\n[barometer]\nport = "loop://"\n')
     config = parse_config('robot = "r1"\n[base]\nport = "loop://"\n[reference]\nstation = "a"\n')
     with pytest.raises(ConfigError, match=r"^reference\.station:"):
         create_publisher(config, reference=None)  # no barometer, no detector to correct
