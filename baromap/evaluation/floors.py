@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -25,6 +26,9 @@ from baromap.floors.evaluation import (
     with_settle_times,
 )
 
+if TYPE_CHECKING:
+    from baromap.sim.scenario import Scenario
+
 Print = Callable[[str], None]
 
 
@@ -37,6 +41,10 @@ class Case:
     temperature_c: npt.NDArray[np.float64] | None
     truth: FloorTruth
     reference: tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]] | None = None
+    #: ``(t_ns, x_m, y_m)`` of the robot's odometry, when the case has any.
+    odometry: (
+        tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64]] | None
+    ) = None
 
 
 def real_cases(directory: str | Path) -> list[Case]:
@@ -92,7 +100,33 @@ def sim_case(
         np.asarray(run.temperature_c),
         truth,
         reference,
+        sim_odometry(scenario),
     )
+
+
+def sim_odometry(
+    scenario: Scenario,
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """The odometry a simulated run's robot reports: its true motion through the robot's own
+    error model, one pose per SIP (what ``sim record`` writes on /odom, before the wire)."""
+    from baromap.sim.odometry import (
+        SIP_PERIOD_S,
+        OdometryErrors,
+        OdometryModel,
+        true_increments,
+    )
+    from baromap.sim.scenario import STREAM_ODOMETRY
+
+    t = np.arange(SIP_PERIOD_S / 2, scenario.duration_s, SIP_PERIOD_S)
+    truth = scenario.truth(t)
+    rng = scenario.rng(STREAM_ODOMETRY)
+    model = OdometryModel(OdometryErrors.random(rng), rng)
+    start = scenario.moves.start[0]
+    ds, dth = true_increments(
+        truth.x, truth.y, truth.theta, (float(start[0]), float(start[1]), float(start[2]))
+    )
+    x, y, _ = model.step(ds, dth)
+    return scenario.t_ns(t), x, y
 
 
 def evaluate(
@@ -105,6 +139,7 @@ def evaluate(
         method=method,
         reference=case.reference,
         config=config,
+        odometry=case.odometry,
     )
     return detection, score(detection, case.truth)
 
@@ -238,7 +273,7 @@ def real_sweep(directory: str | Path, out: Print = print) -> None:
     keys = list(SWEEP_GRID)
     passed: dict[tuple[str, float], list[int]] = {}
     for values in itertools.product(*SWEEP_GRID.values()):
-        settings = dict(zip(keys, values, strict=True))
+        settings: dict[str, Any] = dict(zip(keys, values, strict=True))
         try:
             config = FloorDetectorConfig(**settings)
         except ConfigError:
