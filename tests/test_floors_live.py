@@ -200,6 +200,7 @@ def test_a_replay_gives_the_same_events_corrections_included() -> None:
     assert again.events == first.events
     # Post-run, the run is cut by the same transitions, corrections applied.
     detection = detect_floors(tr.t_ns, tr.pressure_pa, tr.temperature_c, config=config)
+    assert detection.events == tuple(first.events)
     rank = {1: 1, 0: 0}  # floor 1 (3.2 m) above the start floor
     assert [(x.from_floor, x.to_floor) for x in detection.transitions] == [
         (rank[a], rank[b]) for a, b in moves(apply_corrections(first.events))

@@ -34,7 +34,7 @@ from baromap.floors.elevation import (
     solve_levels,
 )
 from baromap.floors.height import height_difference_m, pressure_drop_pa
-from baromap.messages import NS_PER_S
+from baromap.messages import NS_PER_S, FloorEvent
 
 #: Span next to a transition whose median is the level it left or reached (for sharpening).
 SHARPEN_LOCAL_S = 3.0
@@ -89,6 +89,10 @@ class FloorDetection:
     rate_pa_per_s: npt.NDArray[np.float64]
     #: The paper's rate threshold (mean + 2 sigma of the run), for its Figure 4; None online.
     threshold_pa_per_s: float | None = None
+    #: What the live detector published while the online method ran (corrections included,
+    #: in order): the transitions above are these with the corrections applied. Empty for
+    #: the paper's method.
+    events: tuple[FloorEvent, ...] = ()
 
     def floor_of(self, t_ns: int) -> int | None:
         """Floor at a time, None between segments (during a transition) or outside the run."""
@@ -236,7 +240,7 @@ def _online(
         ref_t = np.asarray(reference[0], dtype=np.int64)
         if ref_t.size > 1:
             corrected = p - _reference_change(t, ref_t, np.asarray(reference[1], dtype=np.float64))
-    return _assemble(
+    detection = _assemble(
         "online",
         t,
         corrected,
@@ -248,6 +252,7 @@ def _online(
         config=config,
         names=[registry.name(floor_id) for floor_id in dense],
     )
+    return dataclasses.replace(detection, events=tuple(detector.events))
 
 
 def _paper(
