@@ -146,7 +146,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         first = OnlineFloorDetector()
         first.update(PressureSample(SIM_EPOCH_NS, 100_000.0))
-        publisher.offer(first.state)  # the subscriber's state question gets an answer
+        publisher.offer(first.state())  # the subscriber's state question gets an answer
         if json.loads(subscriber.stdout.readline()).get("ready") is not True:
             raise RuntimeError("subscriber did not start")
         seed = 0

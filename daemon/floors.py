@@ -59,15 +59,15 @@ class FloorTracker(QueueWorker):
             self.events += 1
             log.info(
                 "floor event",
-                from_floor=event.from_floor,
-                to_floor=event.to_floor,
+                from_floor=event.from_name,
+                to_floor=event.to_name,
                 delta_m=round(event.delta_m, 2),
             )
             self._publish(event)
         due = self._last_state_ns is None or message.t_ns - self._last_state_ns >= STATE_EVERY_NS
         if events or due:
             self._last_state_ns = message.t_ns
-            self._publish(self.detector.state)
+            self._publish(self.detector.state())
 
     def finished(self) -> None:
         for event in self.detector.finish():
@@ -76,4 +76,4 @@ class FloorTracker(QueueWorker):
 
     @property
     def state(self) -> FloorState:
-        return self.detector.state
+        return self.detector.state()
