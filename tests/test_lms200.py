@@ -105,7 +105,28 @@ def scan_telegrams(draw: st.DrawFn) -> L.ScanTelegram:
         n, units, partial=draw(st.booleans()), partial_index=draw(st.integers(0, 3))
     )
     extra = draw(st.binary(max_size=1 if n == 401 else 3))
-    return L.ScanTelegram(count, np.array(values, dtype=np.uint16), draw(statuses), extra)
+    reply = draw(st.sampled_from(SCAN_REPLIES))
+    mean = reply in (L.Reply.MEAN_SCAN, L.Reply.MEAN_SUBRANGE_SCAN)
+    sub = reply in (L.Reply.SUBRANGE_SCAN, L.Reply.MEAN_SUBRANGE_SCAN)
+    if n > 400 and (mean or sub):  # the header bytes must fit LEN too
+        reply, mean, sub = L.Reply.SCAN, False, False
+    return L.ScanTelegram(
+        count,
+        np.array(values, dtype=np.uint16),
+        draw(statuses),
+        extra,
+        reply=reply,
+        sample_size=draw(st.integers(2, 250)) if mean else None,
+        subrange=(draw(st.integers(1, 401)), draw(st.integers(1, 401))) if sub else None,
+    )
+
+
+SCAN_REPLIES = (
+    L.Reply.SCAN,
+    L.Reply.MEAN_SCAN,
+    L.Reply.SUBRANGE_SCAN,
+    L.Reply.MEAN_SUBRANGE_SCAN,
+)
 
 
 @st.composite
@@ -118,7 +139,7 @@ def messages(draw: st.DrawFn) -> L.Ack | L.Nak | L.Telegram | L.ScanTelegram:
     if kind == "host":
         return L.Telegram(L.HOST_ADDRESS, draw(commands), draw(payloads))
     if kind == "reply":
-        command = draw(commands.filter(lambda c: c != L.Reply.SCAN))
+        command = draw(commands.filter(lambda c: c not in SCAN_REPLIES))
         return L.Telegram(L.SENSOR_ADDRESS, command, draw(payloads), draw(statuses))
     return draw(scan_telegrams())
 

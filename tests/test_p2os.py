@@ -13,7 +13,16 @@ from baromap.errors import ConfigError, EncodeError
 from baromap.odometry.integrator import OdometryIntegrator, position_delta
 from baromap.protocols import p2os as P
 from baromap.protocols.framing import BadFrame
-from baromap.protocols.robot_models import MODELS, P2AT, P3AT, P3DX, robot_model
+from baromap.protocols.robot_models import (
+    MODELS,
+    P2AT,
+    P3AT,
+    P3AT_SH,
+    P3DX,
+    ModelMismatchError,
+    robot_model,
+    select_model,
+)
 
 VECTORS = [
     ("SYNC0", lambda: P.sync(0), "FA FB 03 00 00 00", P.CommandPacket(0)),
@@ -337,21 +346,73 @@ def test_sync2_info_strings() -> None:
 # -- models and odometry -----------------------------------------------------------------------
 
 
-def test_models_carry_arias_factors() -> None:
-    assert (P3AT.dist_conv_factor, P2AT.dist_conv_factor, P3DX.dist_conv_factor) == (
-        0.465,
-        1.32,
-        0.485,
+#: (subclass, DistConvFactor, DiffConvFactor, RangeConvFactor, MaxVelocity, MaxRVelocity) as
+#: ARIA's params/<subclass>.p and p2os_driver's robot_params.cpp list them.
+ARIA_PARAMS = [
+    ("p3at-sh", 1.0, 0.0034, 1.0, 1200, 300),
+    ("p3at", 0.465, 0.0034, 1.0, 1200, 300),
+    ("p3atiw-sh", 1.0, 0.0034, 1.0, 1200, 300),
+    ("p2at", 1.32, 0.0034, 0.268, 1200, 300),
+    ("p2at8", 1.32, 0.0034, 1.0, 1200, 300),
+    ("p3dx-sh", 1.0, 0.0056, 1.0, 2200, 500),
+    ("p3dx", 0.485, 0.0056, 1.0, 2200, 500),
+    ("p2dx", 0.84, 0.0056, 0.268, 2200, 500),
+]
+
+
+@pytest.mark.parametrize("row", ARIA_PARAMS, ids=[r[0] for r in ARIA_PARAMS])
+def test_models_carry_arias_factors(row: tuple[str, float, float, float, int, int]) -> None:
+    subclass, dist, diff, rng, vmax, rvmax = row
+    model = robot_model(subclass)
+    assert model.name == subclass and model.robot_class == "Pioneer"
+    assert (model.dist_conv_factor, model.diff_conv_factor, model.range_conv_factor) == (
+        dist,
+        diff,
+        rng,
     )
-    assert P3AT.angle_conv_factor == pytest.approx(0.001534, abs=1e-6)
-    assert (P3AT.diff_conv_factor, P3DX.diff_conv_factor) == (0.0034, 0.0056)
-    assert (P3AT.max_velocity_mmps, P3DX.max_velocity_mmps) == (1200, 2200)
-    assert P2AT.range_conv_factor == 0.268 and P3AT.sonar_count == 16
+    assert (model.max_velocity_mmps, model.max_rot_velocity_degps) == (vmax, rvmax)
+    assert model.angle_conv_factor == pytest.approx(0.001534, abs=1e-6)
+    assert model.vel_conv_factor == 1.0 and model.sonar_count == 16
+
+
+def test_model_names_ignore_case_and_separators() -> None:
     for alias in ("p3at", "P3-AT", "p3_at", " P3AT "):
         assert robot_model(alias) is P3AT
-    assert robot_model("p3-dx") is P3DX and set(MODELS) == {"p3at", "p2at", "p3dx"}
-    with pytest.raises(ConfigError):
+    assert robot_model("P3-AT-SH") is P3AT_SH and robot_model("p3dx") is P3DX
+    assert set(MODELS) == {row[0] for row in ARIA_PARAMS}
+    with pytest.raises(ConfigError, match="p3at-sh"):  # the message lists what is known
         robot_model("p3-sh")
+
+
+def test_the_reported_subclass_chooses_the_model() -> None:
+    assert select_model("p3at-sh") is P3AT_SH
+    assert select_model("p3at") is P3AT
+    assert select_model("P3AT-SH", "p3at-sh") is P3AT_SH
+    with pytest.raises(ConfigError, match=r"'p3at-xx'.*configure"):
+        select_model("p3at-xx")
+    # A robot whose subclass has no parameter set runs only with a model pinned on purpose.
+    assert select_model("p3at-xx", "p3at-sh", allow_mismatch=True) is P3AT_SH
+
+
+def test_a_configured_model_the_robot_contradicts_is_refused_naming_both() -> None:
+    with pytest.raises(ModelMismatchError) as refused:
+        select_model("p3at-sh", "p3at")
+    assert "'p3at'" in str(refused.value) and "'p3at-sh'" in str(refused.value)
+    assert isinstance(refused.value, ConfigError)
+    assert select_model("p3at-sh", "p3at", allow_mismatch=True) is P3AT
+    with pytest.raises(ConfigError, match="unknown robot model"):
+        select_model("p3at-sh", "p9xx", allow_mismatch=True)
+
+
+def test_a_p3at_sh_read_as_p3at_shrinks_distances_to_465_per_mille() -> None:
+    """Why the subclass matters: the same counters, two parameter sets."""
+    ticks = 10_000  # 10 m on an ARCOS P3-AT
+    right = OdometryIntegrator(P3AT_SH, origin_at_start=True)
+    wrong = OdometryIntegrator(P3AT, origin_at_start=True)
+    for integrator in (right, wrong):
+        integrator.update(_sip(0, 0, 0), 0)
+    assert right.update(_sip(ticks, 0, 0), 1).x_m == pytest.approx(10.0)
+    assert wrong.update(_sip(ticks, 0, 0), 1).x_m == pytest.approx(4.65)
 
 
 def _sip(
@@ -397,7 +458,7 @@ def drives(draw: st.DrawFn) -> list[tuple[int, int, int]]:
     ]
 
 
-@pytest.mark.parametrize("model", [P3AT, P2AT, P3DX], ids=lambda m: m.name)
+@pytest.mark.parametrize("model", [P3AT_SH, P3AT, P2AT, P3DX], ids=lambda m: m.name)
 @settings(max_examples=20, deadline=None)
 @given(
     steps=drives(),

@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import os
 import shutil
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +20,15 @@ from mcap.reader import make_reader
 from baromap import jsonmsg
 from baromap import messages as m
 from baromap.errors import InputFormatError, RecordingError
-from baromap.recording import RecordingWriter, load_pressure, read_messages, read_metadata
+from baromap.recording import (
+    LaserMount,
+    RecordingWriter,
+    load_odometry,
+    load_pressure,
+    load_pressure_and_odometry,
+    read_messages,
+    read_metadata,
+)
 from baromap.recording import topics as t
 from baromap.recording.writer import MAX_T_NS
 
@@ -37,7 +50,7 @@ odometry = st.builds(
     t_ns=stamps,
     x_m=finite,
     y_m=finite,
-    theta_rad=finite,
+    theta_rad=st.floats(-math.pi, math.pi),
     v_mps=finite,
     omega_radps=finite,
     raw_x=st.integers(0, 0x7FFF),
@@ -139,7 +152,18 @@ def test_recording_round_trip(tmp_path: Path, batch: list[m.Message], n_scans: i
             writer.write(message)
     got = [rec.message for rec in read_messages(path) if rec.topic != t.TF]
     expected = sorted([*batch, *scans], key=lambda msg: msg.t_ns)
-    assert sorted(got, key=lambda msg: msg.t_ns) == expected
+    got = sorted(got, key=lambda msg: msg.t_ns)
+    assert [same_heading(a, b) for a, b in zip(got, expected, strict=True)] == expected
+
+
+def same_heading(got: m.Message, expected: m.Message) -> m.Message:
+    """Odometry's heading travels as a quaternion: equal up to rounding, then compared whole."""
+    if isinstance(got, m.Odometry) and isinstance(expected, m.Odometry):
+        assert math.remainder(got.theta_rad - expected.theta_rad, math.tau) == pytest.approx(
+            0.0, abs=1e-12
+        )
+        return dataclasses.replace(got, theta_rad=expected.theta_rad)
+    return got
 
 
 def test_scan_keeps_angles_flags_and_range_limits(tmp_path: Path) -> None:
@@ -166,7 +190,7 @@ def test_topics_schemas_and_metadata_are_what_foxglove_expects(tmp_path: Path) -
         schemas = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
     assert schemas == {
         t.BARO: "baromap.PressureSample",
-        t.ODOM: "baromap.Odometry",
+        t.ODOM: "foxglove.Odometry",
         t.TF: "foxglove.FrameTransform",
         t.SCAN: "foxglove.LaserScan",
     }
@@ -233,3 +257,255 @@ def test_pressure_loader_rejects_wrong_topic_type(tmp_path: Path) -> None:
         writer.write(m.Odometry(T0, 0.0, 0.0, 0.0), topic=t.BARO)
     with pytest.raises(InputFormatError):
         load_pressure(path)
+
+
+def test_odometry_travels_in_foxglove_schema_with_its_raw_counters(tmp_path: Path) -> None:
+    from mcap_protobuf.decoder import DecoderFactory
+
+    path = tmp_path / "odom.mcap"
+    sent = [
+        m.Odometry(T0 + i, 0.1 * i, -0.2 * i, 0.3 - 0.1 * i, 0.25, -0.5, 100 + i, 32767, -7)
+        for i in range(20)
+    ]
+    with RecordingWriter(path, robot="r") as writer:
+        for odom in sent:
+            writer.write(odom)
+    # Foxglove's reading of it, through the mcap packages alone
+    with path.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        decoded = [(ch.topic, msg) for _, ch, _, msg in reader.iter_decoded_messages([t.ODOM])]
+    assert len(decoded) == len(sent)
+    first = decoded[0][1]
+    assert (first.frame_id, first.body_frame_id) == ("odom", "base_link")
+    assert {kv.key: kv.value for kv in first.metadata} == {
+        "raw_x": "100",
+        "raw_y": "32767",
+        "raw_theta": "-7",
+    }
+    got = [rec.message for rec in read_messages(path, [t.ODOM])]
+    assert [same_heading(a, b) for a, b in zip(got, sent, strict=True)] == sent
+    series = load_odometry(path)
+    assert series.raw_x.tolist() == [o.raw_x for o in sent]
+    assert series.raw_theta.tolist() == [-7] * len(sent)
+    assert np.allclose(series.poses(), [(o.x_m, o.y_m, o.theta_rad) for o in sent])
+    assert np.allclose(series.v_mps, 0.25) and np.allclose(series.omega_radps, -0.5)
+
+
+def _chunks(path: Path) -> list[list[str]]:
+    """Topics of the messages of each chunk, in file order, as the mcap package sees them."""
+    from mcap.records import Channel, Chunk, Message
+    from mcap.stream_reader import StreamReader, breakup_chunk
+
+    channels: dict[int, str] = {}
+    out = []
+    with path.open("rb") as f:
+        for record in StreamReader(f, emit_chunks=True).records:
+            if isinstance(record, Channel):
+                channels[record.id] = record.topic
+            elif isinstance(record, Chunk):
+                topics_ = []
+                for inner in breakup_chunk(record):
+                    if isinstance(inner, Channel):
+                        channels[inner.id] = inner.topic
+                    elif isinstance(inner, Message):
+                        topics_.append(channels[inner.channel_id])
+                out.append(topics_)
+    return out
+
+
+def test_static_laser_transform_is_in_every_chunk_and_every_second(tmp_path: Path) -> None:
+    mount = LaserMount(0.16, -0.02, 0.05)
+    paths = [tmp_path / "part0.mcap", tmp_path / "part1.mcap"]  # a rotation: two files
+    for part, path in enumerate(paths):
+        with RecordingWriter(path, robot="r", laser_mount=mount, flush_interval_s=3600) as w:
+            for i in range(60):  # 6 s at 10 Hz, a flush every 2 s
+                t_ns = T0 + (part * 60 + i) * 100_000_000
+                w.write(m.Odometry(t_ns, 0.01 * i, 0.0, 0.0))
+                if i % 20 == 19:
+                    w.flush()
+        chunks = _chunks(path)
+        assert len(chunks) >= 3
+        assert all(chunk[0] == t.TF_STATIC for chunk in chunks)
+        statics = list(read_messages(path, [t.TF_STATIC]))
+        times = [rec.log_time_ns for rec in statics]
+        assert max(np.diff(times)) <= 1_000_000_000
+        tf = statics[0].message
+        assert (tf.parent_frame_id, tf.child_frame_id) == ("base_link", "laser")
+        assert (tf.translation.x, tf.translation.y) == pytest.approx((0.16, -0.02))
+        assert 2 * math.atan2(tf.rotation.z, tf.rotation.w) == pytest.approx(0.05)
+        assert LaserMount.from_metadata(read_metadata(path)) == mount
+
+
+def test_a_recording_states_one_laser_mount(tmp_path: Path) -> None:
+    with RecordingWriter(tmp_path / "a.mcap", robot="r") as writer:
+        writer.write(m.PressureSample(T0, 1.0))
+        writer.set_laser_mount(LaserMount(0.1, 0.0, 0.0))
+        writer.set_laser_mount(LaserMount(0.1, 0.0, 0.0))
+        with pytest.raises(RecordingError):
+            writer.set_laser_mount(LaserMount(0.2, 0.0, 0.0))
+        writer.write(m.PressureSample(T0 + 1, 1.0))
+    assert [rec.topic for rec in read_messages(tmp_path / "a.mcap")] == [
+        t.BARO,
+        t.TF_STATIC,
+        t.BARO,
+    ]
+    assert LaserMount.from_metadata(read_metadata(tmp_path / "a.mcap")) == LaserMount(0.1)
+    with pytest.raises(InputFormatError):
+        LaserMount(math.nan, 0.0, 0.0)
+
+
+KILLED_WRITER = """
+import sys, time
+from baromap import messages as m
+from baromap.recording import RecordingWriter
+T0 = 1_763_700_000_000_000_000
+writer = RecordingWriter(sys.argv[1], robot="r", flush_interval_s=3600)
+for i in range(500):
+    writer.write(m.PressureSample(T0 + i, 100000.0 + i))
+writer.flush()
+print("flushed", file=sys.stderr, flush=True)
+for i in range(500, 520):
+    writer.write(m.PressureSample(T0 + i, 100000.0 + i))
+time.sleep(60)
+"""
+
+
+def test_sigkill_keeps_everything_up_to_the_last_flush(tmp_path: Path) -> None:
+    path = tmp_path / "killed.mcap"
+    with subprocess.Popen(
+        [sys.executable, "-c", KILLED_WRITER, str(path)],
+        stdout=subprocess.DEVNULL,  # the writer's logs
+        stderr=subprocess.PIPE,
+        text=True,
+    ) as proc:
+        try:
+            assert proc.stderr is not None
+            assert proc.stderr.readline().strip() == "flushed"
+        finally:
+            os.kill(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=30)
+    got = load_pressure(path)
+    assert got.pressure_pa[:500].tolist() == [100000.0 + i for i in range(500)]
+    assert read_metadata(path)["baromap"]["robot"] == "r"
+
+
+def test_messages_come_in_log_time_order_across_chunks(tmp_path: Path) -> None:
+    path = tmp_path / "late.mcap"
+    with RecordingWriter(path, robot="r", flush_interval_s=3600) as writer:
+        for block in ([5, 6, 9], [3, 7, 8], [1, 2, 10]):  # chunks whose times overlap
+            for i in block:
+                writer.write(m.PressureSample(T0 + i, float(i)))
+            writer.flush()
+    assert [rec.message.pressure_pa for rec in read_messages(path)] == sorted(
+        [5.0, 6.0, 9.0, 3.0, 7.0, 8.0, 1.0, 2.0, 10.0]
+    )
+    assert load_pressure(path).pressure_pa.tolist() == [1, 2, 3, 5, 6, 7, 8, 9, 10]
+
+
+def _handmade(path: Path, payloads: list[bytes], schema_name: str = "baromap.PressureSample"):
+    """A recording written by the mcap package itself, with payloads of our choosing."""
+    from mcap.writer import Writer
+
+    with path.open("wb") as f:
+        writer = Writer(f)
+        writer.start(profile="", library="test")
+        schema = writer.register_schema(schema_name, "jsonschema", b"{}")
+        channel = writer.register_channel(t.BARO, "json", schema)
+        for i, payload in enumerate(payloads):
+            writer.add_message(channel, T0 + i, payload, T0 + i)
+        writer.finish()
+
+
+def test_pressure_loader_validates_untrusted_payloads(tmp_path: Path) -> None:
+    good = [jsonmsg.dumps(m.PressureSample(T0 + i, 1000.0 + i, 20.0)) for i in range(50)]
+    path = tmp_path / "nan.mcap"
+    nan_temperature = b'{"schema":1,"t_ns":%d,"pressure_pa":1.5,"temperature_c":NaN}' % (T0 + 50)
+    _handmade(path, [*good, nan_temperature])
+    series = load_pressure(path)
+    assert series.pressure_pa.tolist() == [1000.0 + i for i in range(50)] + [1.5]
+    assert math.isnan(series.temperature_c[-1])
+    for bad in (
+        b'{"schema":1,"t_ns":"12","pressure_pa":1.0}',
+        b'{"schema":1,"t_ns":1,"pressure_pa":"1.0"}',
+        b'{"schema":1,"t_ns":1.5,"pressure_pa":1.0}',
+        b'{"schema":1,"pressure_pa":1.0}',
+        b'{"schema":7,"t_ns":1,"pressure_pa":1.0}',
+        b'{"schema":1,"t_ns":1,"pressure_pa":1.0},{"schema":1,"t_ns":2,"pressure_pa":1.0}',
+        b"not json",
+        b"",
+    ):
+        _handmade(path, [*good, bad])
+        with pytest.raises(InputFormatError):
+            load_pressure(path)
+        with pytest.raises(InputFormatError):
+            list(read_messages(path))
+    _handmade(path, good, schema_name="baromap.Odometry")
+    with pytest.raises(InputFormatError):
+        load_pressure(path)
+
+
+def test_both_series_in_one_pass_match_the_message_reader(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    with RecordingWriter(path, robot="r", flush_interval_s=3600) as writer:
+        for i in range(300):
+            writer.write(m.PressureSample(T0 + i * 40_000_000, 1e5 + i, None if i % 3 else 21.0))
+            if i % 2 == 0:
+                writer.write(m.Odometry(T0 + i * 40_000_000, i * 0.01, 0.0, 0.1, raw_x=i))
+            if i % 100 == 99:
+                writer.flush()
+    pressure, odom = load_pressure_and_odometry(path)
+    samples = [rec.message for rec in read_messages(path, [t.BARO])]
+    assert pressure.t_ns.tolist() == [s.t_ns for s in samples]
+    assert np.array_equal(
+        pressure.temperature_c,
+        [math.nan if s.temperature_c is None else s.temperature_c for s in samples],
+        equal_nan=True,
+    )
+    assert odom.raw_x.tolist() == list(range(0, 300, 2))
+
+
+def test_any_cut_of_a_file_reads_back_a_prefix(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    with RecordingWriter(path, robot="r", flush_interval_s=3600) as writer:
+        for i in range(400):
+            writer.write(m.PressureSample(T0 + i, float(i)))
+            writer.write(m.Odometry(T0 + i, float(i), 0.0, 0.0))
+            if i % 50 == 49:
+                writer.flush()
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    previous = -1
+    for size in range(8, len(data), max(1, len(data) // 97)):
+        cut.write_bytes(data[:size])
+        got = load_pressure(cut).pressure_pa.tolist()
+        assert got == [float(i) for i in range(len(got))]
+        assert len(got) >= previous  # a longer cut never loses what a shorter one kept
+        previous = len(got)
+        odom = load_odometry(cut)
+        assert odom.x_m.tolist() == [float(i) for i in range(len(odom))]
+    assert previous >= 350  # all but the unflushed tail and the summary
+
+
+def test_info_reads_the_summary_and_flags_a_cut_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from baromap.cli.main import main
+
+    path = tmp_path / "run.mcap"
+    with RecordingWriter(path, robot="r", laser_mount=LaserMount(), flush_interval_s=3600) as w:
+        for i in range(200):
+            w.write(m.PressureSample(T0 + i * 40_000_000, 1e5))
+            w.write(make_scan(T0 + i * 40_000_000, n=181, seed=i), topic=t.SCAN)
+            if i % 50 == 49:
+                w.flush()
+    assert main(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "INCOMPLETE" not in out
+    assert "baromap.PressureSample" in out and "foxglove.LaserScan" in out
+    assert "25.00 Hz" in out  # 200 samples 40 ms apart
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[: path.stat().st_size * 2 // 3])
+    assert main(["info", str(cut)]) == 3
+    out = capsys.readouterr().out
+    assert "INCOMPLETE" in out and "not closed cleanly" in out
+    assert "/baro" in out

@@ -18,7 +18,7 @@ from baromap.cli.main import main
 from baromap.odometry.integrator import OdometryIntegrator
 from baromap.protocols import baro, lms200, p2os
 from baromap.protocols.framing import BadFrame
-from baromap.protocols.robot_models import P3AT
+from baromap.protocols.robot_models import P3AT_SH
 from baromap.sim.scenario import make_scenario
 from baromap.sim.twins import BaroTwin, Lms200Twin, P2osTwin, SimClock
 
@@ -99,17 +99,17 @@ def test_lms200_init_sequence_and_clean_stream(lms: Lms200Twin) -> None:
     decoder = lms200.Decoder()
     with serial.serial_for_url(lms.path, baudrate=9600, timeout=0.05) as port:
         lms_init(port, decoder)
-        started = time.monotonic()
-        data = read_for(port, 1.5)
-        elapsed = time.monotonic() - started
+        data = read_for(port, 1.0)
         port.write(lms200.stop_continuous())
     messages = decoder.feed(data)
     scans = [m for m in messages if isinstance(m, lms200.ScanTelegram)]
     assert decoder.stats.bad == {}
     assert not [m for m in messages if isinstance(m, BadFrame)]
-    # 372-byte telegrams at 38400 baud: about 10 per second, paced like the real line.
-    assert len(data) <= 3840 * elapsed * 1.1 + 800
-    assert 10 <= len(scans) <= 17
+    assert len(scans) >= 3
+    # Paced like the real line: a 372-byte telegram takes 97 ms at 38400 baud, so n scans span
+    # at least n - 1 telegram times (less the 50 ms a line may catch up; load only adds).
+    taken = [t.t_mono_ns / 1e9 for t in lms.truth.records()]
+    assert taken[-1] - taken[0] >= (len(taken) - 1) * 372 * 10 / 38400 - 0.05
     scan = scans[-1].to_laser_scan(0)
     assert scan.beam_count == 181
     assert scan.range_max_m == pytest.approx(8.19)
@@ -188,7 +188,7 @@ def test_p2os_handshake_sips_and_odometry(base: P2osTwin) -> None:
     decoder = p2os.Decoder()
     with serial.serial_for_url(base.path, baudrate=9600, timeout=0.05) as port:
         info = p2os_connect(port, decoder)
-        assert (info.robot_class, info.subclass) == ("Pioneer", "p3at")
+        assert (info.robot_class, info.subclass) == ("Pioneer", "p3at-sh")
         port.write(p2os.config_request())
         port.write(p2os.enable_motors(True))
         messages = []
@@ -199,11 +199,20 @@ def test_p2os_handshake_sips_and_odometry(base: P2osTwin) -> None:
         port.write(p2os.close_controller())
     sips = [m for m in messages if isinstance(m, p2os.StandardSip)]
     assert decoder.stats.bad == {}
-    assert 11 <= len(sips) <= 17  # every 100 ms
+    assert len(sips) >= 5
     assert sips[-1].motors_enabled
+    # The SIP carries what ARCOS appends after the sonars (ARIA reads it when present).
+    assert sips[-1].rot_vel is not None and sips[-1].fault_flags == 0 and sips[-1].extra == b""
+    # SIPs every 100 ms of the twin's clock, never faster: n SIPs span n - 1 cycles at least
+    # (less how late the first one was; load only adds).
+    poses = [t.t_mono_ns / 1e9 for t in base.truth.records()]
+    assert poses[-1] - poses[0] >= (len(poses) - 1) * 0.1 - 0.05
     config = next(m for m in messages if isinstance(m, p2os.ConfigPacket))
     assert config.watchdog_ms == 2000
-    integrator = OdometryIntegrator(P3AT, origin_at_start=True)
+    # The whole CONFIG packet: every field ARIA reads, nothing left over.
+    assert set(config.as_dict()) == p2os.CONFIG_FIELD_NAMES and config.extra == b""
+    assert config.get("subtype") == "p3at-sh"
+    integrator = OdometryIntegrator(P3AT_SH, origin_at_start=True)
     poses = [integrator.update(s, i) for i, s in enumerate(sips)]
     # The route drives at most 0.6 m/s: no step between 100 ms SIPs is longer than 6 cm (plus
     # slip), whatever the 15-bit counters did meanwhile.
@@ -259,7 +268,7 @@ def test_baro_frames_are_clean_and_match_the_model(board: BaroTwin, clock: SimCl
     hello = next(f for f in frames if isinstance(f, baro.HelloFrame))
     assert (hello.rate_hz, hello.osrs_p, hello.iir_filter) == (25, 16, 16)
     samples = [f for f in frames if isinstance(f, baro.SampleFrame)]
-    assert 28 <= len(samples) <= 40
+    assert len(samples) >= 5
     assert any(isinstance(f, baro.StatusFrame) for f in frames)
     # Readings agree with the scenario's air pressure within the sensor's offset budget.
     truth = SCENARIO.truth(np.array([clock.robot_time()]))
@@ -336,8 +345,14 @@ def test_faster_than_real_time(tmp_path: Path) -> None:
         with serial.serial_for_url(twin.path, baudrate=115200, timeout=0.05) as port:
             frames = decoder.feed(read_for(port, 0.5))
     samples = [f for f in frames if isinstance(f, baro.SampleFrame)]
-    assert len(samples) >= 80  # 25 Hz x 8 = 200/s
+    assert len(samples) >= 10
     assert decoder.stats.bad == {}
+    # The board's clock and the simulated time run 8x the host's: compare the firmware's
+    # microsecond stamps of two samples with the true instants they were measured at.
+    first, last = samples[0], samples[-1]
+    wall_s = (twin.truth.by_seq(last.seq).t_mono_ns - twin.truth.by_seq(first.seq).t_mono_ns) / 1e9
+    board_s = (last.time_us - first.time_us) / 1e6
+    assert board_s / wall_s == pytest.approx(8.0, rel=0.02)
 
 
 def test_cli_prints_paths_as_json(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:

@@ -25,6 +25,9 @@ COMMAND_MODULES: tuple[str, ...] = (
     "baromap.cli.floors",
     "baromap.cli.mapping",
     "baromap.cli.recording",
+    "baromap.cli.watch",
+    "baromap.cli.export",
+    "baromap.cli.devices",
 )
 
 Runner = Callable[[argparse.Namespace], int]

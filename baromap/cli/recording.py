@@ -5,9 +5,19 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+#: ``info``'s exit status for a file that was cut (read as far as it goes, but not whole).
+EXIT_INCOMPLETE = 3
+
 
 def register(subparsers: Any) -> None:
-    info = subparsers.add_parser("info", help="summarise a recording: topics, counts, metadata")
+    info = subparsers.add_parser(
+        "info",
+        help="summarise a recording: topics, schemas, counts, rates, metadata",
+        description="Summarise a recording from its MCAP summary section. A file that was not "
+        "closed cleanly (power cut, killed recorder) has none: then it is read as far as its "
+        "chunks are whole, the output says INCOMPLETE and why, and the exit status is "
+        f"{EXIT_INCOMPLETE} (0: a whole file; 1: not readable at all).",
+    )
     info.add_argument("recording", help="MCAP file")
     info.set_defaults(run=run_info)
 
@@ -58,26 +68,25 @@ def run_import_csv(args: argparse.Namespace) -> int:
 
 
 def run_info(args: argparse.Namespace) -> int:
-    from baromap.recording import read_messages, read_metadata
+    from baromap.recording.summary import summarize
 
-    counts: dict[str, int] = {}
-    first: dict[str, int] = {}
-    last: dict[str, int] = {}
-    for rec in read_messages(args.recording):
-        counts[rec.topic] = counts.get(rec.topic, 0) + 1
-        first.setdefault(rec.topic, rec.log_time_ns)
-        last[rec.topic] = rec.log_time_ns
-    print(f"{args.recording}")
-    if counts:
-        t0, t1 = min(first.values()), max(last.values())
-        print(f"  duration {(t1 - t0) / 1e9:.1f} s, {sum(counts.values())} messages")
-    for topic in sorted(counts):
-        span = (last[topic] - first[topic]) / 1e9
-        rate = (counts[topic] - 1) / span if span > 0 else 0.0
-        print(f"  {topic:24s} {counts[topic]:8d} msgs  {rate:7.2f} Hz")
-    for name, data in sorted(read_metadata(args.recording).items()):
+    summary = summarize(args.recording)
+    print(f"{args.recording}" + ("" if summary.complete else "  INCOMPLETE"))
+    if not summary.complete:
+        print(f"  not closed cleanly: {summary.stop}; what follows is what could be recovered")
+    if summary.profile:
+        print(f"  profile {summary.profile}")
+    start, end = summary.start_ns, summary.end_ns
+    if start is not None and end is not None:
+        print(f"  duration {(end - start) / 1e9:.1f} s, {summary.message_count} messages")
+    for topic in summary.topics:
+        print(
+            f"  {topic.topic:24s} {topic.count:8d} msgs  {topic.rate_hz:7.2f} Hz  "
+            f"{topic.schema} ({topic.encoding})"
+        )
+    for name, data in sorted(summary.metadata.items()):
         print(f"  metadata {name}:")
         for key, value in sorted(data.items()):
             shown = value if len(value) <= 72 else value[:69] + "..."
             print(f"    {key} = {shown}")
-    return 0
+    return 0 if summary.complete else EXIT_INCOMPLETE

@@ -44,6 +44,18 @@ def register(subparsers: Any) -> None:
         help="also create stable symlinks lms200, p3at, baro in this directory",
     )
     sim.add_argument("--json", action="store_true", help="print the paths as one JSON object")
+    sim.add_argument(
+        "--twins",
+        default=None,
+        metavar="FILE",
+        help="TOML file of twin settings (robot subclass, laser boot time, scheduled faults)",
+    )
+    sim.add_argument(
+        "--truth-log",
+        default=None,
+        metavar="FILE",
+        help="write the true acquisition instant of every frame sent, one JSON line each",
+    )
     sim.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     sim.set_defaults(run=run_twins)
     actions = sim.add_subparsers(dest="sim_command", metavar="ACTION")
@@ -111,21 +123,37 @@ def run_record(args: argparse.Namespace) -> int:
 
 def run_twins(args: argparse.Namespace) -> int:
     import contextlib
+
+    from baromap.sim.scenario import load_twin_settings
+    from baromap.sim.twins.runner import SimDevices
+    from baromap.sim.twins.truth import JsonlTruthWriter
+
+    twins = load_twin_settings(args.twins) if args.twins is not None else None
+    with contextlib.ExitStack() as stack:
+        truth = None
+        if args.truth_log is not None:
+            truth = stack.enter_context(JsonlTruthWriter(args.truth_log))
+        devices = SimDevices(
+            seed=args.seed,
+            floors=args.floors,
+            minutes=args.minutes,
+            drift_hpa_per_h=args.drift,
+            route=parse_route(args.route),
+            speed=args.speed,
+            link_dir=args.link_dir,
+            twins=twins,
+            truth_sink=truth,
+        )
+        _serve(devices, args)
+    return 0
+
+
+def _serve(devices: Any, args: argparse.Namespace) -> None:
+    import contextlib
     import json
     import signal
     import threading
 
-    from baromap.sim.twins.runner import SimDevices
-
-    devices = SimDevices(
-        seed=args.seed,
-        floors=args.floors,
-        minutes=args.minutes,
-        drift_hpa_per_h=args.drift,
-        route=parse_route(args.route),
-        speed=args.speed,
-        link_dir=args.link_dir,
-    )
     done = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: done.set())
     try:
@@ -140,4 +168,3 @@ def run_twins(args: argparse.Namespace) -> int:
                 done.wait(args.duration)
     finally:
         signal.signal(signal.SIGTERM, previous)
-    return 0

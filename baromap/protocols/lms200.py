@@ -50,6 +50,7 @@ INSTALLATION_PASSWORD: Final = b"SICK_LMS"
 class Command(enum.IntEnum):
     """Host -> sensor command bytes; the reply carries the command + 0x80."""
 
+    RESET = 0x10
     SET_MODE = 0x20
     STATUS = 0x31
     TYPE = 0x3A
@@ -61,9 +62,14 @@ class Command(enum.IntEnum):
 class Reply(enum.IntEnum):
     """Sensor -> host reply command bytes."""
 
+    POWER_ON = 0x90
+    RESET = 0x91
     MODE = 0xA0
     SCAN = 0xB0
     STATUS = 0xB1
+    MEAN_SCAN = 0xB6
+    SUBRANGE_SCAN = 0xB7
+    MEAN_SUBRANGE_SCAN = 0xBF
     TYPE = 0xBA
     VARIANT = 0xBB
     READ_CONFIG = 0xF4
@@ -77,6 +83,9 @@ class Mode(enum.IntEnum):
     INSTALLATION = 0x00
     CONTINUOUS = 0x24  # stream every scan (B0)
     REQUEST = 0x25  # send values on request only: "stop continuous output"
+    MEAN = 0x26  # + n: stream the mean of n scans (B6)
+    SUBRANGE = 0x27  # + first, last (u16, 1-based): stream those values (B7)
+    MEAN_SUBRANGE = 0x28  # + n, first, last: the mean of n scans over the subrange (BF)
     BAUD_38400 = 0x40
     BAUD_19200 = 0x41
     BAUD_9600 = 0x42
@@ -92,6 +101,44 @@ BAUD_MODES: Final[dict[int, Mode]] = {
 }
 #: Mode byte -> baud rate, for the sensor side of a baud switch.
 MODE_BAUDS: Final[dict[int, int]] = {int(mode): baud for baud, mode in BAUD_MODES.items()}
+#: Scans a mean-value mode averages (sicktoolbox's bounds).
+MEAN_SAMPLES: Final = range(2, 251)
+
+
+class MeasuringMode(enum.IntEnum):
+    """Byte 5 of the configuration block: range of the values and the flag bits above them."""
+
+    RANGE_8_FIELDS_DAZZLE = 0x00  # 8 m (mm) / 80 m (cm); fields A, B and dazzle: the default
+    RANGE_8_REFLECTOR = 0x01  # 8 / 80 m; reflector bits in 8 levels
+    RANGE_8_FIELDS_ABC = 0x02  # 8 / 80 m; fields A, B and C
+    RANGE_16_REFLECTOR = 0x03  # 16 m; reflector bits in 4 levels
+    RANGE_16_FIELDS_AB = 0x04  # 16 m; fields A and B
+    RANGE_32_REFLECTOR = 0x05  # 32 m; reflector bit in 2 levels
+    RANGE_32_FIELD_A = 0x06  # 32 m; field A
+    RANGE_32_IMMEDIATE = 0x0F  # 32 m; immediate transmission, no flag bits
+
+
+#: Bits of a value word that carry the range in each measuring mode (sicktoolbox's masks).
+RANGE_BITS: Final[dict[int, int]] = {
+    MeasuringMode.RANGE_8_FIELDS_DAZZLE: 13,
+    MeasuringMode.RANGE_8_REFLECTOR: 13,
+    MeasuringMode.RANGE_8_FIELDS_ABC: 13,
+    MeasuringMode.RANGE_16_REFLECTOR: 14,
+    MeasuringMode.RANGE_16_FIELDS_AB: 14,
+    MeasuringMode.RANGE_32_REFLECTOR: 15,
+    MeasuringMode.RANGE_32_FIELD_A: 15,
+    MeasuringMode.RANGE_32_IMMEDIATE: 16,
+}
+DEFAULT_RANGE_BITS: Final = 13
+
+
+def range_bits(measuring_mode: int) -> int:
+    """Range bits of a value word in ``measuring_mode``; ConfigError for a mode not modelled."""
+    try:
+        return RANGE_BITS[measuring_mode]
+    except KeyError:
+        raise ConfigError(f"no range measuring mode 0x{measuring_mode:02X}") from None
+
 
 # ---------------------------------------------------------------------------------------------
 # CRC
@@ -250,6 +297,12 @@ _METRES_PER_UNIT: Final[dict[Units, float]] = {"cm": 0.01, "mm": 0.001}
 #: Longest range the default 8 m / 80 m mode reports, per unit.
 RANGE_MAX_M: Final[dict[Units, float]] = {"cm": 81.9, "mm": 8.19}
 
+
+def range_max_m(units: Units, bits: int = DEFAULT_RANGE_BITS) -> float:
+    """Longest range a value word with ``bits`` range bits reports (8.19 m, 16.38 m, ... in mm)."""
+    return RANGE_MAX_M[units] * (1 << (bits - DEFAULT_RANGE_BITS))
+
+
 #: Angular offset of each successive partial scan of an interlaced mode, degrees.
 PARTIAL_STEP_DEG: Final = 0.25
 #: Documented beam counts -> (angular field, resolution) in degrees.
@@ -303,13 +356,25 @@ def _frozen_words(values: npt.ArrayLike) -> npt.NDArray[np.uint16]:
     return words
 
 
+#: Scan replies -> (has a sample size, has a subrange) before the count word.
+_SCAN_HEADERS: Final[dict[int, tuple[bool, bool]]] = {
+    Reply.SCAN: (False, False),
+    Reply.MEAN_SCAN: (True, False),
+    Reply.SUBRANGE_SCAN: (False, True),
+    Reply.MEAN_SUBRANGE_SCAN: (True, True),
+}
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class ScanTelegram:
-    """A B0 telegram: one scan of raw 16-bit range words, as the sensor sent it.
+    """A scan telegram: raw 16-bit range words, as the sensor sent them.
 
+    ``reply`` is B0 (every value), B6 (mean of ``sample_size`` scans), B7 (the values of
+    ``subrange``, first and last 1-based index) or BF (the mean over a subrange); the header
+    fields of B6/B7/BF come before the count word as the telegram listing orders them.
     ``count_word`` is the telegram's count field: bits 0-9 the number of values, 11-12 the
     partial-scan index, 13 "partial scan", 14-15 the units (0 cm, 1 mm). ``extra`` holds the
-    bytes some modes put between the values and the status byte (a scan index).
+    bytes some modes put between the values and the status byte (the real-time scan index).
     """
 
     count_word: int
@@ -317,8 +382,16 @@ class ScanTelegram:
     status: int = STATUS_OK
     extra: bytes = b""
     address: int = SENSOR_ADDRESS
+    reply: int = Reply.SCAN
+    sample_size: int | None = None
+    subrange: tuple[int, int] | None = None
 
     def __post_init__(self) -> None:
+        if self.reply not in _SCAN_HEADERS:
+            raise EncodeError(f"0x{self.reply:02X} is not a scan telegram")
+        mean, sub = _SCAN_HEADERS[self.reply]
+        if mean != (self.sample_size is not None) or sub != (self.subrange is not None):
+            raise EncodeError(f"scan telegram 0x{self.reply:02X} needs other header fields")
         words = _frozen_words(self.values)
         object.__setattr__(self, "values", words)
         if not 0 <= self.count_word <= 0xFFFF:
@@ -353,26 +426,38 @@ class ScanTelegram:
     def sensor_status(self) -> SensorStatus:
         return decode_status(self.status)
 
-    def ranges_and_flags(self) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint16]]:
-        """Ranges in metres (NaN for error codes) and BeamFlag bits, one per value."""
-        words = self.values
-        ranges13 = words & _RANGE_MASK
-        flags = words >> 13
-        errors = ranges13 >= FIRST_ERROR_CODE
-        ranges = ranges13.astype(np.float32) * np.float32(_METRES_PER_UNIT[self.units])
+    def ranges_and_flags(
+        self, bits: int = DEFAULT_RANGE_BITS
+    ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint16]]:
+        """Ranges in metres (NaN for error codes) and BeamFlag bits, one per value.
+
+        ``bits`` is the range width of the sensor's measuring mode (:func:`range_bits`): 13 in
+        the default 8 m / 80 m mode, 15 in the 32 m modes. The reserved error values sit at the
+        top of the range field in every mode; the bits above the range are raw flag bits.
+        """
+        words = self.values.astype(np.uint32)
+        mask = (1 << bits) - 1
+        first_error = mask - (_RANGE_MASK - FIRST_ERROR_CODE)
+        ranges_raw = words & mask
+        flags = words >> bits
+        errors = ranges_raw >= first_error
+        ranges = ranges_raw.astype(np.float32) * np.float32(_METRES_PER_UNIT[self.units])
         if errors.any():
-            codes = np.where(errors, ranges13, FIRST_ERROR_CODE) - FIRST_ERROR_CODE
-            flags = flags | np.where(errors, _ERROR_FLAG_LUT[codes], 0).astype(np.uint16)
+            codes = np.where(errors, ranges_raw, first_error) - first_error
+            flags = flags | np.where(errors, _ERROR_FLAG_LUT[codes], 0)
             ranges[errors] = np.nan
         return ranges, flags.astype(np.uint16)
 
-    def to_laser_scan(self, t_ns: int, field_deg: float | None = None) -> LaserScan:
+    def to_laser_scan(
+        self, t_ns: int, field_deg: float | None = None, bits: int = DEFAULT_RANGE_BITS
+    ) -> LaserScan:
         """The scan as a :class:`baromap.messages.LaserScan` (x forward, counter-clockwise).
 
         The angular field comes from the beam count (181/361: 180 deg, 101/201/401: 100 deg);
         for any other count the configured field must be given, else :class:`ConfigError`.
         A partial scan of an interlaced mode starts 0.25 deg x its partial index further
         counter-clockwise (as SICK's telegram listing and the reference drivers read it).
+        ``bits`` is the measuring mode's range width (see :meth:`ranges_and_flags`).
         """
         n = self.beam_count
         if field_deg is None:
@@ -381,12 +466,12 @@ class ScanTelegram:
             field_deg, resolution_deg = SCAN_GEOMETRY[n]
         else:
             resolution_deg = field_deg / max(n - 1, 1)
-        ranges, flags = self.ranges_and_flags()
+        ranges, flags = self.ranges_and_flags(bits)
         return LaserScan(
             t_ns=t_ns,
             angle_min_rad=math.radians(PARTIAL_STEP_DEG * self.partial_index - field_deg / 2.0),
             angle_increment_rad=math.radians(resolution_deg),
-            range_max_m=RANGE_MAX_M[self.units],
+            range_max_m=range_max_m(self.units, bits),
             ranges_m=ranges,
             flags=flags,
             status=self.status,
@@ -394,8 +479,16 @@ class ScanTelegram:
         )
 
     def encode(self) -> bytes:
-        payload = _SCAN_COUNT.pack(self.count_word) + self.values.astype("<u2").tobytes()
-        return encode_reply(Reply.SCAN, payload + self.extra, self.status)
+        head = b""
+        try:
+            if self.sample_size is not None:
+                head += bytes((self.sample_size,))
+            if self.subrange is not None:
+                head += _SUBRANGE.pack(*self.subrange)
+        except (ValueError, struct.error) as exc:
+            raise EncodeError(f"scan header out of range: {exc}") from exc
+        payload = head + _SCAN_COUNT.pack(self.count_word) + self.values.astype("<u2").tobytes()
+        return encode_reply(self.reply, payload + self.extra, self.status)
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, ScanTelegram):
@@ -405,6 +498,9 @@ class ScanTelegram:
             and self.status == other.status
             and self.extra == other.extra
             and self.address == other.address
+            and self.reply == other.reply
+            and self.sample_size == other.sample_size
+            and self.subrange == other.subrange
             and np.array_equal(self.values, other.values)
         )
 
@@ -419,6 +515,7 @@ LmsMessage = Ack | Nak | Telegram | ScanTelegram | BadFrame
 
 _LEN: Final = struct.Struct("<H")
 _SCAN_COUNT: Final = struct.Struct("<H")
+_SUBRANGE: Final = struct.Struct("<HH")
 _VARIANT: Final = struct.Struct("<HH")
 _CRC: Final = struct.Struct("<H")
 
@@ -468,38 +565,67 @@ def encode_scan(
     partial: bool = False,
     partial_index: int = 0,
     extra: bytes = b"",
+    sample_size: int | None = None,
+    subrange: tuple[int, int] | None = None,
 ) -> bytes:
-    """A complete B0 telegram from raw 16-bit range words (see :func:`range_words`)."""
+    """A complete scan telegram from raw 16-bit range words (see :func:`range_words`).
+
+    B0 by default; a ``sample_size`` makes it a mean-value B6, a ``subrange`` a B7, both a BF.
+    """
     words = _frozen_words(values)
     count = scan_count_word(words.shape[0], units, partial=partial, partial_index=partial_index)
-    return ScanTelegram(count, words, status, bytes(extra)).encode()
+    reply = {
+        (False, False): Reply.SCAN,
+        (True, False): Reply.MEAN_SCAN,
+        (False, True): Reply.SUBRANGE_SCAN,
+        (True, True): Reply.MEAN_SUBRANGE_SCAN,
+    }[(sample_size is not None, subrange is not None)]
+    return ScanTelegram(
+        count,
+        words,
+        status,
+        bytes(extra),
+        reply=reply,
+        sample_size=sample_size,
+        subrange=subrange,
+    ).encode()
 
 
 def range_words(
-    ranges_m: npt.ArrayLike, flags: npt.ArrayLike | None = None, *, units: Units = "mm"
+    ranges_m: npt.ArrayLike,
+    flags: npt.ArrayLike | None = None,
+    *,
+    units: Units = "mm",
+    bits: int = DEFAULT_RANGE_BITS,
 ) -> npt.NDArray[np.uint16]:
     """Ranges in metres (and optional BeamFlag bits) -> the words a B0 telegram carries.
 
     The inverse of :meth:`ScanTelegram.ranges_and_flags`, up to the unit's resolution: NaN
-    becomes "invalid", a range the 13-bit field cannot hold becomes "over range", a beam
-    flagged with an error keeps that error's code, and raw flag bits 0-2 go to bits 13-15.
+    becomes "invalid", a range the ``bits``-wide field cannot hold becomes "over range", a beam
+    flagged with an error keeps that error's code, and raw flag bits go above the range field
+    (as many as fit: three in the default mode, one in the 32 m modes, none at 16 bits).
     """
+    if bits not in RANGE_BITS.values():
+        raise EncodeError(f"value words have 13 to 16 range bits, not {bits}")
     ranges = np.asarray(ranges_m, dtype=np.float64)
     if ranges.ndim != 1:
         raise EncodeError("ranges must be a 1-D sequence")
+    offset = ((1 << bits) - 1) - _RANGE_MASK  # error codes move to the top of a wider field
     with np.errstate(invalid="ignore"):
         counts = np.rint(ranges / _METRES_PER_UNIT[units])
         invalid = np.isnan(ranges) | (ranges < 0)
-        over = ~invalid & (counts >= FIRST_ERROR_CODE)
+        over = ~invalid & (counts >= FIRST_ERROR_CODE + offset)
     counts = np.nan_to_num(counts, nan=0.0, posinf=0.0, neginf=0.0)
-    words = np.where(invalid, 0x1FFF, np.where(over, 0x1FF7, counts)).astype(np.uint32)
+    words = np.where(invalid, 0x1FFF + offset, np.where(over, 0x1FF7 + offset, counts)).astype(
+        np.uint32
+    )
     if flags is not None:
         beam_flags = np.asarray(flags, dtype=np.uint32)
         if beam_flags.shape != ranges.shape:
             raise EncodeError("flags must have one entry per range")
         for flag, code in _FLAG_TO_CODE:
-            words = np.where((beam_flags & int(flag)) != 0, code, words)
-        words |= (beam_flags & 0x7) << 13
+            words = np.where((beam_flags & int(flag)) != 0, code + offset, words)
+        words |= (beam_flags & ((1 << (16 - bits)) - 1) & 0x7) << bits
     out = words.astype(np.uint16)
     out.setflags(write=False)
     return out
@@ -531,6 +657,49 @@ def start_continuous() -> bytes:
     return set_mode(Mode.CONTINUOUS)
 
 
+def start_mean(sample_size: int) -> bytes:
+    """Stream the mean of ``sample_size`` scans (2..250): B6 telegrams."""
+    if sample_size not in MEAN_SAMPLES:
+        raise EncodeError(f"mean values take 2..250 scans, not {sample_size}")
+    return set_mode(Mode.MEAN, bytes((sample_size,)))
+
+
+def start_subrange(first: int, last: int) -> bytes:
+    """Stream values ``first``..``last`` (1-based, inclusive): B7 telegrams."""
+    return set_mode(Mode.SUBRANGE, _subrange(first, last))
+
+
+def start_mean_subrange(sample_size: int, first: int, last: int) -> bytes:
+    """Stream the mean of ``sample_size`` scans over values ``first``..``last``: BF."""
+    if sample_size not in MEAN_SAMPLES:
+        raise EncodeError(f"mean values take 2..250 scans, not {sample_size}")
+    return set_mode(Mode.MEAN_SUBRANGE, bytes((sample_size,)) + _subrange(first, last))
+
+
+def _subrange(first: int, last: int) -> bytes:
+    if not 1 <= first <= last <= _COUNT_MASK:
+        raise EncodeError(f"subrange {first}..{last} is not 1 <= first <= last")
+    return _SUBRANGE.pack(first, last)
+
+
+def reset() -> bytes:
+    """Software reset: the sensor answers 91, restarts at 9600 baud and later sends 90."""
+    return encode_telegram(Command.RESET)
+
+
+def reset_reply(status: int = STATUS_OK) -> bytes:
+    return encode_reply(Reply.RESET, b"", status)
+
+
+def power_on_telegram(text: str, status: int = STATUS_OK) -> bytes:
+    """The 90 telegram a sensor sends when it is up (after power-on or a reset).
+
+    Drivers only look at the command byte; the text (software version, "LMS ready") is
+    informative.
+    """
+    return encode_reply(Reply.POWER_ON, text.encode("ascii"), status)
+
+
 def stop_continuous() -> bytes:
     return set_mode(Mode.REQUEST)
 
@@ -560,6 +729,10 @@ def config_request() -> bytes:
 # ---------------------------------------------------------------------------------------------
 
 _CONFIG: Final = struct.Struct("<H11B15B2B2H")  # 34 bytes, the LMS200 configuration block
+#: The shortest 77 block a driver in use sends (ARIA's): 32 bytes.
+MIN_CONFIG_BLOCK: Final = 32
+#: The configuration's availability byte: bit 1 asks for the real-time scan index in scans.
+AVAILABILITY_SCAN_INDEX: Final = 0x02
 
 
 @dataclass(frozen=True, slots=True)
@@ -600,6 +773,19 @@ class LmsConfig:
             return _CONFIG.pack(*head, *self.contours, *tail)
         except struct.error as exc:
             raise EncodeError(f"configuration field out of range: {exc}") from exc
+
+    def updated(self, block: bytes) -> LmsConfig | None:
+        """This configuration with the leading fields a 77 telegram's ``block`` carries.
+
+        Firmware generations differ in how long the block is: sicktoolbox, MRPT and Player
+        send all 34 bytes, ARIA sends 32 (its layout ends early). Both work on real sensors,
+        so the sensor takes the fields present by position and keeps the rest. None for a
+        block shorter than :data:`MIN_CONFIG_BLOCK` or longer than the full one.
+        """
+        if not MIN_CONFIG_BLOCK <= len(block) <= _CONFIG.size:
+            return None
+        merged = bytes(block) + self.pack()[len(block) :]
+        return LmsConfig.unpack(merged)
 
     @classmethod
     def unpack(cls, block: bytes) -> LmsConfig | None:
@@ -734,12 +920,15 @@ class StatusReport:
     prom_version: str = "V01.01 "
 
 
-STATUS_DATA_BYTES: Final = 130  # enough to hold every field above; real replies may be longer
+STATUS_DATA_BYTES: Final = 130  # enough to hold every field above; real replies are longer
+#: A real B1 reply's data: sicktoolbox reads up to the calibration interval, a u16 at data
+#: bytes 150-151 (its payload index 151 counts the B1 byte).
+STATUS_FULL_BYTES: Final = 152
 _STATUS_FIELDS: Final = struct.Struct("<HH")
 
 
 def status_reply(
-    report: StatusReport, status: int = STATUS_OK, size: int = STATUS_DATA_BYTES
+    report: StatusReport, status: int = STATUS_OK, size: int = STATUS_FULL_BYTES
 ) -> bytes:
     if size < STATUS_DATA_BYTES:
         raise EncodeError(f"a B1 reply needs at least {STATUS_DATA_BYTES} data bytes")
@@ -888,19 +1077,32 @@ def _decode_frame(frame: bytes, address: int) -> Telegram | ScanTelegram | BadFr
         return Telegram(address, command, frame[HEADER_BYTES + 1 : -CRC_BYTES])
     status = frame[-CRC_BYTES - 1]
     data = frame[HEADER_BYTES + 1 : -CRC_BYTES - 1]
-    if command != Reply.SCAN:
+    if command not in _SCAN_HEADERS:
         return Telegram(address, command, data, status)
-    return _decode_scan(frame, data, status)
+    return _decode_scan(frame, command, data, status)
 
 
-def _decode_scan(frame: bytes, data: bytes, status: int) -> ScanTelegram | BadFrame:
-    if len(data) < _SCAN_COUNT.size:
+def _decode_scan(frame: bytes, reply: int, data: bytes, status: int) -> ScanTelegram | BadFrame:
+    mean, sub = _SCAN_HEADERS[reply]
+    pos = int(mean) + (_SUBRANGE.size if sub else 0)
+    if len(data) < pos + _SCAN_COUNT.size:
         return BadFrame.of("format", frame)
-    (count_word,) = _SCAN_COUNT.unpack_from(data)
+    sample_size = data[0] if mean else None
+    subrange = _SUBRANGE.unpack_from(data, int(mean)) if sub else None
+    (count_word,) = _SCAN_COUNT.unpack_from(data, pos)
     n = count_word & _COUNT_MASK
-    values_end = _SCAN_COUNT.size + 2 * n
+    values_start = pos + _SCAN_COUNT.size
+    values_end = values_start + 2 * n
     if values_end > len(data) or (count_word >> 14) not in _UNIT_CODES:
         return BadFrame.of("format", frame)
-    words = np.frombuffer(data, dtype="<u2", count=n, offset=_SCAN_COUNT.size).astype(np.uint16)
+    words = np.frombuffer(data, dtype="<u2", count=n, offset=values_start).astype(np.uint16)
     words.setflags(write=False)
-    return ScanTelegram(count_word, words, status, data[values_end:])
+    return ScanTelegram(
+        count_word,
+        words,
+        status,
+        data[values_end:],
+        reply=reply,
+        sample_size=sample_size,
+        subrange=subrange,
+    )

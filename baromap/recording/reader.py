@@ -1,38 +1,51 @@
 """Read a baromap recording back into typed messages.
 
-Reads what :mod:`baromap.recording.writer` writes, and survives what a power cut leaves: an
-MCAP without its summary and footer, or cut in the middle of a record. Then it falls back to a
-front-to-back scan, keeps every complete message and logs how it ended.
+Reads what :mod:`baromap.recording.writer` writes (and format 1 recordings, whose ``/odom``
+was JSON), and survives what a power cut leaves: an MCAP without its summary and footer, or cut
+in the middle of a record. Then it keeps every complete chunk and logs how the file ended.
+
+All reads go through one front-to-back pass (:mod:`baromap.recording.walk`); the series
+loaders (:func:`load_pressure`, :func:`load_odometry`) decode a whole topic at once into
+arrays, the shape floor detection and mapping use.
 """
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import json
-import struct
-from collections.abc import Iterable, Iterator
+import math
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 import structlog
-from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.records import Channel, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Schema
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 
 from baromap import jsonmsg, messages
 from baromap.errors import InputFormatError, RecordingError
 from baromap.recording import topics
+from baromap.recording.frames import quaternion_to_yaw
+from baromap.recording.walk import (
+    MCAP_MAGIC,
+    PARSE_ERRORS,
+    RawMessage,
+    Walk,
+    warn_if_incomplete,
+)
+from baromap.recording.writer import RAW_ODOMETRY_KEYS
 
 log = structlog.get_logger(__name__)
 
-MCAP_MAGIC = b"\x89MCAP0\r\n"
+#: What the mcap package raises on a file that stops mid-record.
+TRUNCATION_ERRORS = PARSE_ERRORS
 
-#: What the mcap library raises on a file that stops mid-record.
-TRUNCATION_ERRORS = (McapError, EOFError, ValueError, struct.error)
+ODOMETRY_SCHEMA = "foxglove.Odometry"
 
 
 @dataclass(frozen=True, slots=True)
@@ -44,21 +57,42 @@ class Record:
     message: Any
 
 
+Decoder = Callable[[bytes], Any]
+
+
 class _Decoders:
-    """Turns raw MCAP messages into baromap messages, caching one decoder per schema."""
+    """Turns raw MCAP payloads into baromap messages, one decoder per channel."""
 
-    def __init__(self) -> None:
+    def __init__(self, walk: Walk) -> None:
+        self._walk = walk
         self._protobuf = ProtobufDecoderFactory()
-        self._cache: dict[int, Any] = {}
+        self._cache: dict[int, Decoder] = {}
 
-    def decode(self, schema: Schema | None, channel: Channel, message: Message) -> Any:
-        decoder = self._cache.get(channel.id)
+    def decode(self, channel_id: int, data: bytes) -> Any:
+        decoder = self._cache.get(channel_id)
         if decoder is None:
-            decoder = self._make(schema, channel)
-            self._cache[channel.id] = decoder
-        return decoder(message.data)
+            decoder = self._cache[channel_id] = self.make(channel_id)
+        return decoder(data)
 
-    def _make(self, schema: Schema | None, channel: Channel) -> Any:
+    def channel(self, channel_id: int) -> tuple[Channel, Schema | None]:
+        channel = self._walk.channels[channel_id]
+        return channel, self._walk.schemas.get(channel.schema_id)
+
+    def protobuf(self, channel_id: int) -> Decoder:
+        channel, schema = self.channel(channel_id)
+        name = schema.name if schema else ""
+        if channel.message_encoding != "protobuf" or schema is None:
+            raise InputFormatError(f"{channel.topic}: {name!r} is not a protobuf schema")
+        try:
+            proto = self._protobuf.decoder_for("protobuf", schema)
+        except Exception as exc:  # the factory raises whatever protobuf raises
+            raise InputFormatError(f"{channel.topic}: bad protobuf schema {name!r}") from exc
+        if proto is None:
+            raise RecordingError(f"cannot decode protobuf schema {name!r}")
+        return _guarded(channel.topic, proto)
+
+    def make(self, channel_id: int) -> Decoder:
+        channel, schema = self.channel(channel_id)
         name = schema.name if schema else ""
         if channel.message_encoding == "json":
             cls = jsonmsg.JSON_TYPES.get(name)
@@ -66,15 +100,29 @@ class _Decoders:
                 return json.loads
             return lambda data: jsonmsg.loads(cls, data)
         if channel.message_encoding == "protobuf" and schema is not None:
-            proto = self._protobuf.decoder_for("protobuf", schema)
-            if proto is None:
-                raise RecordingError(f"cannot decode protobuf schema {name!r}")
+            proto = self.protobuf(channel_id)
             if name == "foxglove.LaserScan":
                 range_max = float(channel.metadata.get("range_max_m", "inf"))
                 range_min = float(channel.metadata.get("range_min_m", "0"))
                 return lambda data: _scan_from_foxglove(proto(data), range_min, range_max)
+            if name == ODOMETRY_SCHEMA:
+                return lambda data: _odometry_from_foxglove(proto(data), channel.topic)
             return proto
         return lambda data: data
+
+
+def _guarded(topic: str, proto: Decoder) -> Decoder:
+    def decode(data: bytes) -> Any:
+        try:
+            return proto(data)
+        except Exception as exc:  # protobuf's DecodeError and friends
+            raise InputFormatError(f"{topic}: a message does not decode: {exc}") from exc
+
+    return decode
+
+
+def _stamp_ns(stamp: Any) -> int:
+    return int(stamp.seconds) * 1_000_000_000 + int(stamp.nanos)
 
 
 def _scan_from_foxglove(msg: Any, range_min: float, range_max: float) -> messages.LaserScan:
@@ -87,7 +135,7 @@ def _scan_from_foxglove(msg: Any, range_min: float, range_max: float) -> message
     )
     increment = (msg.end_angle - msg.start_angle) / (n - 1) if n > 1 else 0.0
     return messages.LaserScan(
-        t_ns=msg.timestamp.seconds * 1_000_000_000 + msg.timestamp.nanos,
+        t_ns=_stamp_ns(msg.timestamp),
         angle_min_rad=msg.start_angle,
         angle_increment_rad=increment,
         range_max_m=range_max,
@@ -97,105 +145,119 @@ def _scan_from_foxglove(msg: Any, range_min: float, range_max: float) -> message
     )
 
 
-def _open(path: str | Path) -> IO[bytes]:
+def _raw_counters(msg: Any, topic: str) -> tuple[int, int, int]:
+    raw = {kv.key: kv.value for kv in msg.metadata}
     try:
-        stream = Path(path).open("rb")  # noqa: SIM115 - closed by the caller's finally
-    except OSError as exc:
-        raise RecordingError(f"cannot open recording {path}: {exc}") from exc
-    if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-        stream.close()
-        raise InputFormatError(f"{path} is not an MCAP file")
-    stream.seek(0)
-    return stream
+        return (
+            int(raw.get("raw_x", 0)),
+            int(raw.get("raw_y", 0)),
+            int(raw.get("raw_theta", 0)),
+        )
+    except ValueError as exc:
+        raise InputFormatError(f"{topic}: odometry counters {raw!r} are not integers") from exc
 
 
-def _has_summary(stream: IO[bytes]) -> bool:
-    """True when the file ends with a footer and closing magic (it was closed cleanly)."""
-    stream.seek(0, 2)
-    size = stream.tell()
-    if size < 2 * len(MCAP_MAGIC) + 21:
-        return False
-    stream.seek(size - len(MCAP_MAGIC))
-    ok = stream.read(len(MCAP_MAGIC)) == MCAP_MAGIC
-    stream.seek(0)
-    return ok
+def _odometry_from_foxglove(msg: Any, topic: str) -> messages.Odometry:
+    q = msg.pose.orientation
+    raw_x, raw_y, raw_theta = _raw_counters(msg, topic)
+    return messages.Odometry(
+        t_ns=_stamp_ns(msg.timestamp),
+        x_m=msg.pose.position.x,
+        y_m=msg.pose.position.y,
+        theta_rad=quaternion_to_yaw(q.x, q.y, q.z, q.w),
+        v_mps=msg.linear_velocity.x,
+        omega_radps=msg.angular_velocity.z,
+        raw_x=raw_x,
+        raw_y=raw_y,
+        raw_theta=raw_theta,
+    )
+
+
+def _chunk_horizons(path: str | Path) -> dict[int, int] | None:
+    """For each chunk (by file offset), the earliest log time of any chunk after it.
+
+    Messages up to that time can be handed out in order once the chunk is read. None when the
+    file has no summary (then chunks come out in file order, each sorted).
+    """
+    try:
+        with Path(path).open("rb") as stream:
+            stream.seek(-len(MCAP_MAGIC), 2)
+            if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+                return None
+            stream.seek(0)
+            summary = make_reader(stream).get_summary()
+    except (OSError, *PARSE_ERRORS):
+        return None
+    if summary is None or not summary.chunk_indexes:
+        return None
+    indexes = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    horizons: dict[int, int] = {}
+    later = math.inf
+    for index in reversed(indexes):
+        horizons[index.chunk_start_offset] = int(min(later, 2**64))
+        later = min(later, index.message_start_time)
+    return horizons
 
 
 def read_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[Record]:
     """Messages of a recording in log-time order, decoded into baromap messages.
 
-    Unknown JSON topics come back as dicts, unknown protobuf topics as protobuf objects.
+    Unknown JSON topics come back as dicts, unknown protobuf topics as protobuf objects. A file
+    that was not closed cleanly comes back as far as its chunks are whole, chunk by chunk in
+    file order (each chunk in time order), with a warning.
     """
-    wanted = set(topics) if topics is not None else None
-    decoders = _Decoders()
-    stream = _open(path)
-    try:
-        if _has_summary(stream):
-            reader = make_reader(stream)
-            for schema, channel, message in reader.iter_messages(
-                topics=list(wanted) if wanted is not None else None, log_time_order=True
-            ):
-                yield Record(
-                    channel.topic, message.log_time, decoders.decode(schema, channel, message)
-                )
-        else:
-            yield from _recover(path, stream, wanted, decoders)
-    finally:
-        stream.close()
-
-
-def _recover(
-    path: str | Path, stream: IO[bytes], wanted: set[str] | None, decoders: _Decoders
-) -> Iterator[Record]:
-    """Front-to-back read of an unfinished file: everything up to the first broken record."""
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    count = 0
-    try:
-        for record in StreamReader(stream, skip_magic=False).records:
-            if isinstance(record, Schema):
-                schemas[record.id] = record
-            elif isinstance(record, Channel):
-                channels[record.id] = record
-            elif isinstance(record, Message):
-                channel = channels.get(record.channel_id)
-                if channel is None or (wanted is not None and channel.topic not in wanted):
-                    continue
-                count += 1
-                yield Record(
-                    channel.topic,
-                    record.log_time,
-                    decoders.decode(schemas.get(channel.schema_id), channel, record),
-                )
-    except TRUNCATION_ERRORS as exc:
-        log.warning(
-            "recording was not closed cleanly; recovered what was complete",
-            path=str(path),
-            messages=count,
-            error=type(exc).__name__,
-        )
-    else:
-        log.warning("recording has no summary (not closed cleanly)", path=str(path), messages=count)
+    walk = Walk(path)
+    decoders = _Decoders(walk)
+    horizons = _chunk_horizons(path)
+    pending: list[tuple[int, int, RawMessage]] = []
+    counter = itertools.count()
+    kept = 0
+    for offset, group in walk.groups(topics):
+        for raw in group:
+            heapq.heappush(pending, (raw.log_time, next(counter), raw))
+        horizon = horizons.get(offset) if horizons is not None else None
+        while pending and (horizon is None or pending[0][0] <= horizon):
+            _, _, raw = heapq.heappop(pending)
+            kept += 1
+            channel = walk.channels[raw.channel_id]
+            yield Record(channel.topic, raw.log_time, decoders.decode(raw.channel_id, raw.data))
+    while pending:
+        _, _, raw = heapq.heappop(pending)
+        kept += 1
+        channel = walk.channels[raw.channel_id]
+        yield Record(channel.topic, raw.log_time, decoders.decode(raw.channel_id, raw.data))
+    warn_if_incomplete(walk, kept)
 
 
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
     """All metadata records by name (a later record of the same name wins)."""
-    stream = _open(path)
-    out: dict[str, dict[str, str]] = {}
-    try:
-        if _has_summary(stream):
-            for item in make_reader(stream).iter_metadata():
-                out[item.name] = dict(item.metadata)
-            return out
+    if _has_summary(path):
         try:
-            for record in StreamReader(stream, skip_magic=False).records:
-                if isinstance(record, Metadata):
-                    out[record.name] = dict(record.metadata)
-        except TRUNCATION_ERRORS:
-            pass
-    finally:
-        stream.close()
-    return out
+            with Path(path).open("rb") as stream:
+                return {
+                    item.name: dict(item.metadata) for item in make_reader(stream).iter_metadata()
+                }
+        except PARSE_ERRORS:
+            pass  # a summary that does not parse: read the data section instead
+        except OSError as exc:
+            raise RecordingError(f"cannot open recording {path}: {exc}") from exc
+    walk = Walk(path)
+    for _ in walk.groups(()):
+        pass
+    return {item.name: dict(item.metadata) for item in walk.metadata}
+
+
+def _has_summary(path: str | Path) -> bool:
+    """True when the file ends with the closing magic (it was closed cleanly)."""
+    try:
+        with Path(path).open("rb") as stream:
+            stream.seek(0, 2)
+            if stream.tell() < 2 * len(MCAP_MAGIC) + 21:
+                return False
+            stream.seek(-len(MCAP_MAGIC), 2)
+            return stream.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+    except OSError as exc:
+        raise RecordingError(f"cannot open recording {path}: {exc}") from exc
 
 
 @dataclass(frozen=True, slots=True)
@@ -207,24 +269,180 @@ class PressureSeries:
     temperature_c: npt.NDArray[np.float64]  # NaN where the sample had none
 
 
+@dataclass(frozen=True, slots=True)
+class OdometrySeries:
+    """An odometry topic as arrays: the integrated pose, velocities and the raw counters."""
+
+    t_ns: npt.NDArray[np.int64]
+    x_m: npt.NDArray[np.float64]
+    y_m: npt.NDArray[np.float64]
+    theta_rad: npt.NDArray[np.float64]
+    v_mps: npt.NDArray[np.float64]
+    omega_radps: npt.NDArray[np.float64]
+    raw_x: npt.NDArray[np.int64]
+    raw_y: npt.NDArray[np.int64]
+    raw_theta: npt.NDArray[np.int64]
+
+    def __len__(self) -> int:
+        return int(self.t_ns.shape[0])
+
+    def poses(self) -> npt.NDArray[np.float64]:
+        """(N, 3) x, y, theta."""
+        return np.column_stack([self.x_m, self.y_m, self.theta_rad])
+
+
 def pressure_series(samples: Iterable[messages.PressureSample]) -> PressureSeries:
     """Samples (in time order) as arrays."""
-    t: list[int] = []
-    p: list[float] = []
-    temp: list[float] = []
-    for sample in samples:
-        t.append(sample.t_ns)
-        p.append(sample.pressure_pa)
-        temp.append(np.nan if sample.temperature_c is None else sample.temperature_c)
+    samples = list(samples)
+    n = len(samples)
     return PressureSeries(
-        np.asarray(t, dtype=np.int64), np.asarray(p, dtype=np.float64), np.asarray(temp)
+        np.fromiter((s.t_ns for s in samples), dtype=np.int64, count=n),
+        np.fromiter((s.pressure_pa for s in samples), dtype=np.float64, count=n),
+        np.fromiter(
+            (math.nan if s.temperature_c is None else s.temperature_c for s in samples),
+            dtype=np.float64,
+            count=n,
+        ),
+    )
+
+
+def odometry_series(odometry: Iterable[messages.Odometry]) -> OdometrySeries:
+    """Odometry messages (in time order) as arrays."""
+    items = list(odometry)
+    n = len(items)
+
+    def column(name: str, dtype: type[np.generic]) -> Any:
+        return np.fromiter((getattr(o, name) for o in items), dtype=dtype, count=n)
+
+    return OdometrySeries(
+        column("t_ns", np.int64),
+        column("x_m", np.float64),
+        column("y_m", np.float64),
+        column("theta_rad", np.float64),
+        column("v_mps", np.float64),
+        column("omega_radps", np.float64),
+        column("raw_x", np.int64),
+        column("raw_y", np.int64),
+        column("raw_theta", np.int64),
+    )
+
+
+def _collect(walk: Walk, wanted: Sequence[str]) -> dict[str, list[RawMessage]]:
+    """Raw messages of each wanted topic, in log-time order (stable for equal times)."""
+    out: dict[str, list[RawMessage]] = {topic: [] for topic in wanted}
+    for _, group in walk.groups(wanted):
+        for raw in group:
+            out[walk.channels[raw.channel_id].topic].append(raw)
+    kept = 0
+    for topic, raws in out.items():
+        kept += len(raws)
+        if any(a.log_time > b.log_time for a, b in itertools.pairwise(raws)):
+            out[topic] = sorted(raws, key=lambda r: r.log_time)
+    warn_if_incomplete(walk, kept)
+    return out
+
+
+def _decode_pressure(
+    walk: Walk, raws: list[RawMessage], topic: str
+) -> list[messages.PressureSample]:
+    schema_name = jsonmsg.schema_name(messages.PressureSample)
+    for channel_id in {raw.channel_id for raw in raws}:
+        channel = walk.channels[channel_id]
+        schema = walk.schemas.get(channel.schema_id)
+        if channel.message_encoding != "json" or schema is None or schema.name != schema_name:
+            raise InputFormatError(f"{topic} in {walk.path} does not hold pressure samples")
+    return jsonmsg.loads_many(messages.PressureSample, [raw.data for raw in raws])
+
+
+def _decode_odometry(walk: Walk, raws: list[RawMessage], topic: str) -> OdometrySeries:
+    decoders = _Decoders(walk)
+    by_channel: dict[int, Decoder] = {}
+    protobuf: dict[int, Decoder] = {}
+    json_name = jsonmsg.schema_name(messages.Odometry)
+    for channel_id in {raw.channel_id for raw in raws}:
+        channel = walk.channels[channel_id]
+        schema = walk.schemas.get(channel.schema_id)
+        name = schema.name if schema else ""
+        if channel.message_encoding == "protobuf" and name == ODOMETRY_SCHEMA:
+            by_channel[channel_id] = decoders.make(channel_id)
+            protobuf[channel_id] = decoders.protobuf(channel_id)
+        elif channel.message_encoding == "json" and name == json_name:
+            by_channel[channel_id] = lambda data: jsonmsg.loads(messages.Odometry, data)
+        else:
+            raise InputFormatError(f"{topic} in {walk.path} does not hold odometry ({name!r})")
+    if len(protobuf) == len(by_channel):
+        return _foxglove_odometry_columns(raws, protobuf, topic)
+    return odometry_series(by_channel[raw.channel_id](raw.data) for raw in raws)
+
+
+def _foxglove_odometry_columns(
+    raws: list[RawMessage], decoders: dict[int, Decoder], topic: str
+) -> OdometrySeries:
+    """foxglove.Odometry payloads straight into columns (no message object per sample)."""
+    n = len(raws)
+    t = np.empty(n, dtype=np.int64)
+    f = np.empty((n, 8), dtype=np.float64)  # x, y, qx, qy, qz, qw, v, omega
+    counters = np.zeros((n, 3), dtype=np.int64)
+    for i, raw in enumerate(raws):
+        msg = decoders[raw.channel_id](raw.data)
+        pose = msg.pose
+        position, q = pose.position, pose.orientation
+        stamp = msg.timestamp
+        t[i] = stamp.seconds * 1_000_000_000 + stamp.nanos
+        f[i] = (
+            position.x,
+            position.y,
+            q.x,
+            q.y,
+            q.z,
+            q.w,
+            msg.linear_velocity.x,
+            msg.angular_velocity.z,
+        )
+        meta = msg.metadata
+        if len(meta) == 3 and tuple(kv.key for kv in meta) == RAW_ODOMETRY_KEYS:
+            try:
+                counters[i] = (int(meta[0].value), int(meta[1].value), int(meta[2].value))
+            except ValueError as exc:
+                raise InputFormatError(f"{topic}: odometry counters are not integers") from exc
+        elif len(meta):
+            counters[i] = _raw_counters(msg, topic)
+    qx, qy, qz, qw = f[:, 2], f[:, 3], f[:, 4], f[:, 5]
+    yaw = np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+    return OdometrySeries(
+        t_ns=t,
+        x_m=f[:, 0].copy(),
+        y_m=f[:, 1].copy(),
+        theta_rad=yaw,
+        v_mps=f[:, 6].copy(),
+        omega_radps=f[:, 7].copy(),
+        raw_x=counters[:, 0].copy(),
+        raw_y=counters[:, 1].copy(),
+        raw_theta=counters[:, 2].copy(),
     )
 
 
 def load_pressure(path: str | Path, topic: str = topics.BARO) -> PressureSeries:
-    samples = []
-    for rec in read_messages(path, [topic]):
-        if not isinstance(rec.message, messages.PressureSample):
-            raise InputFormatError(f"{topic} in {path} does not hold pressure samples")
-        samples.append(rec.message)
-    return pressure_series(samples)
+    """A pressure topic as arrays, in one pass and one parse of the whole topic."""
+    walk = Walk(path)
+    raws = _collect(walk, [topic])[topic]
+    return pressure_series(_decode_pressure(walk, raws, topic))
+
+
+def load_odometry(path: str | Path, topic: str = topics.ODOM) -> OdometrySeries:
+    """An odometry topic as arrays (format 2's foxglove.Odometry or format 1's JSON)."""
+    walk = Walk(path)
+    raws = _collect(walk, [topic])[topic]
+    return _decode_odometry(walk, raws, topic)
+
+
+def load_pressure_and_odometry(
+    path: str | Path, pressure_topic: str = topics.BARO, odometry_topic: str = topics.ODOM
+) -> tuple[PressureSeries, OdometrySeries]:
+    """Both series of a run in one pass over the file (each pass decompresses all of it)."""
+    walk = Walk(path)
+    raws = _collect(walk, [pressure_topic, odometry_topic])
+    return (
+        pressure_series(_decode_pressure(walk, raws[pressure_topic], pressure_topic)),
+        _decode_odometry(walk, raws[odometry_topic], odometry_topic),
+    )

@@ -1,17 +1,29 @@
 """Write a run into one MCAP file that Foxglove opens without plugins.
 
-Scans go out as ``foxglove.LaserScan`` (per-beam :class:`~baromap.messages.BeamFlag` bits ride
-in ``intensities``: the LMS200 reports no intensity in its ranging modes; the range limits ride
-in the channel's metadata; the status byte is the session's business, on ``/diagnostics``),
-odometry also as a
-``foxglove.FrameTransform`` on ``/tf`` so the 3D panel can follow the robot; everything else is
-JSON with a JSON Schema (:mod:`baromap.jsonmsg`). Chunks are flushed at least every
-``flush_interval_s`` of wall time, so a power cut loses about a second, not a chunk's worth.
+Scans go out as ``foxglove.LaserScan`` in the ``laser`` frame (per-beam
+:class:`~baromap.messages.BeamFlag` bits ride in ``intensities``: the LMS200 reports no
+intensity in its ranging modes; the range limits ride in the channel's metadata; the status
+byte is the session's business, on ``/diagnostics``). Odometry goes out as
+``foxglove.Odometry`` on ``/odom`` (the P2OS raw counters in its per-message ``metadata``, so
+integration can be redone with other conversion factors) and as a ``foxglove.FrameTransform``
+``odom -> base_link`` on ``/tf``; the laser mount is the static ``base_link -> laser`` on
+``/tf_static``. Everything else is JSON with a JSON Schema (:mod:`baromap.jsonmsg`).
+
+Every file stands on its own, because the daemon rotates files and a player may open any of
+them or seek into the middle of one: the metadata record and the static transform are written
+into each file, and the static transform is repeated every second of recording time and after
+every flush, so any stretch of a file longer than a second, and every flushed chunk, carries it
+(a player that seeks finds it within a second before, as Foxglove's backfill does; one that
+keeps only recent transforms never loses it).
+
+Durability: chunks end and are fsynced at least every ``flush_interval_s`` of wall time (on a
+write, or on :meth:`RecordingWriter.flush_if_due` from an idle recorder loop), so a power cut or
+SIGKILL loses about a second; the reader recovers everything up to the last flush.
 """
 
 from __future__ import annotations
 
-import math
+import os
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -19,11 +31,13 @@ from types import TracebackType
 
 import foxglove
 import structlog
-from foxglove.channels import FrameTransformChannel, LaserScanChannel
+from foxglove.channels import FrameTransformChannel, LaserScanChannel, OdometryChannel
 from foxglove.mcap import MCAPWriteOptions
 from foxglove.messages import (
     FrameTransform,
+    KeyValuePair,
     LaserScan,
+    Odometry,
     Pose,
     Quaternion,
     Timestamp,
@@ -33,6 +47,7 @@ from foxglove.messages import (
 from baromap import __version__, jsonmsg, messages
 from baromap.errors import RecordingError
 from baromap.recording import topics
+from baromap.recording.frames import LASER_MOUNT_KEY, LaserMount, yaw_to_quaternion
 
 log = structlog.get_logger(__name__)
 
@@ -47,6 +62,11 @@ DEFAULT_TOPICS: dict[type, str] = {
     messages.TruthFloor: topics.TRUTH_FLOOR,
 }
 
+#: Keys of the P2OS counters in a ``foxglove.Odometry`` message's metadata.
+RAW_ODOMETRY_KEYS = ("raw_x", "raw_y", "raw_theta")
+
+#: How often (recording time) the static transform is repeated.
+STATIC_PERIOD_NS = 1_000_000_000
 
 #: Foxglove time stamps hold unsigned 32-bit seconds: the Unix epoch to early 2106.
 MAX_T_NS = 2**32 * 1_000_000_000 - 1
@@ -58,7 +78,8 @@ def stamp(t_ns: int) -> Timestamp:
 
 
 def yaw_quaternion(theta: float) -> Quaternion:
-    return Quaternion(x=0.0, y=0.0, z=math.sin(theta / 2), w=math.cos(theta / 2))
+    x, y, z, w = yaw_to_quaternion(theta)
+    return Quaternion(x=x, y=y, z=z, w=w)
 
 
 _IDENTITY_POSE = Pose(
@@ -69,7 +90,9 @@ _IDENTITY_POSE = Pose(
 class RecordingWriter:
     """One MCAP file of one run.
 
-    Not thread-safe by design: the daemon gives it to one recorder thread fed by a queue.
+    Not thread-safe by design: the daemon gives it to one recorder thread fed by a queue. That
+    thread calls :meth:`flush_if_due` when its queue is idle, so the last messages before a
+    quiet spell become durable too.
     """
 
     def __init__(
@@ -78,16 +101,26 @@ class RecordingWriter:
         *,
         robot: str,
         metadata: Mapping[str, str] | None = None,
+        laser_mount: LaserMount | None = None,
         flush_interval_s: float = 1.0,
+        fsync: bool = True,
         allow_overwrite: bool = False,
     ) -> None:
         self.path = Path(path)
         self.context = foxglove.Context()
         self._flush_interval_s = flush_interval_s
+        self._fsync = fsync
         self._last_flush = time.monotonic()
+        self._dirty = False
         self._json_channels: dict[tuple[str, type], foxglove.Channel] = {}
         self._scan_channels: dict[tuple[str, float], LaserScanChannel] = {}
+        self._odom_channels: dict[str, OdometryChannel] = {}
         self._tf_channel: FrameTransformChannel | None = None
+        self._static_channel: FrameTransformChannel | None = None
+        self._laser_mount: LaserMount | None = None
+        self._static_due = False
+        self._last_static_ns = -1
+        self._closed = True
         self.counts: dict[str, int] = {}
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -97,17 +130,26 @@ class RecordingWriter:
                 context=self.context,
                 writer_options=MCAPWriteOptions(profile="baromap"),
             )
+            # fsync works on the file, whichever descriptor wrote it: the SDK keeps its own.
+            self._sync_fd = os.open(self.path, os.O_RDONLY) if fsync else -1
+            if fsync:
+                _fsync_dir(self.path.parent)
         except (OSError, RuntimeError, ValueError) as exc:
             raise RecordingError(f"cannot create recording {self.path}: {exc}") from exc
+        self._closed = False
         header = {
             "robot": robot,
             "format_version": topics.FORMAT_VERSION,
             "writer": f"baromap {__version__}",
             "created_ns": str(time.time_ns()),
         }
+        if laser_mount is not None:
+            header[LASER_MOUNT_KEY] = laser_mount.to_json()
         header.update(metadata or {})
         self.write_metadata(topics.METADATA_NAME, header)
-        self._closed = False
+        if laser_mount is not None:
+            self._laser_mount = laser_mount
+            self._static_due = True
         log.debug("recording opened", path=str(self.path), robot=robot)
 
     def __enter__(self) -> RecordingWriter:
@@ -120,6 +162,27 @@ class RecordingWriter:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+    @property
+    def laser_mount(self) -> LaserMount | None:
+        return self._laser_mount
+
+    def set_laser_mount(self, mount: LaserMount) -> None:
+        """State the laser mount once it is known (a daemon may learn it after opening).
+
+        Recorded as a ``baromap.frames`` metadata record and as ``/tf_static`` from the next
+        message on; a recording states one mount (the mapping reads one), so a second,
+        different one is refused.
+        """
+        if self._laser_mount is not None:
+            if mount != self._laser_mount:
+                raise RecordingError(
+                    f"{self.path} already has laser mount {self._laser_mount}, not {mount}"
+                )
+            return
+        self.write_metadata("baromap.frames", {LASER_MOUNT_KEY: mount.to_json()})
+        self._laser_mount = mount
+        self._static_due = True
 
     def write_metadata(self, name: str, data: Mapping[str, str]) -> None:
         bad = {k: v for k, v in data.items() if not isinstance(v, str)}
@@ -135,27 +198,59 @@ class RecordingWriter:
         if not 0 <= message.t_ns <= MAX_T_NS:
             raise RecordingError(f"{cls.__name__} time {message.t_ns} ns is outside 1970..2106")
         topic = topic or DEFAULT_TOPICS[cls]
+        if self._laser_mount is not None and (
+            self._static_due or not 0 <= message.t_ns - self._last_static_ns < STATIC_PERIOD_NS
+        ):
+            self._write_static(message.t_ns)
         if isinstance(message, messages.LaserScan):
             self._write_scan(topic, message)
+        elif isinstance(message, messages.Odometry):
+            self._write_odometry(topic, message)
+            if topic == topics.ODOM:
+                self._write_tf(message)
         else:
             self._json_channel(topic, cls).log(jsonmsg.dumps(message), log_time=message.t_ns)
-            if isinstance(message, messages.Odometry) and topic == topics.ODOM:
-                self._write_tf(message)
         self.counts[topic] = self.counts.get(topic, 0) + 1
-        now = time.monotonic()
-        if now - self._last_flush >= self._flush_interval_s:
+        self._dirty = True
+        self.flush_if_due()
+
+    def flush_if_due(self) -> bool:
+        """Flush when the last flush is ``flush_interval_s`` old and data is waiting."""
+        if self._dirty and time.monotonic() - self._last_flush >= self._flush_interval_s:
             self.flush()
+            return True
+        return False
 
     def flush(self) -> None:
-        """End the current chunk and push it to the file."""
+        """End the current chunk, hand it to the OS and make it durable (fsync).
+
+        After this returns, a SIGKILL or a power cut leaves a file that reads back up to here.
+        """
+        if self._closed:
+            return
         self._writer.flush()
+        if self._sync_fd >= 0:
+            try:
+                os.fsync(self._sync_fd)
+            except OSError as exc:
+                raise RecordingError(f"cannot sync recording {self.path}: {exc}") from exc
         self._last_flush = time.monotonic()
+        self._dirty = False
+        # the next chunk starts with the static transform again
+        self._static_due = self._laser_mount is not None
 
     def close(self) -> None:
-        if getattr(self, "_closed", True):
+        if self._closed:
             return
         self._closed = True
-        self._writer.close()
+        try:
+            self._writer.close()
+            if self._sync_fd >= 0:
+                os.fsync(self._sync_fd)
+        finally:
+            if self._sync_fd >= 0:
+                os.close(self._sync_fd)
+                self._sync_fd = -1
         log.info("recording closed", path=str(self.path), messages=sum(self.counts.values()))
 
     def _json_channel(self, topic: str, cls: type) -> foxglove.Channel:
@@ -200,6 +295,35 @@ class RecordingWriter:
             log_time=scan.t_ns,
         )
 
+    def _write_odometry(self, topic: str, odom: messages.Odometry) -> None:
+        channel = self._odom_channels.get(topic)
+        if channel is None:
+            channel = OdometryChannel(
+                topic,
+                metadata={"metadata": "P2OS counters: " + ", ".join(RAW_ODOMETRY_KEYS)},
+                context=self.context,
+            )
+            self._odom_channels[topic] = channel
+        channel.log(
+            Odometry(
+                timestamp=stamp(odom.t_ns),
+                frame_id=topics.ODOM_FRAME,
+                body_frame_id=topics.BASE_FRAME,
+                pose=Pose(
+                    position=Vector3(x=odom.x_m, y=odom.y_m, z=0.0),
+                    orientation=yaw_quaternion(odom.theta_rad),
+                ),
+                linear_velocity=Vector3(x=odom.v_mps, y=0.0, z=0.0),
+                angular_velocity=Vector3(x=0.0, y=0.0, z=odom.omega_radps),
+                metadata=[
+                    KeyValuePair(key="raw_x", value=str(odom.raw_x)),
+                    KeyValuePair(key="raw_y", value=str(odom.raw_y)),
+                    KeyValuePair(key="raw_theta", value=str(odom.raw_theta)),
+                ],
+            ),
+            log_time=odom.t_ns,
+        )
+
     def _write_tf(self, odom: messages.Odometry) -> None:
         if self._tf_channel is None:
             self._tf_channel = FrameTransformChannel(topics.TF, context=self.context)
@@ -213,3 +337,32 @@ class RecordingWriter:
             ),
             log_time=odom.t_ns,
         )
+
+    def _write_static(self, t_ns: int) -> None:
+        mount = self._laser_mount
+        self._static_due = False
+        if mount is None:
+            return
+        self._last_static_ns = t_ns
+        if self._static_channel is None:
+            self._static_channel = FrameTransformChannel(topics.TF_STATIC, context=self.context)
+        self._static_channel.log(
+            FrameTransform(
+                timestamp=stamp(t_ns),
+                parent_frame_id=topics.BASE_FRAME,
+                child_frame_id=topics.LASER_FRAME,
+                translation=Vector3(x=mount.x_m, y=mount.y_m, z=0.0),
+                rotation=yaw_quaternion(mount.yaw_rad),
+            ),
+            log_time=t_ns,
+        )
+        self.counts[topics.TF_STATIC] = self.counts.get(topics.TF_STATIC, 0) + 1
+
+
+def _fsync_dir(directory: Path) -> None:
+    """Make a new file's directory entry durable (else a power cut can lose the whole file)."""
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

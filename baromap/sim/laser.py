@@ -39,6 +39,7 @@ class LaserConfig:
     resolution_cdeg: int = 100
     units: lms200.Units = "mm"
     baud: int = 38400
+    range_bits: int = lms200.DEFAULT_RANGE_BITS  # 15 in the 32 m measuring modes
 
     def __post_init__(self) -> None:
         if (self.angle_deg, self.resolution_cdeg) not in lms200.VARIANTS:
@@ -47,6 +48,8 @@ class LaserConfig:
             raise ConfigError(f"units must be mm or cm, not {self.units!r}")
         if self.baud not in lms200.BAUD_MODES:
             raise ConfigError(f"LMS200 baud must be one of {sorted(lms200.BAUD_MODES)}")
+        if self.range_bits not in lms200.RANGE_BITS.values():
+            raise ConfigError(f"range bits must be 13..16, not {self.range_bits}")
 
     @property
     def beams(self) -> int:
@@ -67,7 +70,7 @@ class LaserConfig:
 
     @property
     def range_max_m(self) -> float:
-        return lms200.RANGE_MAX_M[self.units]
+        return lms200.range_max_m(self.units, self.range_bits)
 
     @property
     def telegram_bytes(self) -> int:
@@ -214,7 +217,7 @@ class Lms200Model:
         flags[dazzled] = BeamFlag.DAZZLE
         r = np.where(finite & ~dropped, np.maximum(r, 0.0), np.inf)
         shape = r.shape
-        words = lms200.range_words(r.ravel(), flags.ravel(), units=cfg.units)
+        words = lms200.range_words(r.ravel(), flags.ravel(), units=cfg.units, bits=cfg.range_bits)
         return words.reshape(shape)
 
     def scans(

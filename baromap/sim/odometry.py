@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -138,12 +139,30 @@ def sip(
     omega_radps: float,
     motors: bool,
     battery_dv: int = 128,
+    arcos_tail: bool = False,
 ) -> p2os.StandardSip:
-    """One standard SIP with wheel speeds from the believed velocities."""
+    """One standard SIP with wheel speeds from the believed velocities.
+
+    ``arcos_tail`` appends what ARCOS firmware sends after the sonar readings (timer, analog
+    and digital I/O, battery in 0.1 V, charge state, rotational velocity in 0.1 deg/s, fault
+    flags), which ARIA reads when the bytes are there.
+    """
     v_mm = v_mps * 1000.0 / model.vel_conv_factor
     half_diff = omega_radps / model.diff_conv_factor / model.vel_conv_factor
     left = round(v_mm - half_diff)
     right = round(v_mm + half_diff)
+    tail: dict[str, Any] = {}
+    if arcos_tail:
+        tail = dict(
+            timer=0,
+            analog=0,
+            digital_in=0,
+            digital_out=0,
+            battery_x10=battery_dv,
+            charge_state=0,
+            rot_vel=round(math.degrees(omega_radps) * 10.0),
+            fault_flags=0,
+        )
     return p2os.StandardSip(
         moving=bool(left or right),
         x=int(x),
@@ -156,4 +175,5 @@ def sip(
         control=int(theta),
         flags=0x01 if motors else 0x00,
         compass=0,
+        **tail,
     )

@@ -35,6 +35,7 @@ from baromap.messages import Message, PressureSample, TruthFloor, TruthPose
 from baromap.odometry.integrator import OdometryIntegrator
 from baromap.protocols import baro
 from baromap.protocols.robot_models import P3AT
+from baromap.recording.frames import LaserMount
 from baromap.sim.building import CAR_DOOR_WIDTH_M, CAR_RECT, ELEVATOR_XY, INTERIOR_WALL_M
 from baromap.sim.laser import LaserConfig, Lms200Model
 from baromap.sim.motion import PoseSamples
@@ -63,6 +64,9 @@ FloatArray = npt.NDArray[np.float64]
 
 METADATA_NAME = "baromap.sim"
 REFERENCE_TOPIC = "/reference/pressure"
+#: The simulated laser sits on the robot's centre, looking forward (its rays start at the
+#: robot's pose); recorded as the static base_link -> laser transform like the daemon's.
+LASER_MOUNT = LaserMount(0.0, 0.0, 0.0)
 #: Where the closed car door stands (its inner face), blocking the laser during rides.
 CAR_DOOR_SEGMENT = np.array(
     [
@@ -130,7 +134,7 @@ def sim_metadata(
                 "range_max_m": laser.range_max_m,
             }
         ),
-        "laser_mount": json.dumps({"x_m": 0.0, "y_m": 0.0, "yaw_rad": 0.0}),
+        "laser_mount": LASER_MOUNT.to_json(),
         "robot_model": P3AT.name,
         "odometry_errors": json.dumps(odo.as_dict()),
         "elevations_m": json.dumps([round(float(z), 3) for z in b.elevations_m]),
@@ -374,7 +378,14 @@ def record_run(
 
         bar = tqdm(total=math.ceil(gen.sc.duration_s / WINDOW_S), unit="window", desc="sim record")
     header = {"source": "baromap.sim", "seed": str(seed), "floors": str(floors)}
-    with RecordingWriter(path, robot="sim", metadata=header, allow_overwrite=overwrite) as writer:
+    with RecordingWriter(
+        path,
+        robot="sim",
+        metadata=header,
+        laser_mount=LASER_MOUNT,
+        fsync=False,  # a file written faster than real time, not a live run to protect
+        allow_overwrite=overwrite,
+    ) as writer:
         writer.write_metadata(METADATA_NAME, gen.metadata)
         for batch in windows:
             for _, _, topic, message in batch:

@@ -10,8 +10,11 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -19,6 +22,7 @@ import numpy.typing as npt
 from baromap.errors import ConfigError
 from baromap.messages import NS_PER_S
 from baromap.protocols.baro import MAX_RATE_HZ, Q24_8
+from baromap.protocols.robot_models import DEFAULT_MODEL, RobotModel, robot_model
 from baromap.sim.atmosphere import AirTemperature, Ventilation, Weather, hydrostatic_pa
 from baromap.sim.bmp280 import Bmp280
 from baromap.sim.building import Building, make_building
@@ -40,7 +44,8 @@ MAX_MINUTES = 24 * 60.0
 # Independent random streams of one seed.
 _STREAM_ROUTE, _STREAM_WEATHER, _STREAM_VENT, _STREAM_AIR = 1, 2, 3, 4
 STREAM_ROBOT_BARO, STREAM_REFERENCE_BARO, STREAM_LASER, STREAM_ODOMETRY = 5, 6, 7, 8
-_STREAM_STOPS = 9
+STREAM_FAULTS = 9
+_STREAM_STOPS = 10
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,6 +77,7 @@ class Scenario:
     weather: Weather
     ventilation: Ventilation
     air: AirTemperature
+    twins: TwinSettings
 
     @property
     def duration_s(self) -> float:
@@ -141,6 +147,7 @@ def _make_scenario(
     drift_hpa_per_h: float,
     route: tuple[int, ...] | None,
     start_ns: int,
+    twins: TwinSettings,
     stops: str,
 ) -> Scenario:
     if seed < 0:
@@ -172,6 +179,7 @@ def _make_scenario(
         weather=Weather.random(rng(_STREAM_WEATHER), drift_hpa_per_h),
         ventilation=Ventilation.for_moves(moves, rng(_STREAM_VENT)),
         air=AirTemperature.random(rng(_STREAM_AIR), building.elevations_m),
+        twins=twins,
     )
 
 
@@ -183,6 +191,7 @@ def make_scenario(
     drift_hpa_per_h: float = 1.5,
     route: Sequence[int] | None = None,
     start_ns: int = SIM_EPOCH_NS,
+    twins: TwinSettings | None = None,
     stops: str = "none",
 ) -> Scenario:
     """The scenario of a seed (cached: the twins and the recorder share one).
@@ -197,6 +206,7 @@ def make_scenario(
         drift_hpa_per_h=float(drift_hpa_per_h),
         route=tuple(int(f) for f in route) if route is not None else None,
         start_ns=int(start_ns),
+        twins=twins if twins is not None else TwinSettings(),
         stops=str(stops),
     )
 
@@ -283,3 +293,114 @@ def pressure_run(
         true_pressure_pa=true_p,
         elevations_m=sc.building.elevations_m,
     )
+
+
+# ---------------------------------------------------------------------------------------------
+# Twin settings: what the simulated devices are and what happens to them during the run
+# ---------------------------------------------------------------------------------------------
+
+#: Device names the settings and faults refer to (the twins' names).
+TWIN_NAMES: Final = ("lms200", "p3at", "baro")
+#: Faults a twin can suffer at a set simulated time.
+FAULT_KINDS: Final = ("power_cycle", "stall", "garbage", "drop", "unplug")
+
+
+@dataclass(frozen=True, slots=True)
+class Fault:
+    """Something that happens to one device ``at_s`` simulated seconds into the run.
+
+    ``power_cycle``: the device loses power for ``duration_s`` and boots again (the LMS200
+    then sends its power-on telegram, the barometer board its HELLO, the robot forgets its
+    session); ``stall``: silent for ``duration_s``; ``garbage``: ``size`` bytes of noise on the
+    line; ``drop``: the next ``size`` bytes it sends are lost; ``unplug``: the port vanishes for
+    ``duration_s`` and comes back on a new pty behind the same link.
+    """
+
+    device: str
+    at_s: float
+    kind: str
+    duration_s: float = 0.0
+    size: int = 0
+
+    def __post_init__(self) -> None:
+        if self.device not in TWIN_NAMES:
+            raise ConfigError(f"fault device must be one of {TWIN_NAMES}, not {self.device!r}")
+        if self.kind not in FAULT_KINDS:
+            raise ConfigError(f"fault kind must be one of {FAULT_KINDS}, not {self.kind!r}")
+        if not (0 <= self.at_s < math.inf and 0 <= self.duration_s < math.inf):
+            raise ConfigError("fault times must be finite and not negative")
+        if not 0 <= self.size <= 1 << 20:
+            raise ConfigError(f"fault size must be 0..{1 << 20} bytes, not {self.size}")
+
+
+@dataclass(frozen=True, slots=True)
+class TwinSettings:
+    """How the simulated devices present themselves, and the faults of the run.
+
+    The robot reports ``robot_subclass`` in its SYNC2 echo and counts positions with that
+    model's DistConvFactor (default the ARCOS P3-AT, ``p3at-sh``; ``p3at`` gives the old
+    P2OS generation). The laser needs ``laser_boot_s`` simulated seconds from power-on (or a
+    reset) to its power-on telegram; real drivers wait up to a minute for it.
+    """
+
+    robot_subclass: str = DEFAULT_MODEL.name
+    robot_name: str = "baromap-sim"
+    laser_boot_s: float = 2.0
+    laser_type: str = "LMS200;30106"
+    baro_rate_hz: int = 25
+    faults: tuple[Fault, ...] = ()
+
+    def __post_init__(self) -> None:
+        robot_model(self.robot_subclass)  # ConfigError for a subclass without parameter set
+        if not 0 < self.laser_boot_s <= 120:
+            raise ConfigError(f"laser_boot_s must be in (0, 120], not {self.laser_boot_s}")
+        if not 1 <= self.baro_rate_hz <= MAX_RATE_HZ:
+            raise ConfigError(f"baro_rate_hz must be 1..{MAX_RATE_HZ}, not {self.baro_rate_hz}")
+        if any("\x00" in text for text in (self.robot_name, self.robot_subclass)):
+            raise ConfigError("robot name and subclass cannot contain NUL")
+
+    @property
+    def robot_model(self) -> RobotModel:
+        return robot_model(self.robot_subclass)
+
+    def faults_of(self, device: str) -> tuple[Fault, ...]:
+        """This device's faults in time order."""
+        return tuple(sorted((f for f in self.faults if f.device == device), key=lambda f: f.at_s))
+
+
+def twin_settings(values: Mapping[str, Any]) -> TwinSettings:
+    """Settings from a mapping (a parsed TOML table); unknown keys are a ConfigError.
+
+    ``faults`` is a list of tables with the fields of :class:`Fault`.
+    """
+    known = {f.name for f in fields(TwinSettings)}
+    unknown = set(values) - known
+    if unknown:
+        raise ConfigError(f"unknown twin settings {sorted(unknown)}; known: {sorted(known)}")
+    raw = dict(values)
+    faults = []
+    for item in raw.pop("faults", ()):
+        if not isinstance(item, Mapping):
+            raise ConfigError("each fault is a table (device, at_s, kind, ...)")
+        try:
+            faults.append(Fault(**item))
+        except TypeError as exc:
+            raise ConfigError(f"bad fault {dict(item)}: {exc}") from exc
+    try:
+        return TwinSettings(**raw, faults=tuple(faults))
+    except TypeError as exc:
+        raise ConfigError(f"bad twin settings: {exc}") from exc
+
+
+def load_twin_settings(path: str | Path) -> TwinSettings:
+    """Twin settings from a TOML file (the table ``[twins]``, or the whole file)."""
+    path = Path(path)
+    try:
+        with path.open("rb") as handle:
+            document = tomllib.load(handle)
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigError(f"cannot read twin settings {path}: {exc}") from exc
+    table = document.get("twins", document)
+    if not isinstance(table, Mapping):
+        raise ConfigError(f"{path}: [twins] must be a table")
+    return twin_settings(table)

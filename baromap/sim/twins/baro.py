@@ -21,6 +21,7 @@ from baromap.protocols.framing import BadFrame
 from baromap.sim.bmp280 import Bmp280
 from baromap.sim.scenario import STREAM_ROBOT_BARO
 from baromap.sim.twins.base import SimClock, Twin
+from baromap.sim.twins.truth import TruthSink
 
 BAUD = 115200
 FIRMWARE = (1, 0, 0)
@@ -37,9 +38,16 @@ class BaroTwin(Twin):
     name = "baro"
     initial_baud = BAUD
 
-    def __init__(self, clock: SimClock, link: str | Path | None = None, rate_hz: int = 25) -> None:
-        self.default_rate = rate_hz
-        super().__init__(clock, link)
+    def __init__(
+        self,
+        clock: SimClock,
+        link: str | Path | None = None,
+        rate_hz: int | None = None,
+        *,
+        truth_sink: TruthSink | None = None,
+    ) -> None:
+        super().__init__(clock, link, truth_sink=truth_sink)
+        self.default_rate = rate_hz if rate_hz is not None else self.settings.baro_rate_hz
         self.samples_sent = 0
 
     def power_on(self) -> None:
@@ -66,9 +74,9 @@ class BaroTwin(Twin):
         self.seq[frame_type] = (seq + 1) % baro.SEQ_MODULO
         return seq
 
-    def _send(self, frame: baro.Frame) -> None:
-        self.port.send(baro.encode(frame))
+    def _send(self, frame: baro.Frame) -> bool:
         self.counters["frames_sent"] += 1
+        return self.port.send(baro.encode(frame))
 
     def _hello(self) -> baro.HelloFrame:
         return baro.HelloFrame(
@@ -166,9 +174,12 @@ class BaroTwin(Twin):
             missed = int((now - self._next_sample) / self.clock.real_delay(1.0 / self.rate_hz))
             self.counters["samples_missed"] += missed
             self._next_sample = now + self.clock.real_delay(1.0 / self.rate_hz)
+        measured_ns = time.monotonic_ns()
+        measured_s = self.clock.now()
         pressure, temperature = self.reading()
         seq = self._next_seq(baro.FrameType.SAMPLE)
-        self._send(baro.SampleFrame.from_values(seq, self._time_us(), pressure, temperature))
+        if self._send(baro.SampleFrame.from_values(seq, self._time_us(), pressure, temperature)):
+            self.truth.record(measured_ns, measured_s, boot=self.boot, seq=seq)
         self.samples_sent += 1
 
     def reading(self) -> tuple[float, float]:

@@ -1,4 +1,9 @@
-"""What every twin shares: the simulated clock, a thread, a pty, and the fault switches."""
+"""What every twin shares: the simulated clock, a thread, a pty, power, faults and truth.
+
+Faults come two ways: called by a test at any moment (:meth:`Twin.inject_garbage`,
+:meth:`Twin.power_cycle`, ...) or scheduled in the scenario's :class:`TwinSettings` at a
+simulated time, which the twin's thread carries out when the clock gets there.
+"""
 
 from __future__ import annotations
 
@@ -12,8 +17,9 @@ from types import TracebackType
 import structlog
 
 from baromap.errors import ConfigError
-from baromap.sim.scenario import Scenario
+from baromap.sim.scenario import STREAM_FAULTS, Fault, Scenario, TwinSettings
 from baromap.sim.twins.pty_port import PtyPort
+from baromap.sim.twins.truth import TruthLog, TruthSink
 
 log = structlog.get_logger(__name__)
 
@@ -75,12 +81,25 @@ class Twin:
     name = "device"
     initial_baud = 9600
 
-    def __init__(self, clock: SimClock, link: str | Path | None = None) -> None:
+    def __init__(
+        self,
+        clock: SimClock,
+        link: str | Path | None = None,
+        *,
+        truth_sink: TruthSink | None = None,
+    ) -> None:
         self.clock = clock
+        self.settings: TwinSettings = clock.scenario.twins
         self.port = PtyPort(self.initial_baud, link)
+        self.truth = TruthLog(self.name, sink=truth_sink)
+        #: Power-ups so far minus one: 0 during the first, 1 after one power cycle, ...
+        self.boot = -1
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._replug_pending = False
+        self._replug_at: float | None = None
+        self._power_on_at: float | None = None
+        self._faults = list(self.settings.faults_of(self.name))
 
     # ---- lifetime -------------------------------------------------------------------------------
     @property
@@ -88,7 +107,7 @@ class Twin:
         return self.port.path
 
     def start(self) -> Twin:
-        self.power_on()
+        self._power_up()
         self._thread = threading.Thread(target=self._loop, name=f"sim-{self.name}", daemon=True)
         self._thread.start()
         return self
@@ -129,9 +148,45 @@ class Twin:
         self.port.replug()
         self._replug_pending = True
 
+    def power_cycle(self, off_s: float = 0.5) -> None:
+        """Cut the power for ``off_s`` simulated seconds; the device then boots afresh."""
+        self.port.clear()
+        self._power_on_at = time.monotonic() + self.clock.real_delay(off_s)
+
+    @property
+    def powered(self) -> bool:
+        return self._power_on_at is None
+
+    def _apply(self, fault: Fault) -> None:
+        log.info("scheduled fault", twin=self.name, kind=fault.kind, at_s=fault.at_s)
+        if fault.kind == "power_cycle":
+            self.power_cycle(fault.duration_s)
+        elif fault.kind == "stall":
+            self.stall(self.clock.real_delay(fault.duration_s))
+        elif fault.kind == "garbage":
+            noise = self.clock.scenario.rng(STREAM_FAULTS).integers(0, 256, fault.size)
+            self.inject_garbage(bytes(noise.astype("u1")))
+        elif fault.kind == "drop":
+            self.drop_bytes(fault.size)
+        elif fault.kind == "unplug":
+            self.unplug()
+            self._replug_at = time.monotonic() + self.clock.real_delay(fault.duration_s)
+
+    def _due_faults(self) -> None:
+        now_s = self.clock.now()
+        while self._faults and self._faults[0].at_s <= now_s:
+            self._apply(self._faults.pop(0))
+        if self._replug_at is not None and time.monotonic() >= self._replug_at:
+            self._replug_at = None
+            self.replug()
+
     # ---- the device -----------------------------------------------------------------------------
+    def _power_up(self) -> None:
+        self.boot += 1
+        self.power_on()
+
     def power_on(self) -> None:
-        """Reset the device's state (at start and after a replug)."""
+        """Reset the device's state (at start, after a replug and after a power cycle)."""
 
     def on_bytes(self, data: bytes) -> None:
         """Bytes the host wrote."""
@@ -141,9 +196,13 @@ class Twin:
 
     def _loop(self) -> None:
         while not self._stop.is_set():
+            self._due_faults()
             if self._replug_pending:
                 self._replug_pending = False
-                self.power_on()
+                self._power_up()
+            if self._power_on_at is not None and time.monotonic() >= self._power_on_at:
+                self._power_on_at = None
+                self._power_up()
             fd = self.port.fileno()
             if fd is None:
                 self._stop.wait(0.01)
@@ -154,6 +213,8 @@ class Twin:
                 continue
             try:
                 data = self.port.read() if ready else b""
+                if not self.powered:
+                    continue  # no power: what the host sends is lost, nothing is sent
                 if data:
                     self.on_bytes(data)
                 self.tick()

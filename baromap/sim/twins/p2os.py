@@ -1,14 +1,24 @@
 """The P3-AT twin: the SYNC handshake, SIPs every 100 ms, keepalive watchdog, odometry.
 
 The robot follows the scenario's route (as if an operator drove it with the joystick); the
-host only listens. What the host controls is what P2OS lets it control: SYNC0-2 and OPEN
-start the SIPs, ENABLE switches the motors flag, CLOSE ends the session, CONFIG asks for a
-CONFIG packet, SETO resets the odometry. The watchdog: while a session is open and nothing
-arrives from the host for 2 s, the robot stops (route time stands still for every twin)
-until the host is heard again. The 2 s are wall seconds whatever the clock's speed: they judge
-the host, whose keepalives come in wall time. Before SYNC, the robot echoes the handshake; a
-SYNC0 that arrives while the session is open is a PULSE, as on the real robot, so a client
-that finds SIPs streaming sends CLOSE and starts again.
+host only listens. What the host controls is what ARCOS lets it control: SYNC0-2 and OPEN
+start the SIPs, ENABLE switches the motors flag, CLOSE ends the session, CONFIG asks for the
+whole CONFIG packet, SETO resets the odometry. It reports the subclass of the scenario's
+:class:`~baromap.sim.scenario.TwinSettings` (default ``p3at-sh``) and counts positions with
+that model's DistConvFactor, so both generations of P3-AT can be tested.
+
+The open session, as on the real robot: a SYNC0 that arrives while the session is open is a
+PULSE on the wire, answered by nothing but the SIPs that keep coming; CLOSE ends the session.
+The watchdog: while a session is open and nothing arrives from the host for 2 s, the motors
+stop (route time stands still for every twin, SIPs say "stopped") until the host is heard
+again. The 2 s are wall seconds whatever the clock's speed: they judge the host, whose
+keepalives come in wall time.
+
+One modelling choice: the route stands for a client driving the robot, so when bare SYNC0s
+come faster than any keepalive needs (two within :data:`RESYNC_GAP_S`), a new client is
+re-synchronising over a session whose driver died, and the motors stop at once instead of
+after the watchdog. p2os_driver (CLOSE on the first SIP) is unaffected; ARIA, which closes an
+old session only on a "stopped" SIP, reconnects within a second instead of never.
 """
 
 from __future__ import annotations
@@ -20,7 +30,6 @@ from pathlib import Path
 import numpy as np
 
 from baromap.protocols import p2os
-from baromap.protocols.robot_models import P3AT
 from baromap.sim.odometry import (
     SIP_PERIOD_S,
     OdometryErrors,
@@ -31,9 +40,11 @@ from baromap.sim.odometry import (
 )
 from baromap.sim.scenario import STREAM_ODOMETRY
 from baromap.sim.twins.base import SimClock, Twin
+from baromap.sim.twins.truth import TruthSink
 
 WATCHDOG_S = 2.0
-NAME = ("baromap-sim", "Pioneer", "p3at")
+#: Two bare SYNC0s closer than this on an open session are a client re-synchronising.
+RESYNC_GAP_S = 0.3
 
 
 class Session(enum.Enum):
@@ -47,13 +58,21 @@ class P2osTwin(Twin):
     name = "p3at"
     initial_baud = 9600
 
-    def __init__(self, clock: SimClock, link: str | Path | None = None) -> None:
-        super().__init__(clock, link)
+    def __init__(
+        self,
+        clock: SimClock,
+        link: str | Path | None = None,
+        *,
+        truth_sink: TruthSink | None = None,
+    ) -> None:
+        super().__init__(clock, link, truth_sink=truth_sink)
+        self.model = self.settings.robot_model
         rng = clock.scenario.rng(STREAM_ODOMETRY)
         self.errors = OdometryErrors.random(rng)
         self._rng = rng
         self.sips_sent = 0
         self.watchdog_trips = 0
+        self.resyncs = 0
 
     def power_on(self) -> None:
         self.port.set_baud(9600)
@@ -61,11 +80,20 @@ class P2osTwin(Twin):
         self.session = Session.CLOSED
         self.sync_step = 0
         self.motors = False
-        self.odometry = OdometryModel(self.errors, self._rng)
+        self.odometry = OdometryModel(self.errors, self._rng, self.model)
         self._prev = self._true_pose()
         self._next_sip = time.monotonic()
         self._last_heard = time.monotonic()
+        self._last_bare_sync: float | None = None
+        self.stopped_for_resync = False
         self.clock.resume()
+
+    @property
+    def identity(self) -> p2os.Sync2Info:
+        """What the SYNC2 echo says: name, class, subclass."""
+        return p2os.Sync2Info(
+            self.settings.robot_name, self.model.robot_class, self.settings.robot_subclass
+        )
 
     def _true_pose(self) -> tuple[float, float, float]:
         truth = self.clock.scenario.truth(np.array([self.clock.robot_time()]))
@@ -75,9 +103,20 @@ class P2osTwin(Twin):
         for msg in self.decoder.feed(data):
             if not isinstance(msg, p2os.CommandPacket):
                 continue
-            self._last_heard = time.monotonic()
-            if self.clock.halted:
-                self.clock.resume()
+            now = time.monotonic()
+            self._last_heard = now
+            bare_sync = msg.command == p2os.Command.SYNC0 and msg.argument is None
+            if self.session == Session.OPEN and bare_sync:
+                if self._last_bare_sync is not None and now - self._last_bare_sync < RESYNC_GAP_S:
+                    if not self.stopped_for_resync:
+                        self.resyncs += 1
+                    self.stopped_for_resync = True
+                    self.clock.halt()
+                self._last_bare_sync = now
+            elif not bare_sync:
+                self._last_bare_sync = None
+            if self.clock.halted and not self.stopped_for_resync:
+                self.clock.resume()  # ARCOS revives on the next packet after a watchdog stop
             self._command(msg)
 
     def _command(self, c: p2os.CommandPacket) -> None:
@@ -85,7 +124,7 @@ class P2osTwin(Twin):
         if self.session in (Session.CLOSED, Session.SYNCING) and c.argument is None and cmd <= 2:
             if cmd == self.sync_step:
                 if cmd == 2:
-                    self.port.send(p2os.Sync2Info(*NAME).encode())
+                    self.port.send(self.identity.encode())
                     self.session = Session.SYNCED
                     self.sync_step = 0
                 else:
@@ -98,6 +137,9 @@ class P2osTwin(Twin):
             return
         if cmd == p2os.Command.OPEN and self.session == Session.SYNCED:
             self.session = Session.OPEN
+            self.stopped_for_resync = False
+            self._last_bare_sync = None
+            self.clock.resume()
             self._next_sip = time.monotonic()
         elif cmd == p2os.Command.CLOSE:
             self.session = Session.CLOSED
@@ -111,29 +153,47 @@ class P2osTwin(Twin):
             self.port.send(self.config_packet())
 
     def config_packet(self) -> bytes:
-        return p2os.encode_config(
-            {
-                "robot_type": "Pioneer",
-                "subtype": "p3at",
-                "serial_number": "SIM0001",
-                "four_mots": 1,
-                "rot_vel_top": 300,
-                "trans_vel_top": 1200,
-                "rot_accel_top": 300,
-                "trans_accel_top": 300,
-                "pwm_max": 1000,
-                "name": NAME[0],
-                "sip_cycle_ms": round(SIP_PERIOD_S * 1000),
-                "host_baud": 0,
-                "aux1_baud": 0,
-                "has_gripper": 0,
-                "front_sonar": 1,
-                "rear_sonar": 1,
-                "low_battery": 110,
-                "rev_count": 16570,
-                "watchdog_ms": round(WATCHDOG_S * 1000),
-            }
+        """The whole CONFIG packet, every field ARCOS sends (ARIA reads them all)."""
+        model = self.model
+        values: dict[str, p2os.ConfigValue] = dict.fromkeys(p2os.CONFIG_FIELD_NAMES, 0)
+        values.update(
+            robot_type=model.robot_class,
+            subtype=model.name,
+            serial_number="SIM0001",
+            four_mots=int(model.diff_conv_factor == 0.0034),  # the skid-steered bases
+            rot_vel_top=round(model.max_rot_velocity_degps),
+            trans_vel_top=round(model.max_velocity_mmps),
+            rot_accel_top=300,
+            trans_accel_top=300,
+            pwm_max=1000,
+            name=self.settings.robot_name,
+            sip_cycle_ms=round(SIP_PERIOD_S * 1000),
+            front_sonar=1,
+            rear_sonar=1,
+            low_battery=110,
+            rev_count=16570,
+            watchdog_ms=round(WATCHDOG_S * 1000),
+            stall_val=255,
+            stall_count=100,
+            joy_vel=300,
+            joy_rot_vel=50,
+            rot_vel_max=round(model.max_rot_velocity_degps),
+            trans_vel_max=round(model.max_velocity_mmps),
+            rot_accel=100,
+            rot_decel=100,
+            trans_accel=300,
+            trans_decel=300,
+            front_bumps=5,
+            rear_bumps=5,
+            sonar_cycle=40,
+            reset_baud=2,
+            ticks_mm=round(1.0 / model.dist_conv_factor),
+            shutdown_voltage=105,
+            firmware_version="baromap-sim",
+            bootloader_version="",
+            high_temperature_shutdown=-128,
         )
+        return p2os.encode_config(values)
 
     def tick(self) -> None:
         now = time.monotonic()
@@ -147,7 +207,10 @@ class P2osTwin(Twin):
         self._next_sip += self.clock.real_delay(SIP_PERIOD_S)
         if self._next_sip < now:
             self._next_sip = now + self.clock.real_delay(SIP_PERIOD_S)
-        self.port.send(self.sip_packet())
+        pose_ns = time.monotonic_ns()
+        pose_s = self.clock.now()
+        if self.port.send(self.sip_packet()):
+            self.truth.record(pose_ns, pose_s, boot=self.boot)
         self.sips_sent += 1
 
     def sip_packet(self) -> bytes:
@@ -155,18 +218,19 @@ class P2osTwin(Twin):
         ds, dth = true_increments(truth.x, truth.y, truth.theta, self._prev)
         self._prev = (float(truth.x[0]), float(truth.y[0]), float(truth.theta[0]))
         x, y, th = self.odometry.step(ds, dth)
-        cx, cy, cth = counters(P3AT, x, y, th)
+        cx, cy, cth = counters(self.model, x, y, th)
         v = float(truth.v[0]) * (1.0 + self.errors.scale)
         w = float(truth.omega[0]) * (1.0 + self.errors.rotation_scale)
         if self.clock.halted:
             v = w = 0.0
         packet = sip(
-            P3AT,
+            self.model,
             x=int(cx[0]),
             y=int(cy[0]),
             theta=int(cth[0]),
             v_mps=v,
             omega_radps=w,
             motors=self.motors,
+            arcos_tail=True,
         )
         return packet.encode()

@@ -1,10 +1,12 @@
 """A serial port made of a pseudo-terminal, paced like a real line, with faults on demand.
 
-A pty carries bytes instantly and ignores the baud rate the host sets (the host's termios
-speed is not even visible from the master side), so the twin paces its own output: it never
-sends more than baud/10 bytes per second (8N1: ten bit times per byte). Output nobody reads is
-dropped when the pty's buffer is full, as a device on a cable with no host simply talks into
-the void.
+A pty carries bytes instantly and ignores the baud rate, so the twin paces its own output: it
+never sends more than baud/10 bytes per second (8N1: ten bit times per byte). On Linux the
+master reads back the termios speed the host set on the slave (TCGETS2, custom rates too);
+when it differs from the device's speed, both directions pass through
+:func:`~baromap.sim.twins.uart.misread`, so a host at the wrong speed reads garbage and a baud
+search has to really search. Output nobody reads is dropped when the pty's buffer is full, as a
+device on a cable with no host simply talks into the void.
 
 Faults: a burst of garbage, dropped bytes (a frame cut short), a stall (silence for a while),
 unplug (the pty is closed and the stable symlink removed, as when a USB adapter is pulled)
@@ -13,17 +15,22 @@ and replug (a new pty behind the same symlink, as udev would do).
 
 from __future__ import annotations
 
+import array
 import contextlib
 import errno
+import fcntl
 import os
+import termios
 import threading
 import time
 import tty
 from pathlib import Path
+from typing import Final
 
 import structlog
 
 from baromap.errors import ConfigError
+from baromap.sim.twins.uart import misread
 
 log = structlog.get_logger(__name__)
 
@@ -33,6 +40,18 @@ WRITE_CHUNK = 1024
 #: device that produces faster than its line can carry loses it (a twin sped up past what its
 #: baud rate allows). A lone message longer than that (a scan at 9600 baud) still goes out.
 QUEUE_S = 0.5
+
+#: termios speed codes -> baud; BOTHER (a custom rate) is read with TCGETS2.
+_SPEED_CODES: Final = {
+    getattr(termios, f"B{baud}"): baud
+    for baud in (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 921600)
+    if hasattr(termios, f"B{baud}")
+}
+_BOTHER: Final = 0o010000
+#: Linux's TCGETS2 on the common architectures (x86, arm): struct termios2 is 44 bytes, its
+#: output speed at int index 10.
+_TCGETS2: Final = 0x802C542A
+_TERMIOS2_INTS: Final = 11
 
 
 class PtyPort:
@@ -51,6 +70,7 @@ class PtyPort:
         self.slave_path = ""
         self.bytes_sent = 0
         self.bytes_dropped = 0
+        self.bytes_misread = 0
         self._open()
 
     # ---- lifetime ---------------------------------------------------------------------------
@@ -135,20 +155,55 @@ class PtyPort:
             self.baud = baud
             self._budget_t = max(self._budget_t, time.monotonic())
 
-    def send(self, data: bytes) -> None:
-        """Queue bytes for output (paced by :meth:`pump`); dropped whole if the queue is full."""
+    def host_baud(self) -> int | None:
+        """The speed the host set on its end, or None if it cannot be read."""
+        fd = self.master
+        if fd is None:
+            return None
+        try:
+            code = termios.tcgetattr(fd)[5]
+        except (termios.error, OSError):
+            return None
+        if code in _SPEED_CODES:
+            return _SPEED_CODES[code]
+        if code != _BOTHER:
+            return None
+        buf = array.array("i", [0] * _TERMIOS2_INTS)
+        try:
+            fcntl.ioctl(fd, _TCGETS2, buf)
+        except OSError:
+            return None
+        return buf[10] or None
+
+    def _as_received(self, data: bytes, tx_baud: int, rx_baud: int | None) -> bytes:
+        if rx_baud is None or rx_baud == tx_baud:
+            return data
+        self.bytes_misread += len(data)
+        return misread(data, tx_baud, rx_baud)
+
+    def send(self, data: bytes) -> bool:
+        """Queue bytes for output (paced by :meth:`pump`); dropped whole if the queue is full.
+
+        True if the bytes went into the queue (possibly cut short by :meth:`drop_next`).
+        """
         if not data or self.stalled:
-            return
+            return False
         with self._lock:
             if self._out and len(self._out) + len(data) > self.baud / 10.0 * QUEUE_S:
                 self.bytes_dropped += len(data)
-                return
+                return False
             if self._drop:
                 cut = min(self._drop, len(data))
                 self._drop -= cut
                 self.bytes_dropped += cut
                 data = data[cut:]
             self._out += data
+            return True
+
+    def clear(self) -> None:
+        """Forget output not yet on the line (the device lost power)."""
+        with self._lock:
+            self._out.clear()
 
     @property
     def pending(self) -> int:
@@ -166,14 +221,17 @@ class PtyPort:
             if allowed <= 0:
                 return
             chunk = bytes(self._out[: min(allowed, WRITE_CHUNK)])
+            line = self._as_received(chunk, self.baud, self.host_baud())
             try:
-                written = os.write(self.master, chunk)
+                written = os.write(self.master, line)
             except BlockingIOError:
-                written = len(chunk)  # nobody reads: the bytes are lost on the line
+                written = len(line)  # nobody reads: the bytes are lost on the line
             except OSError as exc:
                 if exc.errno != errno.EIO:
                     raise
-                written = len(chunk)
+                written = len(line)
+            if line is not chunk:
+                written = len(chunk)  # garbled bytes are not resent: they were on the line
             del self._out[:written]
             self._budget_t += written * 10.0 / self.baud
             self.bytes_sent += written
@@ -184,7 +242,8 @@ class PtyPort:
             if self.master is None:
                 return b""
             try:
-                return os.read(self.master, 4096)
+                data = os.read(self.master, 4096)
+                return self._as_received(data, self.host_baud() or self.baud, self.baud)
             except (BlockingIOError, InterruptedError):
                 return b""
             except OSError as exc:

@@ -7,11 +7,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from types import TracebackType
 
-from baromap.sim.scenario import make_scenario
+from baromap.sim.scenario import TwinSettings, make_scenario
 from baromap.sim.twins.baro import BaroTwin
 from baromap.sim.twins.base import SimClock, Twin
 from baromap.sim.twins.lms200 import Lms200Twin
 from baromap.sim.twins.p2os import P2osTwin
+from baromap.sim.twins.truth import TruthSink
 
 
 class SimDevices:
@@ -27,18 +28,29 @@ class SimDevices:
         route: Sequence[int] | None = None,
         speed: float = 1.0,
         link_dir: str | Path | None = None,
+        twins: TwinSettings | None = None,
+        truth_sink: TruthSink | None = None,
     ) -> None:
         scenario = make_scenario(
-            seed, floors=floors, minutes=minutes, drift_hpa_per_h=drift_hpa_per_h, route=route
+            seed,
+            floors=floors,
+            minutes=minutes,
+            drift_hpa_per_h=drift_hpa_per_h,
+            route=route,
+            twins=twins,
         )
         self.clock = SimClock(scenario, speed)
         links = Path(link_dir) if link_dir is not None else None
+
+        def link(name: str) -> Path | None:
+            return links / name if links is not None else None
+
         with contextlib.ExitStack() as undo:  # each twin opens a pty: close them if one fails
-            self.lms200 = Lms200Twin(self.clock, links / "lms200" if links else None)
+            self.lms200 = Lms200Twin(self.clock, link("lms200"), truth_sink=truth_sink)
             undo.callback(self.lms200.stop)
-            self.p3at = P2osTwin(self.clock, links / "p3at" if links else None)
+            self.p3at = P2osTwin(self.clock, link("p3at"), truth_sink=truth_sink)
             undo.callback(self.p3at.stop)
-            self.baro = BaroTwin(self.clock, links / "baro" if links else None)
+            self.baro = BaroTwin(self.clock, link("baro"), truth_sink=truth_sink)
             undo.pop_all()
 
     @property

@@ -1,0 +1,209 @@
+"""The daemon put together: sessions -> fanout -> recorder, floor tracker, live publisher.
+
+The main loop does little on purpose: twice a second it checks that every part is making
+progress (each thread updates a heartbeat), publishes health once a second (recorded on
+``/diagnostics``), tells systemd the device states in ``STATUS=``, and pings the watchdog only
+if every part made progress. A part that hangs therefore gets the service restarted by
+systemd instead of recording nothing while claiming to be fine.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import importlib
+import json
+import threading
+import time
+from collections.abc import Callable
+from typing import Any, Final
+
+import structlog
+
+from baromap import __version__
+from baromap.discovery import resolve_port
+from baromap.messages import NS_PER_S, DeviceHealth, DeviceState, Message
+from daemon.barometer import BarometerSession
+from daemon.clock import HostClock
+from daemon.config import DaemonConfig
+from daemon.fanout import Consumer, Fanout
+from daemon.floors import FloorTracker
+from daemon.lms200 import Lms200Session
+from daemon.notify import Notifier
+from daemon.pioneer import PioneerSession
+from daemon.recorder import Recorder
+from daemon.session import DeviceSession
+
+log = structlog.get_logger(__name__)
+
+TICK_S: Final = 0.5
+HEALTH_EVERY_NS: Final = NS_PER_S
+#: A part whose heartbeat is older than this is stuck (reads time out every 50 ms, the
+#: recorder wakes every 200 ms; a handshake write may block for its 1 s timeout).
+STUCK_NS: Final = 10 * NS_PER_S
+#: Module the live session provides: ``create_publisher(config) -> Consumer``.
+LIVE_MODULE: Final = "daemon.live"
+
+
+def run_name(robot: str, wall_ns: int) -> str:
+    stamp = dt.datetime.fromtimestamp(wall_ns / NS_PER_S, tz=dt.UTC)
+    return f"{robot}_{stamp:%Y%m%dT%H%M%SZ}"
+
+
+class Daemon:
+    """One run of baromapd: build with a configuration, :meth:`run` until :meth:`request_stop`."""
+
+    def __init__(
+        self,
+        config: DaemonConfig,
+        *,
+        clock: HostClock | None = None,
+        notifier: Notifier | None = None,
+        resolve: Callable[[str], str] = resolve_port,
+        live: bool = True,
+    ) -> None:
+        self.config = config
+        self.clock = clock or HostClock()
+        self.notifier = notifier or Notifier(environ={})
+        self.fanout = Fanout()
+        self._stop = threading.Event()
+        self.name = run_name(config.robot, self.clock.now_unix_ns())
+        self.recorder = Recorder(
+            config.recording, robot=config.robot, metadata=self._metadata(), run_name=self.name
+        )
+        self.fanout.subscribe(self.recorder)
+        self.floors: FloorTracker | None = None
+        if config.barometer is not None:
+            self.floors = FloorTracker(config.floors, self.fanout.publish)
+            self.fanout.subscribe(self.floors)
+        self.live: Consumer | None = self._live_publisher() if live else None
+        if self.live is not None:
+            self.fanout.subscribe(self.live)
+        common: dict[str, Any] = {
+            "clock": self.clock,
+            "publish": self.fanout.publish,
+            "identify": self.recorder.set_device_metadata,
+            "resolve": resolve,
+        }
+        self.sessions: list[DeviceSession] = []
+        if config.laser is not None:
+            self.sessions.append(Lms200Session(config.laser, **common))
+        if config.base is not None:
+            self.sessions.append(PioneerSession(config.base, **common))
+        if config.barometer is not None:
+            self.sessions.append(BarometerSession(config.barometer, **common))
+        self._last_health_ns = 0
+        self.watchdog_pings = 0
+        self.ready = threading.Event()
+
+    def _metadata(self) -> dict[str, str]:
+        c = self.config
+        data = {
+            "role": c.role,
+            "daemon": f"baromapd {__version__}",
+            "configuration": c.source_text,
+            "devices": json.dumps(
+                {
+                    name: device.port
+                    for name, device in (
+                        ("laser", c.laser),
+                        ("base", c.base),
+                        ("barometer", c.barometer),
+                    )
+                    if device is not None
+                }
+            ),
+        }
+        if c.laser is not None:
+            mount = c.laser.mount
+            data["laser_mount"] = json.dumps(
+                {"x_m": mount.x_m, "y_m": mount.y_m, "yaw_rad": mount.yaw_rad}
+            )
+        data.update(self.clock.metadata())
+        return data
+
+    def _live_publisher(self) -> Consumer | None:
+        try:
+            module = importlib.import_module(LIVE_MODULE)
+        except ModuleNotFoundError as exc:
+            if exc.name != LIVE_MODULE:
+                raise
+            log.info("live publishing is not available in this build")
+            return None
+        publisher: Consumer = module.create_publisher(self.config)
+        return publisher
+
+    # ---- lifetime -------------------------------------------------------------------------------
+    def request_stop(self) -> None:
+        """Ask the main loop to finish (safe from a signal handler)."""
+        self._stop.set()
+
+    def run(self) -> int:
+        self.start()
+        try:
+            while not self._stop.wait(TICK_S):
+                self.tick()
+        finally:
+            self.shutdown()
+        return 0
+
+    def start(self) -> None:
+        self.recorder.start()
+        if self.floors is not None:
+            self.floors.start()
+        for session in self.sessions:
+            session.start()
+        self.notifier.ready(self.status_line())
+        self.ready.set()
+        log.info("baromapd running", run=self.name, devices=[s.name for s in self.sessions])
+
+    def shutdown(self) -> None:
+        self.notifier.stopping("stopping: closing devices and finishing the recording")
+        for session in self.sessions:
+            session.stop()
+        self._publish_health()
+        if self.floors is not None:
+            self.floors.close()
+        if self.live is not None:
+            self.fanout.unsubscribe(self.live)
+            self.live.close()
+        self.recorder.close()
+        log.info("baromapd stopped", files=[str(p) for p in self.recorder.files])
+
+    # ---- the main loop --------------------------------------------------------------------------
+    def tick(self) -> None:
+        now = time.monotonic_ns()
+        if now - self._last_health_ns >= HEALTH_EVERY_NS:
+            self._last_health_ns = now
+            self._publish_health()
+        self.notifier.status(self.status_line())
+        stuck = self.stuck_parts(now)
+        if stuck:
+            log.error("parts are not making progress: no watchdog ping", parts=stuck)
+        elif self.notifier.watchdog_s is not None and self.notifier.watchdog():
+            self.watchdog_pings += 1
+
+    def stuck_parts(self, now_ns: int) -> list[str]:
+        stuck = [s.name for s in self.sessions if not s.alive or now_ns - s.heartbeat_ns > STUCK_NS]
+        workers = [self.recorder] + ([self.floors] if self.floors is not None else [])
+        stuck += [w.name for w in workers if not w.alive or now_ns - w.heartbeat_ns > STUCK_NS]
+        return stuck
+
+    def health(self) -> list[DeviceHealth]:
+        t = self.clock.now_unix_ns()
+        return [s.health(t) for s in self.sessions] + [self.recorder.health(t)]
+
+    def _publish_health(self) -> None:
+        for health in self.health():
+            self.fanout.publish(health)
+
+    def status_line(self) -> str:
+        parts = []
+        for health in self.health():
+            text = f"{health.device} {health.state.value}"
+            if health.state in (DeviceState.DOWN, DeviceState.DEGRADED):
+                text += f" ({health.detail[:60]})"
+            parts.append(text)
+        return "; ".join(parts)
+
+    def publish(self, message: Message) -> None:
+        self.fanout.publish(message)

@@ -1,0 +1,158 @@
+"""The barometer board session: IDENTIFY/HELLO, version check, rate and oversampling, samples.
+
+Opening an Uno's port resets the board (DTR), which then spends up to ~1.5 s in its
+bootloader and sends a HELLO nobody may see (pyserial flushes input on open), so the session
+asks with IDENTIFY until a HELLO answers (``firmware/PROTOCOL.md`` section 1). Settings are
+not stored on the board: after a reset (an unasked HELLO with sequence 0) the session sets
+the board up again. Each sample is stamped from the board's microsecond clock through
+:class:`~daemon.clock.DeviceClockFit`; STATUS counters and ERROR frames go into health.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, Final
+
+import structlog
+
+from baromap.errors import DeviceError
+from baromap.protocols import baro
+from baromap.protocols.framing import BadFrame
+from daemon.clock import DeviceClockFit, transmission_ns
+from daemon.config import BarometerConfig
+from daemon.session import DeviceRestarted, DeviceSession, wait_for
+
+log = structlog.get_logger(__name__)
+
+HELLO_ATTEMPTS: Final = 10
+HELLO_WAIT_S: Final = 0.5
+ACK_WAIT_S: Final = 0.5
+#: COBS adds one code byte to frames under 254 bytes, then the 0x00 delimiter.
+COBS_OVERHEAD: Final = 2
+
+
+def wire_size(frame: baro.DecodedItem) -> int:
+    if isinstance(frame, BadFrame):
+        return frame.size
+    return baro.HEADER.size + frame.PAYLOAD.size + baro.CRC.size + COBS_OVERHEAD
+
+
+class BarometerSession(DeviceSession):
+    def __init__(self, config: BarometerConfig, **kwargs: Any) -> None:
+        super().__init__(
+            "barometer", port=config.port, baud=config.baud, retry=config.retry, **kwargs
+        )
+        self.config = config
+        self.decoder = baro.Decoder()
+        self.fit = DeviceClockFit()
+        self._command_seq = 0
+        self._last_sample_seq: int | None = None
+        self._fed = 0
+        self._consumed = 0
+
+    def _next_seq(self) -> int:
+        self._command_seq = (self._command_seq + 1) % baro.SEQ_MODULO
+        return self._command_seq
+
+    # ---- handshake ----------------------------------------------------------------------------
+    def handshake(self) -> None:
+        self.set_baud(self.config.baud)
+        self.decoder = baro.Decoder()
+        hello = None
+        for _ in range(HELLO_ATTEMPTS):
+            self.write(baro.identify(self._next_seq()))
+            hello = wait_for(self, self._find(baro.HelloFrame), HELLO_WAIT_S)
+            if hello is not None:
+                break
+        if not isinstance(hello, baro.HelloFrame):
+            raise DeviceError(f"no HELLO from the barometer board at {self.baud} baud")
+        if hello.sensor == baro.SensorModel.NONE:
+            log.warning("barometer board has no sensor yet", port=self.path)
+        c = self.config
+        self._command(lambda seq: baro.set_rate(c.rate_hz, seq), baro.FrameType.SET_RATE)
+        self._command(
+            lambda seq: baro.set_oversampling(
+                c.oversampling, c.temperature_oversampling, c.iir_filter, seq
+            ),
+            baro.FrameType.SET_OVERSAMPLING,
+        )
+        try:
+            sensor = baro.SensorModel(hello.sensor).name
+        except ValueError:
+            sensor = str(hello.sensor)
+        self.identity = {
+            "device": "baromap barometer board",
+            "protocol": f"{baro.PROTOCOL_VERSION}.{hello.protocol_minor}",
+            "firmware_version": hello.firmware_version,
+            "sensor": sensor,
+            "chip_id": f"0x{hello.chip_id:02x}",
+            "i2c_address": f"0x{hello.i2c_address:02x}",
+            "rate_hz": str(self.config.rate_hz),
+            "oversampling": f"p{self.config.oversampling}/t{self.config.temperature_oversampling}"
+            f"/iir{self.config.iir_filter}",
+            "port": self.path,
+        }
+        self.fit.reset()
+        self._last_sample_seq = None
+        self._fed = self._consumed = 0
+
+    def _command(self, build: Callable[[int], bytes], frame_type: baro.FrameType) -> None:
+        seq = self._next_seq()
+        self.write(build(seq))
+        ack = wait_for(self, self._find(baro.AckFrame, command_seq=seq), ACK_WAIT_S)
+        if not isinstance(ack, baro.AckFrame):
+            raise DeviceError(f"no ACK for {frame_type.name}")
+        if ack.result != baro.AckResult.OK:
+            raise DeviceError(f"{frame_type.name} refused: {baro.AckResult(ack.result).name}")
+
+    def _find(self, kind: type, command_seq: int | None = None) -> Any:
+        def feed(data: bytes, read_ns: int) -> Any:
+            found = None
+            for frame in self.decoder.feed(data):
+                if (
+                    found is None
+                    and isinstance(frame, kind)
+                    and (command_seq is None or getattr(frame, "command_seq", None) == command_seq)
+                ):
+                    found = frame
+            return found
+
+        return feed
+
+    # ---- streaming ----------------------------------------------------------------------------
+    def handle(self, data: bytes, read_ns: int) -> None:
+        self._fed += len(data)
+        for frame in self.decoder.feed(data):
+            self._consumed += wire_size(frame)
+            if isinstance(frame, BadFrame):
+                self.bad_frame(frame)
+                continue
+            self.good_frame()
+            if isinstance(frame, baro.SampleFrame):
+                end = self.frame_end_ns(read_ns, min(len(data), self._fed - self._consumed))
+                self._sample(frame, end - transmission_ns(wire_size(frame), self.baud), read_ns)
+            elif isinstance(frame, baro.StatusFrame):
+                for key, value in frame.counters().items():
+                    self.set_counter(f"board_{key}", value)
+                self.set_counter("board_sensor_state", frame.sensor_state)
+            elif isinstance(frame, baro.ErrorFrame):
+                self.count("board_errors")
+                try:
+                    code = baro.ErrorCode(frame.code).name
+                except ValueError:
+                    code = str(frame.code)
+                log.warning("barometer board error", code=code, detail=frame.detail)
+            elif isinstance(frame, baro.HelloFrame) and frame.seq == 0:
+                raise DeviceRestarted("the board reset (HELLO with sequence 0): settings lost")
+
+    def _sample(self, frame: baro.SampleFrame, sent_ns: int, read_ns: int) -> None:
+        if self._last_sample_seq is not None:
+            lost = baro.seq_gap(self._last_sample_seq, frame.seq)
+            if lost:
+                self.count("samples_lost", lost)
+        self._last_sample_seq = frame.seq
+        resets = self.fit.resets
+        mono = self.fit.update(frame.time_us, sent_ns)
+        if self.fit.resets != resets:
+            self.count("clock_resets")
+        self.publish(baro.to_pressure_sample(frame, self.clock.unix_ns(mono)), read_ns)

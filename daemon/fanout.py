@@ -1,0 +1,152 @@
+"""The one place every message goes through: readers publish, consumers are offered it.
+
+A consumer (the recorder, the floor detector, the live Zenoh publisher) implements
+``offer(message)``, which must never block: each keeps its own bounded queue and counts what
+it had to drop, so a slow disk or a slow network can never stall a device's reader thread.
+A consumer that measures latency from the wire may also implement
+``offer_received(message, received_ns)`` (host monotonic ns at which the frame's last byte
+was read); the fanout then calls that instead.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from typing import Any, Protocol, runtime_checkable
+
+import structlog
+
+from baromap.messages import Message
+
+log = structlog.get_logger(__name__)
+
+
+class Consumer(Protocol):
+    def offer(self, message: Message) -> None:
+        """Take the message or count it as dropped; never block."""
+
+    def close(self) -> None:
+        """Finish: process what was offered, release resources."""
+
+
+@runtime_checkable
+class TimedConsumer(Protocol):
+    def offer_received(self, message: Message, received_ns: int) -> None: ...
+
+
+class Fanout:
+    """Hands every published message to every subscribed consumer, in subscription order."""
+
+    def __init__(self) -> None:
+        self._targets: tuple[tuple[Consumer, Callable[[Message, int], None] | None], ...] = ()
+        self._lock = threading.Lock()
+
+    def subscribe(self, consumer: Consumer) -> None:
+        timed = consumer.offer_received if isinstance(consumer, TimedConsumer) else None
+        with self._lock:
+            self._targets = (*self._targets, (consumer, timed))
+
+    def unsubscribe(self, consumer: Consumer) -> None:
+        with self._lock:
+            self._targets = tuple(t for t in self._targets if t[0] is not consumer)
+
+    def publish(self, message: Message, received_ns: int | None = None) -> None:
+        for consumer, timed in self._targets:
+            if timed is not None and received_ns is not None:
+                timed(message, received_ns)
+            else:
+                consumer.offer(message)
+
+
+_STOP = object()
+
+
+class QueueWorker:
+    """A bounded queue served by one thread: the building block of the daemon's consumers.
+
+    ``offer`` never blocks; a full queue drops the message and counts it by type. The worker
+    calls :meth:`handle` per item and :meth:`idle` at least every ``idle_s``.
+    """
+
+    def __init__(self, name: str, maxsize: int, idle_s: float = 0.2) -> None:
+        self.name = name
+        self._queue: queue.Queue[Any] = queue.Queue(maxsize=maxsize)
+        self._idle_s = idle_s
+        self._thread: threading.Thread | None = None
+        self.dropped: Counter[str] = Counter()
+        self.heartbeat_ns = time.monotonic_ns()
+        self.error: str | None = None
+
+    def offer(self, message: Message) -> None:
+        self._put((message, None))
+
+    def offer_received(self, message: Message, received_ns: int) -> None:
+        self._put((message, received_ns))
+
+    def _put(self, item: tuple[Message, int | None]) -> None:
+        try:
+            self._queue.put_nowait(item)
+        except queue.Full:
+            self.dropped[type(item[0]).__name__] += 1
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name=f"baromapd-{self.name}")
+        self._thread.start()
+
+    def close(self, timeout: float = 10.0) -> None:
+        """Process everything offered so far, then stop the thread."""
+        if self._thread is None:
+            return
+        deadline = time.monotonic() + timeout
+        while self._thread.is_alive() and time.monotonic() < deadline:
+            try:
+                self._queue.put(_STOP, timeout=0.2)
+                break
+            except queue.Full:
+                continue
+        self._thread.join(max(0.0, deadline - time.monotonic()))
+        self._thread = None
+
+    @property
+    def alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
+    def backlog(self) -> int:
+        return self._queue.qsize()
+
+    def _run(self) -> None:
+        try:
+            self.started()
+            while True:
+                try:
+                    item = self._queue.get(timeout=self._idle_s)
+                except queue.Empty:
+                    item = None
+                self.heartbeat_ns = time.monotonic_ns()
+                if item is _STOP:
+                    break
+                if item is not None:
+                    self.handle(*item)
+                self.idle()
+        except Exception as exc:
+            self.error = f"{type(exc).__name__}: {exc}"
+            log.exception("consumer failed", consumer=self.name)
+            raise
+        finally:
+            self.finished()
+
+    def started(self) -> None:
+        """In the worker thread, before the first item."""
+
+    def handle(self, message: Message, received_ns: int | None) -> None:
+        raise NotImplementedError
+
+    def idle(self) -> None:
+        """After each item and at least every ``idle_s``."""
+
+    def finished(self) -> None:
+        """In the worker thread, after the last item."""

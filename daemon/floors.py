@@ -1,0 +1,76 @@
+"""The online floor detector inside the daemon: pressure and odometry in, floor events and
+state out.
+
+It runs on its own thread behind a bounded queue like every consumer, so a burst of work in
+the detector can never hold up the barometer's reader. Its events are published back through
+the fanout (recorded on ``/floor/event``, offered to the live publisher); the state goes out
+at every event and once a second of sample time, so a late reader of the recording or a late
+subscriber always has a recent answer.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Final
+
+import structlog
+
+from baromap.floors import FloorDetectorConfig, OnlineFloorDetector
+from baromap.messages import NS_PER_S, FloorState, Message, Odometry, PressureSample
+from daemon.fanout import QueueWorker
+
+log = structlog.get_logger(__name__)
+
+STATE_EVERY_NS: Final = NS_PER_S
+
+
+class FloorTracker(QueueWorker):
+    """Feeds the detector with pressure samples and odometry (a stop at a floor is a visit
+    once the robot drove off); publishes what it decides."""
+
+    def __init__(
+        self, config: FloorDetectorConfig, publish: Callable[[Message], None], maxsize: int = 4096
+    ) -> None:
+        super().__init__("floors", maxsize)
+        self.detector = OnlineFloorDetector(config)
+        self._publish = publish
+        self._last_state_ns: int | None = None
+        self.events = 0
+
+    def offer(self, message: Message) -> None:
+        if isinstance(message, PressureSample | Odometry):
+            super().offer(message)
+
+    def offer_received(self, message: Message, received_ns: int) -> None:
+        self.offer(message)
+
+    def handle(self, message: Message, received_ns: int | None) -> None:
+        if isinstance(message, Odometry):
+            self.detector.update_odometry(message)
+            return
+        assert isinstance(message, PressureSample)
+        events = self.detector.update(message)
+        for event in events:
+            self.events += 1
+            log.info(
+                "floor event",
+                kind=event.kind.value,
+                event_id=event.event_id,
+                from_floor=event.from_name,
+                to_floor=event.to_name,
+                delta_m=round(event.delta_m, 2),
+            )
+            self._publish(event)
+        due = self._last_state_ns is None or message.t_ns - self._last_state_ns >= STATE_EVERY_NS
+        if events or due:
+            self._last_state_ns = message.t_ns
+            self._publish(self.detector.state())
+
+    def finished(self) -> None:
+        for event in self.detector.finish():
+            self.events += 1
+            self._publish(event)
+
+    @property
+    def state(self) -> FloorState:
+        return self.detector.state()

@@ -1,0 +1,296 @@
+"""The daemon's Zenoh publisher: one consumer of the daemon's fan-out, off the acquisition path.
+
+``offer(message)`` is all a reader or the detector ever calls: it files the message in a
+bounded queue under a lock held for an append, and returns. One worker thread owns the Zenoh
+session and does the rest (:class:`~baromap.live.schedule.PublishSchedule` decides what goes
+out and when). Whatever Zenoh does (a router that is down, a handshake that hangs, a
+subscriber that stops reading and fills the socket) stalls at most that worker; the queue then
+fills and further messages are dropped and counted, and acquisition and recording never wait.
+
+Floor events and states have their own small queue ahead of the bulk of pressure and health,
+so a backlog of pressure never costs an event. A session that cannot be opened is retried
+with capped backoff; messages that arrive meanwhile still update what the queryable will
+answer, and their publications are counted as unsent.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
+
+import structlog
+
+from baromap.errors import ConfigError
+from baromap.live.keys import Channel, NodeKeys
+from baromap.live.payloads import MEDIA_TYPE, encode, schema_of
+from baromap.live.reference import ReferenceListener
+from baromap.live.schedule import Outgoing, PublishSchedule
+from baromap.live.session import LiveError, close_session, open_session
+from baromap.live.settings import LiveSettings
+from baromap.messages import FloorEvent, FloorState, PressureSample
+
+if TYPE_CHECKING:
+    import zenoh
+
+log = structlog.get_logger(__name__)
+
+#: Events and states waiting for the worker (they come a few a minute; this is a long outage).
+URGENT_QUEUE = 256
+#: First wait before opening a session again after a failure, s (doubled up to retry_max_s).
+RETRY_FIRST_S = 0.25
+
+
+@dataclass(slots=True)
+class _Counters:
+    """Counters shared by the offering threads and the worker (under the publisher's lock)."""
+
+    offered: int = 0
+    ignored: int = 0
+    dropped_urgent: int = 0
+    dropped_bulk: int = 0
+    published: int = 0
+    unsent: int = 0
+    publish_errors: int = 0
+    queries: int = 0
+    opened: int = 0
+    open_failures: int = 0
+
+
+class LivePublisher:
+    """Publishes a robot's (or a reference station's) live data over Zenoh.
+
+    ``LivePublisher(settings, "robot1")`` for a robot; ``station=True`` for a reference
+    station (pressure and health only, under ``baromap/reference/<id>/``). Call
+    :meth:`follow_reference` before :meth:`start` for a robot that has a station.
+    """
+
+    def __init__(self, settings: LiveSettings, robot_id: str, *, station: bool = False) -> None:
+        self.settings = settings
+        self.keys = NodeKeys.reference(robot_id) if station else NodeKeys.robot(robot_id)
+        self._schedule = PublishSchedule(settings, station=station)
+        self._accepted = PublishSchedule.ACCEPTED
+        self._lock = threading.Lock()
+        self._wake = threading.Condition(self._lock)
+        self._urgent: collections.deque[object] = collections.deque()
+        self._bulk: collections.deque[object] = collections.deque()
+        self._bulk_max = settings.queue_size
+        self._counters = _Counters()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._state_payload: bytes | None = None
+        self._status = "disabled" if not settings.enabled else "stopped"
+        self._reference: ReferenceListener | None = None
+
+    # -- the daemon's side ---------------------------------------------------------------
+
+    def follow_reference(self, station: str, callback: Callable[[PressureSample], None]) -> None:
+        """Hand ``station``'s pressure samples to ``callback`` (called on a Zenoh thread)."""
+        if self._thread is not None:
+            raise ConfigError("follow_reference must be called before start()")
+        if self.keys.station:
+            raise ConfigError("a reference station does not follow another station")
+        self._reference = ReferenceListener(station, callback)
+
+    def start(self) -> None:
+        if not self.settings.enabled or self._thread is not None:
+            return
+        self._status = "connecting"
+        self._thread = threading.Thread(
+            target=self._run, name=f"zenoh-publisher-{self.keys.node}", daemon=True
+        )
+        self._thread.start()
+
+    def offer(self, message: object) -> None:
+        """Take a message for publishing; never blocks (a full queue drops it, counted)."""
+        with self._lock:
+            counters = self._counters
+            counters.offered += 1
+            if not isinstance(message, self._accepted) or self._thread is None:
+                counters.ignored += 1
+                return
+            if isinstance(message, (FloorEvent, FloorState)):
+                if len(self._urgent) >= URGENT_QUEUE:
+                    counters.dropped_urgent += 1
+                    return
+                self._urgent.append(message)
+            else:
+                if len(self._bulk) >= self._bulk_max:
+                    counters.dropped_bulk += 1
+                    return
+                self._bulk.append(message)
+            self._wake.notify()
+
+    def stop(self) -> None:
+        """Stop publishing and close the session (its liveliness token goes with it).
+
+        Waits at most ``stop_timeout_s``: a session closing while a handshake hangs can take
+        Zenoh's open timeout (10 s by default) to let go.
+        """
+        thread = self._thread
+        if thread is None:
+            return
+        self._stop.set()
+        with self._lock:
+            self._wake.notify()
+        thread.join(self.settings.stop_timeout_s)
+        if thread.is_alive():
+            log.warning(
+                "zenoh publisher did not stop in time", seconds=self.settings.stop_timeout_s
+            )
+        else:
+            self._thread = None
+
+    def health(self) -> Mapping[str, int | str]:
+        """Counters for the daemon's ``/diagnostics`` (cumulative since start)."""
+        with self._lock:
+            out: dict[str, int | str] = asdict(self._counters)
+            out["queued"] = len(self._urgent) + len(self._bulk)
+        out["state"] = self._status
+        out["mode"] = self.settings.mode.value
+        out["ignored_pressure"] = self._schedule.ignored_pressure
+        if self._reference is not None:
+            out.update(self._reference.counters())
+        return out
+
+    # -- the worker ----------------------------------------------------------------------
+
+    def _run(self) -> None:
+        session = None
+        try:
+            session = self._open()
+            if session is None:
+                return
+            self._serve(session)
+        except Exception:
+            # the worker must not die silently: say why, and let health show it stopped
+            log.exception("zenoh publisher failed")
+            self._status = "failed"
+        finally:
+            if session is not None:
+                close_session(session)
+            if self._status != "failed":
+                self._status = "stopped"
+
+    def _open(self) -> zenoh.Session | None:
+        """Open the session, retrying with capped backoff, while messages keep flowing."""
+        wait = RETRY_FIRST_S
+        while not self._stop.is_set():
+            try:
+                session = open_session(self.settings)
+            except LiveError as exc:
+                with self._lock:
+                    self._counters.open_failures += 1
+                    failures = self._counters.open_failures
+                if failures == 1:
+                    log.warning("zenoh session not open yet; retrying", error=str(exc))
+                deadline = time.monotonic() + wait
+                while not self._stop.is_set() and time.monotonic() < deadline:
+                    self._pump(None, timeout=deadline - time.monotonic())
+                wait = min(wait * 2.0, self.settings.retry_max_s)
+                continue
+            with self._lock:
+                self._counters.opened += 1
+            self._status = "open"
+            log.info("zenoh session open", node=self.keys.prefix, mode=self.settings.mode.value)
+            return session
+        return None
+
+    def _serve(self, session: zenoh.Session) -> None:
+        import zenoh
+
+        publishers = self._declare(session)
+        if not self.keys.station:
+            state_encoding = zenoh.Encoding(MEDIA_TYPE).with_schema(schema_of(Channel.STATE))
+            session.declare_queryable(
+                self.keys.key(Channel.STATE), lambda query: self._answer(query, state_encoding)
+            )
+        if self._reference is not None:
+            self._reference.declare(session)
+        # held while serving: a token that is dropped is undeclared, and the node looks dead
+        token = session.liveliness().declare_token(self.keys.key(Channel.ALIVE))
+        while not self._stop.is_set():
+            self._pump(publishers, timeout=None)
+        token.undeclare()  # type: ignore[no-untyped-call]
+
+    def _declare(self, session: zenoh.Session) -> dict[Channel, zenoh.Publisher]:
+        import zenoh
+
+        block, drop = zenoh.CongestionControl.BLOCK, zenoh.CongestionControl.DROP
+        qos = {
+            Channel.EVENT: (block, zenoh.Priority.INTERACTIVE_HIGH, True),
+            Channel.STATE: (block, zenoh.Priority.DATA_HIGH, False),
+            Channel.PRESSURE: (drop, zenoh.Priority.DATA, False),
+            Channel.HEALTH: (drop, zenoh.Priority.DATA_LOW, False),
+        }
+        publishers = {}
+        for channel, (congestion, priority, express) in qos.items():
+            if self.keys.station and channel in (Channel.EVENT, Channel.STATE):
+                continue
+            publishers[channel] = session.declare_publisher(
+                self.keys.key(channel),
+                encoding=zenoh.Encoding(MEDIA_TYPE).with_schema(schema_of(channel)),
+                congestion_control=congestion,
+                priority=priority,
+                express=express,
+            )
+        return publishers
+
+    def _pump(
+        self, publishers: dict[Channel, zenoh.Publisher] | None, *, timeout: float | None
+    ) -> None:
+        """Wait for messages or a period to end, then publish (or count unsent)."""
+        schedule = self._schedule
+        with self._lock:
+            if not (self._urgent or self._bulk or self._stop.is_set()):
+                due = schedule.next_due_ns()
+                wait = timeout
+                if due is not None:
+                    until_due = max(0.0, (due - time.monotonic_ns()) / 1e9)
+                    wait = until_due if wait is None else min(wait, until_due)
+                self._wake.wait(wait)
+            batch = list(self._urgent)
+            batch.extend(self._bulk)
+            self._urgent.clear()
+            self._bulk.clear()
+        now = time.monotonic_ns()
+        out: list[Outgoing] = []
+        for message in batch:
+            out.extend(schedule.offer(message, now))
+        out.extend(schedule.due(now))
+        self._publish(publishers, out)
+
+    def _publish(
+        self, publishers: dict[Channel, zenoh.Publisher] | None, out: list[Outgoing]
+    ) -> None:
+        published = errors = 0
+        for item in out:
+            payload = encode(item.message)
+            if item.channel is Channel.STATE:
+                self._state_payload = payload  # what the queryable answers from now on
+            if publishers is None:
+                continue
+            try:
+                publishers[item.channel].put(payload)
+                published += 1
+            except Exception as exc:  # zenoh.ZError; a closed session
+                errors += 1
+                if errors == 1:
+                    log.warning("zenoh publish failed", channel=item.channel.value, error=str(exc))
+        with self._lock:
+            counters = self._counters
+            counters.published += published
+            counters.publish_errors += errors
+            if publishers is None:
+                counters.unsent += len(out)
+
+    def _answer(self, query: zenoh.Query, encoding: zenoh.Encoding) -> None:
+        """The state queryable: the latest state, so a late subscriber knows the floor at once."""
+        payload = self._state_payload
+        with self._lock:
+            self._counters.queries += 1
+        if payload is not None:
+            query.reply(self.keys.key(Channel.STATE), payload, encoding=encoding)

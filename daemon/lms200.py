@@ -1,0 +1,203 @@
+"""The SICK LMS200 session: baud search, set-up, continuous scans, and back to 9600 on stop.
+
+The init sequence is the one mature drivers use (``shared/reference/protocols.md`` section 1):
+find the sensor's current baud by asking for its status at each speed (a sensor left
+streaming by an earlier run is found too: any telegram with a good CRC proves the speed),
+switch to the configured baud, stop streaming, read type and status, set units through the
+configuration block if they differ, set the variant, start continuous output.
+
+A scan's time is the receive time of its telegram's last byte minus the telegram's line time
+at the current baud: the sensor sends a scan as soon as the mirror has swept it. The sensor
+announces a power cycle with the power-on telegram ``90`` (it is back at 9600 baud, with its
+defaults); the session then sets it up again on the same port while the other devices keep
+recording.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Final
+
+import structlog
+
+from baromap.errors import DeviceError
+from baromap.protocols import lms200
+from baromap.protocols.framing import BadFrame
+from daemon.clock import transmission_ns
+from daemon.config import LaserConfig
+from daemon.session import DeviceRestarted, DeviceSession, wait_for
+
+log = structlog.get_logger(__name__)
+
+#: The sensor's power-on telegram ("LMS ready" after a reset or a power cycle).
+POWER_ON: Final = 0x90
+#: Speeds tried when looking for the sensor, after the configured one.
+SEARCH_BAUDS: Final = (9600, 38400, 19200, 500000)
+#: Longest reply of the init sequence (a status reply, with room), bytes.
+LONGEST_REPLY: Final = 900
+#: The sensor answers within about 60 ms; a telegram in flight may delay it by its own length.
+REPLY_WAIT_S: Final = 0.3
+#: After a baud switch the sensor needs a moment on the new speed (drivers wait 250 ms).
+BAUD_SETTLE_S: Final = 0.25
+HEADER_AND_CRC: Final = lms200.HEADER_BYTES + lms200.CRC_BYTES
+
+
+def wire_size(message: lms200.LmsMessage) -> int:
+    """Bytes a decoded item occupied on the line."""
+    if isinstance(message, lms200.ScanTelegram):
+        return HEADER_AND_CRC + 1 + 2 + 2 * message.beam_count + len(message.extra) + 1
+    if isinstance(message, lms200.Telegram):
+        return HEADER_AND_CRC + 1 + len(message.data) + (message.status is not None)
+    if isinstance(message, BadFrame):
+        return message.size
+    return 1  # ACK / NAK
+
+
+class Lms200Session(DeviceSession):
+    def __init__(self, config: LaserConfig, **kwargs: Any) -> None:
+        super().__init__("laser", port=config.port, baud=config.baud, retry=config.retry, **kwargs)
+        self.config = config
+        self.decoder = lms200.Decoder(at_boundary=False)
+        self._fed = 0
+        self._consumed = 0
+        self.streaming = False
+
+    # ---- handshake ----------------------------------------------------------------------------
+    def handshake(self) -> None:
+        self.streaming = False
+        self._find_baud()
+        # Switch even when the sensor answered at the configured speed: a sensor already there
+        # just confirms, and a line that carries any speed (a pty) is told the speed for sure.
+        self._switch_baud(self.config.baud)
+        self._mode(lms200.Mode.REQUEST, "stop continuous output")
+        type_string = lms200.parse_type_reply(self._request(lms200.type_request(), "type"))
+        status = lms200.parse_status_reply(self._request(lms200.status_request(), "status"))
+        if status is None:
+            raise DeviceError("status reply too short")
+        wanted_units = 1 if self.config.units == "mm" else 0
+        if status.units != wanted_units:
+            self._set_units(wanted_units)
+        reply = lms200.parse_variant_reply(
+            self._request(
+                lms200.set_variant(self.config.angle_deg, self.config.resolution_cdeg), "variant"
+            )
+        )
+        if reply is None or not reply.accepted:
+            raise DeviceError(
+                f"variant {self.config.angle_deg} deg / {self.config.resolution_cdeg / 100} deg "
+                "refused"
+            )
+        self._mode(lms200.Mode.CONTINUOUS, "start continuous output")
+        self.identity = {
+            "device": "SICK LMS200",
+            "type": type_string or "",
+            "software_version": status.software_version.strip(),
+            "prom_version": status.prom_version.strip(),
+            "baud": str(self.baud),
+            "variant": f"{self.config.angle_deg}deg/{self.config.resolution_cdeg / 100}deg",
+            "units": self.config.units,
+            "port": self.path,
+        }
+        self.streaming = True
+        self._fresh_decoder()
+
+    def _fresh_decoder(self) -> None:
+        self.decoder = lms200.Decoder(at_boundary=False)
+        self._fed = self._consumed = 0
+
+    def _find_baud(self) -> int:
+        order = [self.config.baud] + [b for b in SEARCH_BAUDS if b != self.config.baud]
+        for baud in order:
+            self.set_baud(baud)
+            self.discard_input()
+            self._fresh_decoder()
+            self.write(lms200.status_request())
+            wait = REPLY_WAIT_S + 2 * transmission_ns(LONGEST_REPLY, baud) / 1e9
+            if wait_for(self, self._any_telegram, wait) is not None:
+                log.info("laser found", baud=baud, port=self.path)
+                return baud
+        raise DeviceError(f"no LMS200 answers at {', '.join(map(str, order))} baud")
+
+    def _any_telegram(self, data: bytes, read_ns: int) -> bool | None:
+        for message in self.decoder.feed(data):
+            if isinstance(message, lms200.Telegram | lms200.ScanTelegram):
+                return True
+        return None
+
+    def _switch_baud(self, baud: int) -> None:
+        self._mode(lms200.BAUD_MODES[baud], f"switch to {baud} baud")
+        self.set_baud(baud)
+        self.sleep(BAUD_SETTLE_S)
+        self.discard_input()
+        self._fresh_decoder()
+        self.set_counter("baud", baud)
+
+    def _mode(self, mode: int, what: str, data: bytes = b"") -> None:
+        reply = self._request(lms200.set_mode(mode, data), what)
+        result = lms200.mode_result(reply)
+        if result != lms200.ModeResult.OK:
+            raise DeviceError(f"{what}: the sensor answered {result}")
+
+    def _set_units(self, units: int) -> None:
+        self._mode(lms200.Mode.INSTALLATION, "installation mode", lms200.INSTALLATION_PASSWORD)
+        current = lms200.LmsConfig.unpack(
+            self._request(lms200.config_request(), "read configuration").data
+        )
+        block = dataclasses.replace(current or lms200.LmsConfig(), units=units)
+        written = lms200.parse_config_write_reply(
+            self._request(lms200.set_config(block), "write configuration")
+        )
+        if written is None or not written[0]:
+            raise DeviceError("the sensor refused the units setting")
+
+    def _request(self, telegram: bytes, what: str, attempts: int = 3) -> lms200.Telegram:
+        """Send a command; its reply (command + 0x80), resending after a NAK or silence."""
+        expected = telegram[lms200.HEADER_BYTES] | 0x80
+        wait = REPLY_WAIT_S + 2 * transmission_ns(LONGEST_REPLY, self.baud) / 1e9
+        for _ in range(attempts):
+            self.write(telegram)
+            reply = wait_for(self, lambda data, _ns: self._reply(data, expected), wait)
+            if isinstance(reply, lms200.Telegram):
+                return reply
+        raise DeviceError(f"{what}: no reply at {self.baud} baud")
+
+    def _reply(self, data: bytes, expected: int) -> lms200.Telegram | bool | None:
+        for message in self.decoder.feed(data):
+            if isinstance(message, lms200.Nak):
+                return False  # resend
+            if isinstance(message, lms200.Telegram) and message.from_sensor:
+                if message.command == expected:
+                    return message
+                if message.command == lms200.Reply.INVALID_COMMAND:
+                    raise DeviceError(f"the sensor rejected command 0x{expected & 0x7F:02x}")
+        return None
+
+    # ---- streaming ----------------------------------------------------------------------------
+    def handle(self, data: bytes, read_ns: int) -> None:
+        self._fed += len(data)
+        for message in self.decoder.feed(data):
+            self._consumed += wire_size(message)
+            if isinstance(message, lms200.ScanTelegram):
+                self.good_frame()
+                end_ns = self.frame_end_ns(read_ns, min(len(data), self._fed - self._consumed))
+                start_ns = end_ns - transmission_ns(wire_size(message), self.baud)
+                scan = message.to_laser_scan(self.clock.unix_ns(start_ns))
+                self.publish(scan, read_ns)
+                if not message.sensor_status().healthy:
+                    self.count("status_not_ok")
+            elif isinstance(message, lms200.Telegram) and message.command == POWER_ON:
+                log.warning("laser power-on telegram: it was power-cycled", port=self.path)
+                raise DeviceRestarted("the sensor sent its power-on telegram (power cycle)")
+            elif isinstance(message, BadFrame):
+                self.bad_frame(message)
+            else:
+                self.good_frame()
+
+    def shutdown(self) -> None:
+        """Stop streaming and put the sensor back to 9600 baud, where it powers up."""
+        if self.streaming:
+            self._mode(lms200.Mode.REQUEST, "stop continuous output")
+        if self.config.restore_9600 and self.baud != 9600:
+            self._mode(lms200.Mode.BAUD_9600, "switch to 9600 baud")
+            self.set_baud(9600)
+        self.streaming = False

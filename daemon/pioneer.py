@@ -1,0 +1,207 @@
+"""The Pioneer (P2OS / ARCOS) session: SYNC0-2, model check, OPEN, PULSE, SIPs to odometry.
+
+The robot names itself in the SYNC2 echo (name, class, subclass) and the subclass decides the
+conversion factors, as ARIA and p2os_driver do: a P3-AT with an ARCOS controller (``p3at-sh``)
+counts millimetres, an old P2OS one (``p3at``) counts 0.465 mm, and the wrong set silently
+scales every map. So by default the model is taken from the subclass; a model pinned in the
+configuration that differs from what the robot reports is refused naming both, unless
+``allow_model_mismatch`` says it is deliberate.
+
+Motors are never enabled unless configured: the daemon records, the operator drives. A robot
+still open from a client that died answers SYNC0 with SIPs; the session then sends CLOSE and
+syncs again (p2os_driver's way). PULSE goes out after 500 ms without another command, well
+inside the robot's 2 s watchdog; CLOSE on stop.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Final
+
+import structlog
+
+from baromap.errors import ConfigError, DeviceError
+from baromap.odometry.integrator import OdometryIntegrator
+from baromap.protocols import p2os
+from baromap.protocols.framing import BadFrame
+from baromap.protocols.robot_models import RobotModel, find_model, select_model
+from daemon.config import BaseConfig
+from daemon.session import DeviceRefused, DeviceSession, wait_for
+
+log = structlog.get_logger(__name__)
+
+PULSE_EVERY_S: Final = 0.5
+ECHO_WAIT_S: Final = 0.6
+SYNC_ATTEMPTS: Final = 4
+#: Drivers give the robot this long to answer CONFIG; older firmware may not.
+CONFIG_WAIT_S: Final = 1.0
+FIRST_SIP_WAIT_S: Final = 1.5
+P2OS_OVERHEAD: Final = p2os.HEADER_BYTES + p2os.CHECKSUM_BYTES
+
+
+def choose_model(subclass: str, configured: str, allow_mismatch: bool) -> tuple[RobotModel, str]:
+    """The model to integrate odometry with, and a note for health and metadata.
+
+    ``configured`` is "auto" (the robot's subclass decides, as in ARIA) or a model name.
+    :func:`~baromap.protocols.robot_models.select_model` makes the choice; its refusals (a
+    pinned model the robot contradicts, a subclass without a parameter set) become
+    :class:`DeviceRefused`, retried at the longest delay: restarting cannot change them.
+    """
+    pinned = None if configured == "auto" else configured
+    try:
+        model = select_model(subclass, pinned, allow_mismatch=allow_mismatch)
+    except ConfigError as exc:
+        raise DeviceRefused(f"{exc} (base.model, base.allow_model_mismatch)") from None
+    reported = find_model(subclass)
+    if pinned is None:
+        return model, f"model {model.name} from the robot's subclass {subclass!r}"
+    if reported is model:
+        return model, f"model {model.name}, as configured and reported"
+    note = f"configured model {model.name} overrides the reported subclass {subclass!r}"
+    log.warning("robot model mismatch allowed by configuration", detail=note)
+    return model, note
+
+
+class PioneerSession(DeviceSession):
+    def __init__(self, config: BaseConfig, **kwargs: Any) -> None:
+        super().__init__("base", port=config.port, baud=config.baud, retry=config.retry, **kwargs)
+        self.config = config
+        self.decoder = p2os.Decoder()
+        self.integrator: OdometryIntegrator | None = None
+        self.model: RobotModel | None = None
+        self._fed = 0
+        self._consumed = 0
+        self._session_open = False
+        self._sips_seen = 0
+
+    # ---- handshake ----------------------------------------------------------------------------
+    def handshake(self) -> None:
+        self._session_open = False
+        self._sips_seen = 0
+        self.set_baud(self.config.baud)
+        self.discard_input()
+        self.decoder = p2os.Decoder()
+        info = self._sync()
+        model, note = choose_model(
+            info.subclass, self.config.model, self.config.allow_model_mismatch
+        )
+        self.model = model
+        self.integrator = OdometryIntegrator(model)
+        self.write(p2os.open_controller())
+        self._session_open = True
+        self.write(p2os.pulse())
+        self.write(p2os.config_request())
+        config = wait_for(self, self._find(p2os.ConfigPacket), CONFIG_WAIT_S)
+        if self.config.enable_motors:
+            self.write(p2os.enable_motors(True))
+        if (
+            not self._sips_seen
+            and wait_for(self, self._find(p2os.StandardSip), FIRST_SIP_WAIT_S) is None
+        ):
+            raise DeviceError("no SIP after OPEN")
+        self.identity = {
+            "device": "Pioneer (P2OS/ARCOS)",
+            "name": info.name,
+            "class": info.robot_class,
+            "subclass": info.subclass,
+            "model": model.name,
+            "dist_conv_factor": repr(model.dist_conv_factor),
+            "model_note": note,
+            "motors_enabled": str(self.config.enable_motors).lower(),
+            "port": self.path,
+        }
+        if isinstance(config, p2os.ConfigPacket):
+            for key in ("serial_number", "firmware_version", "watchdog_ms", "sip_cycle_ms"):
+                value = config.get(key)
+                if value is not None:
+                    self.identity[key] = str(value)
+        self._fed = self._consumed = 0
+        self.decoder = p2os.Decoder()
+
+    def _sync(self) -> p2os.Sync2Info:
+        for _ in range(SYNC_ATTEMPTS):
+            self.write(p2os.sync(0))
+            answer = wait_for(self, self._sync_answer(0), ECHO_WAIT_S)
+            if isinstance(answer, p2os.StandardSip):
+                log.info("robot still open from an earlier client: closing it", port=self.path)
+                self.write(p2os.close_controller())
+                self.sleep(0.3)
+                self.discard_input()
+                self.decoder = p2os.Decoder()
+                continue
+            if answer is None:
+                continue
+            self.write(p2os.sync(1))
+            if not isinstance(wait_for(self, self._sync_answer(1), ECHO_WAIT_S), p2os.SyncEcho):
+                continue
+            self.write(p2os.sync(2))
+            info = wait_for(self, self._sync_answer(2), ECHO_WAIT_S)
+            if isinstance(info, p2os.Sync2Info):
+                return info
+        raise DeviceError(f"no SYNC handshake at {self.baud} baud")
+
+    def _sync_answer(self, step: int) -> Any:
+        def feed(data: bytes, read_ns: int) -> Any:
+            for message in self.decoder.feed(data):
+                if isinstance(message, p2os.StandardSip) and step == 0:
+                    return message
+                if step == 2 and isinstance(message, p2os.Sync2Info):
+                    return message
+                if isinstance(message, p2os.SyncEcho) and message.step == step:
+                    return message
+            return None
+
+        return feed
+
+    def _find(self, kind: type) -> Any:
+        def feed(data: bytes, read_ns: int) -> Any:
+            found = None
+            for message in self.decoder.feed(data):
+                if isinstance(message, p2os.StandardSip):
+                    self._odometry(message, read_ns, read_ns)
+                if isinstance(message, kind) and found is None:
+                    found = message
+            return found
+
+        return feed
+
+    # ---- streaming ----------------------------------------------------------------------------
+    def handle(self, data: bytes, read_ns: int) -> None:
+        self._fed += len(data)
+        for message in self.decoder.feed(data):
+            self._consumed += (
+                message.size if isinstance(message, BadFrame) else P2OS_OVERHEAD + _body(message)
+            )
+            if isinstance(message, BadFrame):
+                self.bad_frame(message)
+                continue
+            self.good_frame()
+            if isinstance(message, p2os.StandardSip):
+                end = self.frame_end_ns(read_ns, min(len(data), self._fed - self._consumed))
+                self._odometry(message, end, read_ns)
+
+    def _odometry(self, sip: p2os.StandardSip, end_ns: int, read_ns: int) -> None:
+        if self.integrator is None:
+            return
+        self.good_frame()
+        self._sips_seen += 1
+        self.set_counter("battery_dv", round(sip.battery_v * 10))
+        self.publish(self.integrator.update(sip, self.clock.unix_ns(end_ns)), read_ns)
+
+    def keepalive(self) -> None:
+        if self._session_open and self.since_write_s() >= PULSE_EVERY_S:
+            self.write(p2os.pulse())
+
+    def shutdown(self) -> None:
+        if self._session_open:
+            if self.config.enable_motors:
+                self.write(p2os.stop())
+            self.write(p2os.close_controller())
+        self._session_open = False
+
+
+def _body(message: Any) -> int:
+    """Data bytes of a decoded robot packet (for the byte position of its end)."""
+    try:
+        return len(message.encode()) - P2OS_OVERHEAD
+    except Exception:
+        return 0

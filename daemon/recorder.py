@@ -1,0 +1,266 @@
+"""The recorder: one writer thread fed by a bounded queue, rotating files, guarding the disk.
+
+It uses the library's :class:`~baromap.recording.RecordingWriter` for everything MCAP; what it
+adds is what a long unattended run needs:
+
+- Durability: every ``flush_interval_s`` the current chunk is closed and the file fsynced, so a
+  power cut or SIGKILL loses at most about that much.
+- Rotation by size and duration. One thread writes in order, so a split falls between two
+  messages: nothing is lost or written twice. Each file is self-contained: it starts with the
+  run's metadata record and every device identity known so far.
+- A disk guard: below ``min_free_mb`` free the file is finished and writing pauses (the drops
+  are counted, health and logs say why); it resumes into a new file with 20 % headroom.
+- Latency: from the read of a frame's last byte to the message reaching this thread.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import threading
+import time
+from collections import Counter
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Final
+
+import structlog
+
+from baromap import messages
+from baromap.errors import BaromapError
+from baromap.recording import RecordingWriter
+from baromap.recording.writer import DEFAULT_TOPICS
+from daemon.config import RecordingConfig
+from daemon.fanout import QueueWorker
+
+log = structlog.get_logger(__name__)
+
+MB: Final = 1_000_000
+RESUME_HEADROOM: Final = 1.2
+#: Latency histogram: 20 us bins up to 200 ms, then one overflow bin.
+LATENCY_BIN_NS: Final = 20_000
+LATENCY_BINS: Final = 10_000
+
+
+class LatencyHistogram:
+    """Fixed-bin latency histogram: O(1) per sample, percentiles on demand."""
+
+    def __init__(self) -> None:
+        self.bins = [0] * (LATENCY_BINS + 1)
+        self.count = 0
+        self.max_ns = 0
+
+    def add(self, latency_ns: int) -> None:
+        index = min(max(latency_ns, 0) // LATENCY_BIN_NS, LATENCY_BINS)
+        self.bins[index] += 1
+        self.count += 1
+        self.max_ns = max(self.max_ns, latency_ns)
+
+    def percentile_ns(self, q: float) -> int:
+        """Upper edge of the bin holding the q-th percentile (0 with no samples)."""
+        if not self.count:
+            return 0
+        target = q / 100.0 * self.count
+        seen = 0
+        for index, n in enumerate(self.bins):
+            seen += n
+            if seen >= target:
+                return min((index + 1) * LATENCY_BIN_NS, max(self.max_ns, LATENCY_BIN_NS))
+        return self.max_ns
+
+
+class Recorder(QueueWorker):
+    """Writes everything offered into rotating MCAP files under ``config.directory``."""
+
+    def __init__(
+        self,
+        config: RecordingConfig,
+        *,
+        robot: str,
+        metadata: Mapping[str, str],
+        run_name: str,
+    ) -> None:
+        super().__init__("recorder", config.queue_size, idle_s=min(0.2, config.flush_interval_s))
+        self.config = config
+        self.robot = robot
+        self.metadata = dict(metadata)
+        self.run_name = run_name
+        self.files: list[Path] = []
+        self.written: Counter[str] = Counter()
+        self.latency: dict[str, LatencyHistogram] = {}
+        self._writer: RecordingWriter | None = None
+        self._opened_ns = 0
+        self._last_flush_ns = 0
+        self._devices: dict[str, dict[str, str]] = {}
+        self._pending_devices: dict[str, dict[str, str]] = {}
+        self._lock = threading.Lock()
+        self.paused: str | None = None  # why writing is paused (disk guard, write error)
+        self.lost: Counter[str] = Counter()
+
+    # ---- from other threads -----------------------------------------------------------------
+    def set_device_metadata(self, device: str, data: Mapping[str, str]) -> None:
+        """Record a device's identity (now, and at the start of every later file)."""
+        with self._lock:
+            self._pending_devices[device] = dict(data)
+
+    def health(self, t_ns: int) -> messages.DeviceHealth:
+        counters: dict[str, int] = {
+            "messages": sum(self.written.values()),
+            "files": len(self.files),
+        }
+        counters.update({f"dropped_queue_{k}": v for k, v in self.dropped.items()})
+        counters.update({f"dropped_paused_{k}": v for k, v in self.lost.items()})
+        counters["backlog"] = self.backlog
+        for topic, hist in list(self.latency.items()):
+            counters[f"latency_p99_us{topic}"] = hist.percentile_ns(99) // 1000
+        if self.error:
+            state, detail = messages.DeviceState.DOWN, f"writer thread failed: {self.error}"
+        elif self.paused:
+            state, detail = messages.DeviceState.DOWN, self.paused
+        elif self.dropped:
+            state, detail = messages.DeviceState.DEGRADED, "queue overflowed: messages dropped"
+        else:
+            current = self.files[-1].name if self.files else "none yet"
+            state, detail = messages.DeviceState.UP, f"recording {current}"
+        return messages.DeviceHealth(
+            t_ns, "recorder", state, str(self.config.directory), detail, counters
+        )
+
+    # ---- the writer thread --------------------------------------------------------------------
+    def started(self) -> None:
+        self._open()
+
+    def handle(self, message: messages.Message, received_ns: int | None) -> None:
+        now = time.monotonic_ns()
+        topic = _topic(message)
+        if received_ns is not None:
+            hist = self.latency.get(topic)
+            if hist is None:
+                hist = self.latency[topic] = LatencyHistogram()
+            hist.add(now - received_ns)
+        if self._writer is None:
+            self.lost[type(message).__name__] += 1
+            return
+        if self._rotation_due(now):
+            self._rotate("rotation")
+        try:
+            assert self._writer is not None
+            self._writer.write(message)
+            self.written[topic] += 1
+        except (BaromapError, OSError) as exc:
+            self.lost[type(message).__name__] += 1
+            self._pause(f"write failed: {exc}")
+
+    def idle(self) -> None:
+        self._write_pending_devices()
+        now = time.monotonic_ns()
+        if now - self._last_flush_ns >= self.config.flush_interval_s * 1e9:
+            self._last_flush_ns = now
+            if self._writer is not None:
+                self._flush()
+            self._guard_disk()
+
+    def finished(self) -> None:
+        self._close()
+
+    # ---- files -------------------------------------------------------------------------------
+    def _path(self) -> Path:
+        return self.config.directory / f"{self.run_name}_{len(self.files):03d}.mcap"
+
+    def _open(self) -> None:
+        path = self._path()
+        header = dict(self.metadata)
+        header["part"] = str(len(self.files))
+        header["run"] = self.run_name
+        try:
+            self._writer = RecordingWriter(path, robot=self.robot, metadata=header)
+        except (BaromapError, OSError) as exc:
+            self._writer = None
+            self._pause(f"cannot open {path}: {exc}")
+            return
+        self.files.append(path)
+        self._opened_ns = time.monotonic_ns()
+        self._last_flush_ns = self._opened_ns
+        with self._lock:
+            self._pending_devices = {**self._devices, **self._pending_devices}
+        self._write_pending_devices()
+        log.info("recording file opened", path=str(path), part=len(self.files) - 1)
+
+    def _close(self) -> None:
+        writer, self._writer = self._writer, None
+        if writer is None:
+            return
+        try:
+            writer.close()
+            _fsync(writer.path)
+        except (BaromapError, OSError) as exc:
+            log.error("closing the recording failed", path=str(writer.path), error=str(exc))
+
+    def _rotate(self, why: str) -> None:
+        log.info("rotating recording", reason=why)
+        self._close()
+        self._open()
+
+    def _rotation_due(self, now_ns: int) -> bool:
+        if now_ns - self._opened_ns >= self.config.rotate_minutes * 60e9:
+            return True
+        return bool(self.files) and self._size() >= self.config.rotate_size_mb * MB
+
+    def _size(self) -> int:
+        try:
+            return self.files[-1].stat().st_size
+        except OSError:
+            return 0
+
+    def _flush(self) -> None:
+        assert self._writer is not None
+        try:
+            self._writer.flush()
+            _fsync(self._writer.path)
+        except (BaromapError, OSError) as exc:
+            self._pause(f"flush failed: {exc}")
+
+    def _write_pending_devices(self) -> None:
+        with self._lock:
+            pending, self._pending_devices = self._pending_devices, {}
+            self._devices.update(pending)
+        if self._writer is None:
+            return
+        for device, data in pending.items():
+            try:
+                self._writer.write_metadata(f"baromap.device.{device}", data)
+            except (BaromapError, OSError) as exc:
+                log.error("device metadata not written", device=device, error=str(exc))
+
+    def _free_mb(self) -> float:
+        try:
+            return shutil.disk_usage(self.config.directory).free / MB
+        except OSError:
+            return float("inf")
+
+    def _guard_disk(self) -> None:
+        free = self._free_mb()
+        limit = self.config.min_free_mb
+        if self._writer is not None and free < limit:
+            self._pause(f"disk guard: {free:.0f} MB free, below min_free_mb {limit:g}")
+        elif self._writer is None and free >= limit * RESUME_HEADROOM:
+            log.info("recording resumes", free_mb=round(free))
+            self.paused = None
+            self._open()
+
+    def _pause(self, why: str) -> None:
+        log.error("recording paused", reason=why)
+        self.paused = why
+        self._close()
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _topic(message: messages.Message) -> str:
+    return DEFAULT_TOPICS.get(type(message), type(message).__name__)

@@ -1,0 +1,351 @@
+"""One device session: a port, a reader thread, a handshake, health, and recovery.
+
+The abstract :class:`DeviceSession` does everything the three devices share, the way
+python-can's ``BusABC`` does for CAN interfaces: it opens the port through
+``serial.serial_for_url`` (so tests pass a pty path or ``loop://``), reads with a short
+timeout, writes, closes, keeps health and counters, and recovers. A driver implements only
+its raw operations: :meth:`handshake` (find the device and set it up), :meth:`handle` (bytes
+in, messages out), :meth:`keepalive` and :meth:`shutdown`.
+
+Why one thread per device: blocking reads with a short timeout are the simplest code to
+reason about (a handshake is a straight sequence of write, wait-for-reply), a stuck or slow
+device cannot stall another, and the work per byte is small enough that three threads cost
+less than the event loop machinery (see ``docs/daemon.md``).
+
+Recovery: any failure (the port vanished, a handshake that got no answer, a line of garbage,
+a silent device) closes the port, marks the session DOWN with the reason, and retries with
+capped exponential backoff; the port is resolved again on every attempt, so a replug at the
+same path or the same USB identity at a new path is picked up. A device that announces a
+restart (the LMS200's power-on telegram, a barometer board's reset) is set up again on the
+same port at once.
+"""
+
+from __future__ import annotations
+
+import abc
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Mapping
+from typing import Any, Final
+
+import serial
+import structlog
+
+from baromap.discovery import resolve_port
+from baromap.errors import BaromapError, DeviceError
+from baromap.messages import DeviceHealth, DeviceState, Message
+from baromap.protocols.framing import BadFrame
+from daemon.clock import HostClock, transmission_ns
+from daemon.config import Retry
+
+log = structlog.get_logger(__name__)
+
+#: Longest a read blocks: bounds how late a keepalive or a stop request is noticed.
+READ_TIMEOUT_S: Final = 0.05
+#: A bad frame this recent makes an UP device DEGRADED.
+DEGRADED_HOLD_NS: Final = 5_000_000_000
+
+Publish = Callable[[Message, int], None]
+"""(message, host monotonic ns at which its last byte was read)."""
+Identify = Callable[[str, Mapping[str, str]], None]
+
+
+class DeviceRestarted(Exception):
+    """The device announced a restart: set it up again on the same port, without backoff."""
+
+
+class DeviceRefused(DeviceError):
+    """The device answered but must not be used as configured (retried at the longest delay)."""
+
+
+class DeviceSession(abc.ABC):
+    """A device on a serial port, served by its own reader thread."""
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        port: str,
+        baud: int,
+        retry: Retry,
+        clock: HostClock,
+        publish: Publish,
+        identify: Identify | None = None,
+        resolve: Callable[[str], str] = resolve_port,
+    ) -> None:
+        self.name = name
+        self.port_spec = port
+        self.baud = baud
+        self.retry = retry
+        self.clock = clock
+        self._publish = publish
+        self._identify = identify
+        self._resolve = resolve
+        self._serial: serial.SerialBase | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+        self.state = DeviceState.STARTING
+        self.detail = "not started"
+        self.path = ""
+        self.counters: Counter[str] = Counter()
+        self.identity: dict[str, str] = {}
+        self.heartbeat_ns = time.monotonic_ns()
+        self._last_good_ns = 0
+        self._last_bad_ns = 0
+        self._bytes_since_good = 0
+        self._last_write_ns = 0
+        self._in_shutdown = False
+
+    # ---- lifetime ---------------------------------------------------------------------------
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name=f"baromapd-{self.name}")
+        self._thread.start()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            self._thread = None
+
+    @property
+    def alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
+    def stopping(self) -> bool:
+        """Asked to stop, and not in the polite shutdown sequence that follows."""
+        return self._stop.is_set() and not self._in_shutdown
+
+    # ---- health -----------------------------------------------------------------------------
+    def health(self, t_ns: int) -> DeviceHealth:
+        with self._lock:
+            state, detail = self.state, self.detail
+            counters = dict(self.counters)
+        if state is DeviceState.UP and time.monotonic_ns() - self._last_bad_ns < DEGRADED_HOLD_NS:
+            bad = sum(v for k, v in counters.items() if k.startswith("bad_"))
+            state, detail = DeviceState.DEGRADED, f"{bad} bad frames so far, one in the last 5 s"
+        return DeviceHealth(t_ns, self.name, state, self.path, detail, counters)
+
+    def _set_state(self, state: DeviceState, detail: str) -> None:
+        with self._lock:
+            changed = state is not self.state or detail != self.detail
+            self.state, self.detail = state, detail
+        if changed:
+            # Recorded at once: a state can be shorter than the once-a-second health beat.
+            self._publish(self.health(self.clock.now_unix_ns()), time.monotonic_ns())
+            failed = state is DeviceState.DOWN and detail != "stopped"
+            level = log.warning if failed else log.info
+            level(
+                "device state", device=self.name, state=state.value, detail=detail, port=self.path
+            )
+
+    def count(self, key: str, n: int = 1) -> None:
+        with self._lock:
+            self.counters[key] += n
+
+    def set_counter(self, key: str, value: int) -> None:
+        with self._lock:
+            self.counters[key] = value
+
+    # ---- raw operations for drivers -----------------------------------------------------------
+    def read(self) -> tuple[bytes, int]:
+        """What arrived within the read timeout, and the monotonic ns when the read returned."""
+        port = self._port()
+        data = port.read(1)
+        if data:
+            waiting = port.in_waiting
+            if waiting:
+                data += port.read(waiting)
+        now = time.monotonic_ns()
+        self.heartbeat_ns = now
+        if data:
+            self.count("bytes_in", len(data))
+            self._bytes_since_good += len(data)
+        return data, now
+
+    def write(self, data: bytes) -> None:
+        self._port().write(data)
+        self._last_write_ns = time.monotonic_ns()
+
+    def set_baud(self, baud: int) -> None:
+        self._port().baudrate = baud
+        self.baud = baud
+
+    def discard_input(self) -> None:
+        self._port().reset_input_buffer()
+
+    def sleep(self, seconds: float) -> None:
+        """Wait, but wake for a stop request (handshake pauses)."""
+        if self._in_shutdown:
+            time.sleep(seconds)
+        elif self._stop.wait(seconds):
+            raise _Stopping
+        self.heartbeat_ns = time.monotonic_ns()
+
+    def frame_end_ns(self, read_ns: int, bytes_after: int) -> int:
+        """When a frame's last byte arrived, given how many bytes followed it in the read."""
+        return read_ns - transmission_ns(max(0, bytes_after), self.baud)
+
+    def good_frame(self) -> None:
+        self._last_good_ns = time.monotonic_ns()
+        self._bytes_since_good = 0
+
+    def bad_frame(self, bad: BadFrame) -> None:
+        self.count(f"bad_{bad.reason}")
+        self._last_bad_ns = time.monotonic_ns()
+
+    def publish(self, message: Message, read_ns: int) -> None:
+        self.count("messages")
+        self._publish(message, read_ns)
+
+    def since_write_s(self) -> float:
+        return (time.monotonic_ns() - self._last_write_ns) / 1e9
+
+    # ---- what a driver implements ------------------------------------------------------------
+    @abc.abstractmethod
+    def handshake(self) -> None:
+        """Find the device on the open port and set it up; raise DeviceError if it fails.
+
+        Sets :attr:`identity` (recorded in the recording's metadata).
+        """
+
+    @abc.abstractmethod
+    def handle(self, data: bytes, read_ns: int) -> None:
+        """Decode bytes read at ``read_ns``; publish messages; may raise DeviceRestarted."""
+
+    def keepalive(self) -> None:  # noqa: B027 (optional hook, most devices need none)
+        """Called after every read: send what the device needs to stay awake."""
+
+    def shutdown(self) -> None:  # noqa: B027 (optional hook)
+        """Leave the device as it would like to be found (best effort, port still open)."""
+
+    # ---- the reader thread -------------------------------------------------------------------
+    def _port(self) -> serial.SerialBase:
+        if self._serial is None:
+            raise DeviceError(f"{self.name}: port is not open")
+        return self._serial
+
+    def _open(self) -> None:
+        self.path = self._resolve(self.port_spec)
+        try:
+            self._serial = serial.serial_for_url(
+                self.path,
+                baudrate=self.baud,
+                timeout=READ_TIMEOUT_S,
+                write_timeout=1.0,
+                exclusive=True,
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise DeviceError(f"cannot open {self.path}: {exc}") from exc
+
+    def _close(self) -> None:
+        port, self._serial = self._serial, None
+        if port is not None:
+            try:
+                port.close()
+            except (serial.SerialException, OSError) as exc:
+                log.debug("close failed", device=self.name, error=str(exc))
+
+    def _run(self) -> None:
+        delay = self.retry.initial_s
+        log.info("device session started", device=self.name, port=self.port_spec)
+        try:
+            while not self._stop.is_set():
+                reason, was_up = self._connect_and_stream()
+                if reason is None:
+                    break
+                if was_up:
+                    delay = self.retry.initial_s
+                self.count("failures")
+                self._set_state(DeviceState.DOWN, reason)
+                wait = self.retry.max_s if reason.startswith("refused") else delay
+                deadline = time.monotonic() + wait
+                while not self._stop.is_set() and time.monotonic() < deadline:
+                    self._stop.wait(min(0.2, max(0.0, deadline - time.monotonic())))
+                    self.heartbeat_ns = time.monotonic_ns()
+                delay = min(delay * 2.0, self.retry.max_s)
+        finally:
+            self._close()
+            self._set_state(DeviceState.DOWN, "stopped")
+
+    def _connect_and_stream(self) -> tuple[str | None, bool]:
+        """One connection: (None when asked to stop, else why it ended; whether it was up)."""
+        up = False
+        try:
+            self._set_state(DeviceState.STARTING, f"opening {self.port_spec}")
+            self._open()
+            while True:
+                self._set_state(DeviceState.STARTING, self.detail if up else "handshake")
+                self.handshake()
+                self.count("connects")
+                self._publish_identity()
+                self._set_state(DeviceState.UP, "streaming")
+                self.good_frame()
+                up = True
+                try:
+                    self._stream()
+                    return None, up
+                except DeviceRestarted as exc:
+                    self.count("restarts")
+                    self._set_state(DeviceState.STARTING, f"re-initialising: {exc}")
+        except _Stopping:
+            return None, up
+        except DeviceRefused as exc:
+            return f"refused: {exc}", up
+        except (serial.SerialException, OSError) as exc:
+            return f"port failed (unplugged?): {exc}", up
+        except BaromapError as exc:
+            return str(exc), up
+        finally:
+            if self._stop.is_set() and self._serial is not None and up:
+                self._in_shutdown = True
+                try:
+                    self.shutdown()
+                except (BaromapError, serial.SerialException, OSError) as exc:
+                    log.warning("shutdown sequence failed", device=self.name, error=str(exc))
+                finally:
+                    self._in_shutdown = False
+            self._close()
+
+    def _stream(self) -> None:
+        retry = self.retry
+        while not self._stop.is_set():
+            data, read_ns = self.read()
+            if data:
+                self.handle(data, read_ns)
+            self.keepalive()
+            quiet_s = (read_ns - self._last_good_ns) / 1e9
+            if quiet_s > retry.garbage_s and self._bytes_since_good > 0:
+                raise DeviceError(
+                    f"garbage: {self._bytes_since_good} bytes and no good frame for {quiet_s:.1f} s"
+                )
+            if quiet_s > retry.silence_s:
+                raise DeviceError(f"silent: no data for {quiet_s:.1f} s")
+
+    def _publish_identity(self) -> None:
+        if self._identify is not None and self.identity:
+            self._identify(self.name, dict(self.identity))
+
+
+class _Stopping(Exception):
+    """Raised out of a handshake pause when the daemon stops."""
+
+
+def wait_for(
+    session: DeviceSession,
+    feed: Callable[[bytes, int], Any],
+    timeout_s: float,
+) -> Any:
+    """Read and ``feed`` until it returns something other than None, or time out (None)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if session.stopping:
+            raise _Stopping
+        data, read_ns = session.read()
+        if data:
+            found = feed(data, read_ns)
+            if found is not None:
+                return found
+    return None

@@ -1,0 +1,63 @@
+"""Clocks: one Unix mapping of the monotonic clock; the barometer's clock fitted to it."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from daemon.clock import DeviceClockFit, HostClock, transmission_ns
+
+
+def test_a_wall_clock_step_after_start_changes_nothing() -> None:
+    wall = [1_700_000_000_000_000_000]
+    mono = [5_000_000_000]
+    clock = HostClock(wall_ns=lambda: wall[0], mono_ns=lambda: mono[0])
+    before = clock.unix_ns(mono[0] + 1_000_000_000)
+    wall[0] -= 3600 * 10**9  # someone sets the date back an hour
+    assert clock.unix_ns(mono[0] + 1_000_000_000) == before
+    assert before == 1_700_000_001_000_000_000
+
+
+def test_line_time_at_8n1() -> None:
+    assert transmission_ns(372, 500000) == 7_440_000
+    assert transmission_ns(12, 115200) == 1_041_666
+
+
+def _receive_times(
+    rng: np.random.Generator, n: int, rate_hz: float, skew_ppm: float, start_us: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Device stamps (u32, wrapping), true host times and receive times (delays >= 0)."""
+    true_ns = 1_000_000_000 + np.arange(n) * round(1e9 / rate_hz)
+    device_us = start_us + np.round((true_ns - true_ns[0]) / 1000 * (1 + skew_ppm * 1e-6))
+    delays = rng.exponential(1.5e6, n) + rng.uniform(0, 2e6, n)  # USB and scheduling, 0..10 ms
+    return device_us.astype(np.int64) % 2**32, true_ns, true_ns + delays.astype(np.int64)
+
+
+def test_the_fit_recovers_true_times_through_jitter_skew_and_a_wrap() -> None:
+    rng = np.random.default_rng(7)
+    # 5000 ppm: a ceramic resonator's worst case; starts 20 s before the u32 wrap.
+    raw, true_ns, received = _receive_times(rng, 50 * 120, 50, 5000, 2**32 - 20_000_000)
+    fit = DeviceClockFit()
+    estimates = np.array([fit.update(int(r), int(h)) for r, h in zip(raw, received, strict=True)])
+    errors = np.abs(estimates - true_ns)[50 * 30 :] / 1e6  # after 30 s of warm-up
+    naive = (received - true_ns)[50 * 30 :] / 1e6
+    assert np.percentile(errors, 99) < 1.0  # ms; the receive times themselves are ~3 ms late
+    assert np.percentile(naive, 50) > 2.0
+    assert fit.resets == 0  # the wrap was unwrapped, not taken for a reset
+    assert abs(fit.skew_ppm - 5000 / 1.005) < 50  # against the host: 4975 ppm
+    assert np.all(estimates <= received)  # never later than the frame arrived
+    assert np.all(np.diff(estimates) > 0)
+
+
+def test_a_device_reset_restarts_the_fit() -> None:
+    rng = np.random.default_rng(1)
+    raw, true_ns, received = _receive_times(rng, 1000, 50, 100, 40_000_000)
+    fit = DeviceClockFit()
+    for r, h in zip(raw[:500], received[:500], strict=True):
+        fit.update(int(r), int(h))
+    # The board resets: its clock starts again near zero while host time goes on.
+    after = [
+        fit.update(int(r - raw[500] + 1000), int(h))
+        for r, h in zip(raw[500:], received[500:], strict=True)
+    ]
+    assert fit.resets == 1
+    assert abs(after[-1] - true_ns[-1]) < 3_000_000

@@ -1,0 +1,86 @@
+"""``baromapd --check-config``: every problem named with its key and a hint, exit 2."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from daemon.config import ConfigProblems, parse_config
+from daemon.main import main
+
+REPO = Path(__file__).resolve().parents[2]
+EXAMPLE = REPO / "systemd" / "baromapd.toml"
+
+
+def test_the_example_configuration_is_valid(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--check-config", str(EXAMPLE)]) == 0
+    out = capsys.readouterr().out
+    assert "laser" in out and "base" in out and "barometer" in out
+
+
+def test_an_unknown_key_and_a_bad_baud_exit_2_naming_both(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(
+        'robot = "r1"\n[laser]\nport = "/dev/ttyUSB0"\nbaud = 57600\n'
+        '[barometer]\nport = "/dev/ttyACM0"\nrate_hz_typo = 50\n'
+    )
+    assert main(["--check-config", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "laser.baud" in err and "57600" in err
+    assert "barometer.rate_hz_typo: unknown key" in err
+    assert "known here:" in err  # a hint with each problem
+
+
+def test_every_problem_is_reported_at_once() -> None:
+    with pytest.raises(ConfigProblems) as caught:
+        parse_config(
+            'role = "boat"\nmystery = 1\n[recording]\nflush_interval_s = 5\n'
+            '[laser]\nport = "COM3"\nresolution_deg = 0.25\n'
+            '[base]\nport = "/dev/ttyUSB1"\nmodel = "p4at"\n'
+            '[barometer]\nport = "/dev/ttyUSB1"\noversampling = 3\n'
+            "[floors]\nmin_transition_m = -1\n"
+        )
+    keys = {p.key for p in caught.value.problems}
+    assert keys >= {
+        "robot",
+        "role",
+        "mystery",
+        "recording.flush_interval_s",
+        "laser.port",
+        "laser.resolution_deg",
+        "base.model",
+        "barometer.port",
+        "barometer.oversampling",
+        "floors",
+    }
+
+
+def test_values_reach_the_configuration() -> None:
+    config = parse_config(
+        'robot = "r1"\n[laser]\nport = "0403:6001:AB12"\nbaud = 500000\nunits = "cm"\n'
+        "resolution_deg = 0.5\nmount = { x_m = 0.16, yaw_deg = 90 }\n"
+        '[base]\nport = "/dev/baromap-base"\nmodel = "P3-AT-SH"\n'
+        '[zenoh]\nmode = "peer"\n[reference]\nstation = "roof"\n'
+    )
+    assert config.laser is not None and config.base is not None
+    assert (config.laser.baud, config.laser.units, config.laser.resolution_cdeg) == (
+        500000,
+        "cm",
+        50,
+    )
+    assert config.laser.mount.x_m == 0.16
+    assert config.laser.mount.yaw_rad == pytest.approx(1.5707963)
+    assert config.barometer is None
+    assert config.zenoh == {"mode": "peer"}  # reserved tables pass through unparsed
+    assert config.reference == {"station": "roof"}
+    assert config.role == "robot"
+
+
+def test_a_station_records_a_barometer_only() -> None:
+    with pytest.raises(ConfigProblems, match="role"):
+        parse_config('robot = "roof"\nrole = "station"\n[laser]\nport = "/dev/ttyUSB0"\n')
+    config = parse_config('robot = "roof"\nrole = "station"\n[barometer]\nport = "/dev/ttyACM0"\n')
+    assert config.role == "station"
