@@ -69,6 +69,7 @@ def model_from_metadata(metadata: Mapping[str, Mapping[str, str]]) -> RobotModel
     model = find_model(record["model"])
     if model is None:
         raise InputFormatError(f"the recording's robot model {record['model']!r} is unknown")
+
     def factor(field: str, default: float) -> float:
         if field not in record:
             return default
