@@ -37,6 +37,8 @@ def sniff(path: str | Path) -> str:
         raise InputFormatError(f"cannot read {path}: {exc}") from exc
     if head.startswith(MCAP_MAGIC):
         return "mcap"
+    if Path(path).suffix.lower() == ".mcap":
+        raise InputFormatError(f"{path} is named .mcap but is not an MCAP file (no MCAP magic)")
     if looks_like_ipin(head.decode("utf-8", errors="replace")):
         return "ipin"
     return "csv"
