@@ -57,26 +57,38 @@ odometry = st.builds(
     raw_y=st.integers(0, 0x7FFF),
     raw_theta=st.integers(-2048, 4095),
 )
+names = st.text(max_size=12)
 floor_event = st.builds(
     m.FloorEvent,
     t_ns=stamps,
+    event_id=st.integers(1, 2**53),
+    kind=st.sampled_from(m.FloorEventKind),
+    replaces=st.none() | st.integers(1, 2**53),
     t_start_ns=stamps,
     t_end_ns=stamps,
-    from_floor=st.integers(-5, 50),
-    to_floor=st.integers(-5, 50),
+    from_id=st.integers(0, 50),
+    to_id=st.integers(0, 50),
+    from_name=names,
+    to_name=names,
+    height_m=finite,
     delta_pa=finite,
     delta_m=finite,
     level_pa=finite,
+    at_end=st.booleans(),
 )
 floor_state = st.builds(
     m.FloorState,
     t_ns=stamps,
-    floor=st.none() | st.integers(0, 50),
     phase=st.sampled_from(m.FloorPhase),
+    floor_id=st.none() | st.integers(0, 50),
+    name=st.none() | names,
+    height_m=finite,
+    level_m=finite,
     level_pa=finite,
-    elevation_m=finite,
-    floors_known=st.integers(0, 50),
     since_ns=stamps,
+    floors_known=st.integers(0, 50),
+    stop_floor_id=st.none() | st.integers(0, 50),
+    stop_name=st.none() | names,
 )
 health = st.builds(
     m.DeviceHealth,
@@ -567,4 +579,4 @@ def test_detect_calls_a_false_mcap_what_it_is(
     fake = tmp_path / "run.mcap"
     fake.write_text("time_s,pressure_pa\n0,101325\n")
     assert main(["detect", str(fake)]) == 1
-    assert "not an MCAP file" in capsys.readouterr().err
+    assert "is named .mcap but is not an MCAP" in capsys.readouterr().err
