@@ -21,6 +21,8 @@ from daemon.fanout import QueueWorker
 log = structlog.get_logger(__name__)
 
 STATE_EVERY_NS: Final = NS_PER_S
+#: Marks a reference station's sample in the queue (where a received time would be).
+REFERENCE: Final = -1
 
 
 class FloorTracker(QueueWorker):
@@ -42,8 +44,15 @@ class FloorTracker(QueueWorker):
     def offer_received(self, message: Message, received_ns: int) -> None:
         self.offer(message)
 
+    def offer_reference(self, sample: PressureSample) -> None:
+        """A reference station's sample (from the live subscriber's thread); never blocks."""
+        self._put((sample, REFERENCE))
+
     def handle(self, message: Message, received_ns: int | None) -> None:
         assert isinstance(message, PressureSample)
+        if received_ns == REFERENCE:
+            self.detector.update_reference(message)
+            return
         events = self.detector.update(message)
         for event in events:
             self.events += 1
