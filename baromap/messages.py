@@ -167,45 +167,97 @@ class Odometry:
     raw_theta: int = 0
 
 
+class FloorEventKind(enum.StrEnum):
+    """Whether an event is a new decision or the revision of an earlier one."""
+
+    #: A floor change, decided once the robot's stop at the new level counts as a visit.
+    TRANSITION = "transition"
+    #: A revised version of the transition named by ``replaces`` (a trip that went on past a
+    #: landing, a floor found to be one already known): it stands in that event's place.
+    CORRECTION = "correction"
+
+
 @dataclass(frozen=True, slots=True)
 class FloorEvent:
-    """A detected floor change.
+    """A floor change decided by the live detector, or a correction of one.
 
-    ``t_start_ns`` .. ``t_end_ns`` bound the pressure change; ``t_ns`` is when the detector
-    decided (never before ``t_end_ns``: the online detector is causal). Floors are indices
-    ordered by height, 0 = lowest visited so far (indices may shift as lower floors are
-    found; ``level_pa`` identifies the new floor's settled pressure).
+    Floor events are final or explicitly corrected: a consumer keeps the transitions by
+    ``event_id`` and, on a correction, puts it in the place of the event named by ``replaces``
+    (which may itself be a correction). Replaying the same samples (and odometry) in the same
+    order gives the same events, ids included. ``event_id`` is unique and increasing within a
+    run (the first event is 1).
+
+    Floors are named by stable ids: ``from_id``/``to_id`` never change meaning during a run
+    (the start floor is 0, later floors are numbered in the order they are first visited; an
+    id whose floor turned out to be another one is not reused). ``from_name``/``to_name`` are
+    the floors' names (the configured start floor, or from a known building model), and
+    ``height_m`` is the height of ``to_id`` above the start floor as the detector knows it at
+    ``t_ns``.
+
+    ``t_start_ns`` .. ``t_end_ns`` bound the pressure change (the whole trip, landings and
+    stops in the car included; ``t_end_ns`` is when the pressure came to rest at the new
+    level); ``t_ns`` is when the detector decided, never before ``t_end_ns``: the robot
+    counts as visiting a floor once it drove off (odometry) or stayed long enough there.
+    ``delta_pa``/``delta_m`` are the measured step, ``level_pa`` the pressure of the new
+    floor at ``t_ns`` (reference-station correction undone). ``at_end`` says the input ended
+    before the decision could be taken on a settled, confirmed stop.
     """
 
     t_ns: int
+    event_id: int
+    kind: FloorEventKind
+    replaces: int | None
     t_start_ns: int
     t_end_ns: int
-    from_floor: int
-    to_floor: int
+    from_id: int
+    to_id: int
+    from_name: str
+    to_name: str
+    height_m: float
     delta_pa: float
     delta_m: float
     level_pa: float
+    at_end: bool = False
 
 
 class FloorPhase(enum.StrEnum):
     """What the detector currently believes about vertical motion."""
 
+    #: No settled pressure yet (the start of a run).
     UNKNOWN = "unknown"
+    #: On ``FloorState.floor_id`` (possibly on a ramp or landing a little off its level).
     SETTLED = "settled"
+    #: The pressure is changing: riding or climbing away from ``floor_id``.
     CHANGING = "changing"
+    #: Stopped at a level at least a storey from ``floor_id`` during a ride, not yet a visit:
+    #: the robot has not driven off (odometry) and has not stayed long enough (without it).
+    STOPPED = "stopped"
 
 
 @dataclass(frozen=True, slots=True)
 class FloorState:
-    """The live answer to "which floor are we on?"."""
+    """The live answer to "which floor are we on?".
+
+    ``floor_id``/``name``/``height_m`` are the floor of the last decided visit (the start floor
+    until the first transition; None/NaN before the pressure first settled), so the state
+    never contradicts the events. ``level_m`` is the height of the current pressure level above
+    the start floor (it moves during a ride). While ``phase`` is ``STOPPED`` the robot is
+    stopped at a level during a ride: ``stop_floor_id``/``stop_name`` name the known floor at
+    that level, if there is one (None otherwise, and in every other phase). ``since_ns`` is
+    when the phase began; ``floors_known`` counts distinct floors visited so far.
+    """
 
     t_ns: int
-    floor: int | None
     phase: FloorPhase
+    floor_id: int | None
+    name: str | None
+    height_m: float
+    level_m: float
     level_pa: float
-    elevation_m: float
-    floors_known: int
     since_ns: int
+    floors_known: int
+    stop_floor_id: int | None = None
+    stop_name: str | None = None
 
 
 class DeviceState(enum.StrEnum):

@@ -10,10 +10,11 @@ systemd instead of recording nothing while claiming to be fine.
 from __future__ import annotations
 
 import datetime as dt
+import importlib
 import json
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from typing import Any, Final
 
 import structlog
@@ -25,9 +26,8 @@ from baromap.recording.frames import LaserMount
 from daemon.barometer import BarometerSession
 from daemon.clock import HostClock
 from daemon.config import DaemonConfig
-from daemon.fanout import Fanout
+from daemon.fanout import Consumer, Fanout
 from daemon.floors import FloorTracker
-from daemon.live import LivePublisher
 from daemon.lms200 import Lms200Session
 from daemon.notify import Notifier
 from daemon.pioneer import PioneerSession
@@ -41,18 +41,8 @@ HEALTH_EVERY_NS: Final = NS_PER_S
 #: A part whose heartbeat is older than this is stuck (reads time out every 50 ms, the
 #: recorder wakes every 200 ms; a handshake write may block for its 1 s timeout).
 STUCK_NS: Final = 10 * NS_PER_S
-
-
-def live_health(t_ns: int, report: Mapping[str, int | str]) -> DeviceHealth:
-    """The live publisher's own report as a health message (its words in ``detail``)."""
-    state = str(report.get("state", ""))
-    kind = {"open": DeviceState.UP, "connecting": DeviceState.STARTING}.get(state, DeviceState.DOWN)
-    dropped = int(report.get("dropped_urgent", 0)) + int(report.get("dropped_bulk", 0))
-    if kind is DeviceState.UP and dropped:
-        kind = DeviceState.DEGRADED
-    counters = {k: v for k, v in report.items() if isinstance(v, int)}
-    words = ", ".join(f"{k} {v}" for k, v in report.items() if isinstance(v, str))
-    return DeviceHealth(t_ns, "zenoh", kind, "", words, counters)
+#: Module the live session provides: ``create_publisher(config, reference=...) -> Consumer``.
+LIVE_MODULE: Final = "daemon.live"
 
 
 def run_name(robot: str, wall_ns: int) -> str:
@@ -94,11 +84,8 @@ class Daemon:
         if config.barometer is not None:
             self.floors = FloorTracker(config.floors, self.fanout.publish)
             self.fanout.subscribe(self.floors)
-        self.live: LivePublisher | None = None
-        if live and config.live.enabled:
-            self.live = LivePublisher(config.live, config.robot, station=config.role == "station")
-            if config.reference is not None and self.floors is not None:
-                self.live.follow_reference(config.reference.station, self.floors.offer_reference)
+        self.live: Consumer | None = self._live_publisher() if live else None
+        if self.live is not None:
             self.fanout.subscribe(self.live)
         common: dict[str, Any] = {
             "clock": self.clock,
@@ -138,6 +125,18 @@ class Daemon:
         data.update(self.clock.metadata())
         return data
 
+    def _live_publisher(self) -> Consumer | None:
+        try:
+            module = importlib.import_module(LIVE_MODULE)
+        except ModuleNotFoundError as exc:
+            if exc.name != LIVE_MODULE:
+                raise
+            log.info("live publishing is not available in this build")
+            return None
+        reference = self.floors.offer_reference if self.floors is not None else None
+        publisher: Consumer | None = module.create_publisher(self.config, reference=reference)
+        return publisher
+
     # ---- lifetime -------------------------------------------------------------------------------
     def request_stop(self) -> None:
         """Ask the main loop to finish (safe from a signal handler)."""
@@ -154,8 +153,6 @@ class Daemon:
 
     def start(self) -> None:
         self.recorder.start()
-        if self.live is not None:
-            self.live.start()
         if self.floors is not None:
             self.floors.start()
         for session in self.sessions:
@@ -172,9 +169,8 @@ class Daemon:
         if self.floors is not None:
             self.floors.close()
         if self.live is not None:
-            self._publish_health()  # the last word on the wire: every device stopped
             self.fanout.unsubscribe(self.live)
-            self.live.stop()
+            self.live.close()
         self.recorder.close()
         log.info("baromapd stopped", files=[str(p) for p in self.recorder.files])
 
@@ -200,8 +196,9 @@ class Daemon:
     def health(self) -> list[DeviceHealth]:
         t = self.clock.now_unix_ns()
         out = [s.health(t) for s in self.sessions] + [self.recorder.health(t)]
-        if self.live is not None:
-            out.append(live_health(t, self.live.health()))
+        live_health = getattr(self.live, "device_health", None)
+        if live_health is not None:  # the Zenoh publisher's state and counters
+            out.append(live_health(t))
         return out
 
     def _publish_health(self) -> None:

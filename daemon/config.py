@@ -3,8 +3,7 @@
 Every problem is collected with its dotted key and a hint, so one ``--check-config`` run
 names all of them instead of the first; unknown keys are errors (a typo in ``rate_hz`` must
 not silently leave the default in force). The ``[zenoh]`` and ``[reference]`` tables are
-read by the live part's own settings classes (``baromap.live.settings``), which own their
-meaning; their errors are reported here like any other.
+handed unparsed to the live publisher, which owns their meaning.
 """
 
 from __future__ import annotations
@@ -20,9 +19,9 @@ from typing import Any, Final, Literal
 from baromap.discovery import USB_IDENTITY
 from baromap.errors import ConfigError
 from baromap.floors import FloorDetectorConfig
-from baromap.live.settings import LiveSettings, ReferenceSettings
 from baromap.protocols import baro, lms200
 from baromap.protocols.robot_models import MODELS, find_model
+from daemon.live import config_problems
 
 Role = Literal["robot", "station"]
 ROLES: Final = ("robot", "station")
@@ -124,10 +123,9 @@ class DaemonConfig:
     base: BaseConfig | None = None
     barometer: BarometerConfig | None = None
     floors: FloorDetectorConfig = field(default_factory=FloorDetectorConfig)
-    #: ``[zenoh]``: live publishing (on by default: a peer on loopback).
-    live: LiveSettings = field(default_factory=LiveSettings)
-    #: ``[reference]``: the reference station whose pressure change is weather.
-    reference: ReferenceSettings | None = None
+    #: ``[zenoh]`` and ``[reference]`` as written, for the live publisher (None when absent).
+    zenoh: Mapping[str, Any] | None = None
+    reference: Mapping[str, Any] | None = None
     log_level: str = "info"
     #: The file's text, recorded in every recording's metadata.
     source_text: str = ""
@@ -399,6 +397,9 @@ def parse_config(text: str, source: str = "<config>") -> DaemonConfig:
     base = _base(r, sections["base"]) if sections["base"] is not None else None
     barometer = _barometer(r, sections["barometer"]) if sections["barometer"] is not None else None
     floors = _floors(r, sections["floors"] or {})
+    live = config_problems(sections["zenoh"], sections["reference"], robot=robot, role=role)
+    for key, message in live:
+        r.problem(key, message)
     if role == "station" and (laser is not None or base is not None):
         r.problem("role", "a station records a barometer only", "remove [laser] and [base]")
     if laser is None and base is None and barometer is None and not r.problems:
@@ -411,23 +412,6 @@ def parse_config(text: str, source: str = "<config>") -> DaemonConfig:
         if port in seen and "://" not in port:
             r.problem(f"{name}.port", f"{port!r} is also {seen[port]}.port")
         seen.setdefault(port, name)
-    live = LiveSettings()
-    try:
-        live = LiveSettings.from_table(sections["zenoh"] or {})
-    except ConfigError as exc:
-        key, _, message = str(exc).partition(": ")
-        r.problem(key, message or str(exc))
-    reference = None
-    if sections["reference"] is not None:
-        try:
-            reference = ReferenceSettings.from_table(sections["reference"])
-        except ConfigError as exc:
-            key, _, message = str(exc).partition(": ")
-            r.problem(key, message or str(exc))
-        if role == "station":
-            r.problem("reference", "a station is the reference; it follows no other")
-        elif barometer is None:
-            r.problem("reference", "a reference station corrects a barometer", "add [barometer]")
     if r.problems:
         raise ConfigProblems(source, r.problems)
     return DaemonConfig(
@@ -438,8 +422,8 @@ def parse_config(text: str, source: str = "<config>") -> DaemonConfig:
         base=base,
         barometer=barometer,
         floors=floors,
-        live=live,
-        reference=reference,
+        zenoh=sections["zenoh"],
+        reference=sections["reference"],
         log_level=level,
         source_text=text,
     )

@@ -28,6 +28,9 @@ class Consumer(Protocol):
     def offer(self, message: Message) -> None:
         """Take the message or count it as dropped; never block."""
 
+    def close(self) -> None:
+        """Finish: process what was offered, release resources."""
+
 
 @runtime_checkable
 class TimedConsumer(Protocol):

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 
 from baromap.floors import FloorDetectorConfig, OnlineFloorDetector, detect_floors
 from baromap.floors.height import pressure_drop_pa
-from baromap.floors.online import StillWindow
-from baromap.messages import NS_PER_S, FloorPhase, PressureSample
+from baromap.floors.still_window import StillWindow
+from baromap.messages import NS_PER_S, FloorEvent, FloorPhase, PressureSample
 
 RATE_HZ = 10.0
 P0 = 97_700.0
@@ -44,7 +44,9 @@ def series(
     return (t_s * NS_PER_S).astype(np.int64), p
 
 
-def run(t: npt.NDArray[np.int64], p: npt.NDArray[np.float64], config=None):
+def run(
+    t: npt.NDArray[np.int64], p: npt.NDArray[np.float64], config: FloorDetectorConfig | None = None
+) -> tuple[OnlineFloorDetector, list[FloorEvent]]:
     detector = OnlineFloorDetector(config)
     events = []
     for ti, pi in zip(t.tolist(), p.tolist(), strict=True):
@@ -53,27 +55,38 @@ def run(t: npt.NDArray[np.int64], p: npt.NDArray[np.float64], config=None):
     return detector, events
 
 
+def moves(events: list[FloorEvent]) -> list[tuple[int, int]]:
+    return [(e.from_id, e.to_id) for e in events]
+
+
 def test_one_storey_up_is_one_event_with_the_right_height() -> None:
     t, p = series([(0.0, 60), (STOREY_M, 60)])
     detector, events = run(t, p)
     assert len(events) == 1
     event = events[0]
-    assert (event.from_floor, event.to_floor) == (0, 1)
+    assert (event.from_id, event.to_id, event.from_name, event.to_name) == (0, 1, "0", "1")
+    assert event.event_id == 1 and event.replaces is None
     assert event.delta_m == pytest.approx(STOREY_M, abs=0.1)
+    assert event.height_m == pytest.approx(STOREY_M, abs=0.1)
     assert event.delta_pa == pytest.approx(-pressure_drop_pa(STOREY_M, P0), abs=1.0)
     assert event.t_start_ns <= event.t_end_ns <= event.t_ns
-    # Decided within a few seconds of arriving (ride 3.2 s from t=60 s).
-    assert event.t_ns / NS_PER_S < 60 + STOREY_M + 5.0
-    state = detector.state
-    assert state.floor == 1 and state.phase is FloorPhase.SETTLED and state.floors_known == 2
-    assert state.elevation_m == pytest.approx(STOREY_M, abs=0.1)
+    # The pressure came to rest within a few seconds of arriving (ride 3.2 s from t=60 s)...
+    assert event.t_end_ns / NS_PER_S < 60 + STOREY_M + 2.0
+    # ...and without odometry the stop is a visit once it lasted min_visit_s.
+    wait = (event.t_ns - event.t_end_ns) / NS_PER_S
+    assert wait == pytest.approx(FloorDetectorConfig().min_visit_s, abs=0.2)
+    state = detector.state()
+    assert state.floor_id == 1 and state.phase is FloorPhase.SETTLED and state.floors_known == 2
+    assert state.height_m == pytest.approx(STOREY_M, abs=0.1)
+    assert state.level_m == pytest.approx(STOREY_M, abs=0.1)
 
 
-def test_going_down_finds_a_lower_floor_and_reindexes() -> None:
+def test_going_down_finds_a_lower_floor_under_a_new_id() -> None:
     t, p = series([(0.0, 40), (-STOREY_M, 40)])
     _, events = run(t, p)
-    assert [(e.from_floor, e.to_floor) for e in events] == [(1, 0)]
-    assert events[0].delta_m < 0
+    assert moves(events) == [(0, 1)]  # the start floor keeps id 0, however low the next is
+    assert events[0].delta_m < 0 and events[0].height_m == pytest.approx(-STOREY_M, abs=0.1)
+    assert events[0].to_name == "-1"
 
 
 @pytest.mark.parametrize("spike_pa", [-25.0, -12.0, 12.0, 25.0])
@@ -86,16 +99,17 @@ def test_ventilation_spikes_and_small_steps_raise_no_event(spike_pa: float) -> N
     p[j:] += pressure_drop_pa(1.0, P0)  # a 1 m ramp: below the 1.8 m threshold
     detector, events = run(t, p)
     assert events == []
-    assert detector.state.floor == 0
+    assert detector.state().floor_id == 0
 
 
-def test_revisits_get_their_old_index_in_spite_of_drift() -> None:
+def test_revisits_get_their_old_id_in_spite_of_drift() -> None:
     # 1.5 hPa/h is about a storey in 20 minutes; the run lasts 50 minutes.
     plan = [(0.0, 300), (STOREY_M, 600), (2 * STOREY_M, 600), (0.0, 600), (STOREY_M, 600)]
     plan += [(2 * STOREY_M, 300)]
     t, p = series(plan, drift_pa_s=150.0 / 3600.0)
     _, events = run(t, p)
-    assert [(e.from_floor, e.to_floor) for e in events] == [(0, 1), (1, 2), (2, 0), (0, 1), (1, 2)]
+    assert moves(events) == [(0, 1), (1, 2), (2, 0), (0, 1), (1, 2)]
+    assert [e.to_name for e in events] == ["1", "2", "0", "1", "2"]
 
 
 def test_the_detector_is_causal() -> None:
@@ -125,7 +139,8 @@ def test_bad_samples_are_counted_not_raised() -> None:
     assert detector.update(PressureSample(5, P0)) == []  # older
     assert detector.update(PressureSample(20, float("nan"))) == []
     assert detector.ignored_samples == 2
-    assert detector.state.floor is None and detector.state.phase is FloorPhase.UNKNOWN
+    state = detector.state()
+    assert state.floor_id is None and state.phase is FloorPhase.UNKNOWN
 
 
 def test_bad_temperatures_and_reference_readings_do_not_stop_the_detector() -> None:
@@ -136,7 +151,7 @@ def test_bad_temperatures_and_reference_readings_do_not_stop_the_detector() -> N
         glitch = [float("nan"), -300.0, 15.0][k % 3]  # NaN, below absolute zero, fine
         detector.update_reference(PressureSample(ti, float("nan") if k == 5 else P0))
         events += detector.update(PressureSample(ti, pi, glitch))
-    assert [(e.from_floor, e.to_floor) for e in events] == [(0, 1)]
+    assert moves(events) == [(0, 1)]
     assert events[0].delta_m == pytest.approx(STOREY_M, abs=0.1)
     assert detector.ignored_samples == 1  # the NaN reference reading
 
@@ -225,21 +240,26 @@ def test_a_long_stop_at_an_offset_is_no_landing_of_the_next_trip() -> None:
     # reaches the next floor began with the 0.6 m leg, not with the ramp a minute earlier.
     t, p = series([(0.0, 60), (1.0, 60), (1.6, 8), (1.6 + STOREY_M, 60)], noise_pa=0.2)
     _, events = run(t, p)
-    assert [(e.from_floor, e.to_floor) for e in events] == [(0, 1)]
+    assert moves(events) == [(0, 1)]
     assert 115.0 < events[0].t_start_ns / NS_PER_S < 125.0
 
 
-def test_the_decision_comes_one_window_after_the_pressure_stops() -> None:
+def test_the_stop_is_known_one_window_after_the_pressure_stops() -> None:
     """Stillness is one test over settle_s, not a lagging rate and then a hold."""
     config = FloorDetectorConfig()
     for seed in range(3):
         t, p = series([(0.0, 60), (STOREY_M, 60)], seed=seed)
-        _, events = run(t, p, config)
         stopped = 60 + STOREY_M
-        assert len(events) == 1
+        detector = OnlineFloorDetector(config)
+        known = None
+        for ti, pi in zip(t.tolist(), p.tolist(), strict=True):
+            detector.update(PressureSample(ti, pi, 15.0))
+            if known is None and detector.phase is FloorPhase.STOPPED:
+                known = ti / NS_PER_S
         # settle_s of stillness plus the smoothing's catching up (level_tau_s); a Holt rate
         # quiet for settle_s took about 4.5 s here
-        assert events[0].t_ns / NS_PER_S - stopped < config.settle_s + 2 * config.level_tau_s
+        assert known is not None
+        assert known - stopped < config.settle_s + 2 * config.level_tau_s
 
 
 @pytest.mark.parametrize("spike_pa", [-15.0, 15.0])
@@ -249,15 +269,15 @@ def test_a_spike_after_the_stop_is_not_taken_for_the_floor(spike_pa: float) -> N
     after = (t / NS_PER_S - (60 + STOREY_M + 0.5)).clip(0.0, None)
     p += np.where(after > 0.0, spike_pa * np.exp(-after / 0.7), 0.0)  # fading over seconds
     detector, events = run(t, p)
-    assert [(e.from_floor, e.to_floor) for e in events] == [(0, 1)]
+    assert moves(events) == [(0, 1)]
     final = float(np.median(p[-200:]))
     assert abs(events[0].level_pa - final) < pressure_drop_pa(0.3, P0)
-    assert detector.state.level_pa == pytest.approx(final, abs=0.5)
+    assert detector.state().level_pa == pytest.approx(final, abs=0.5)
 
 
-def test_a_floor_level_decided_before_the_doors_opened_is_corrected() -> None:
+def test_the_floor_level_is_taken_once_the_doors_are_open() -> None:
     # The car stays 4 Pa above the floor's pressure for 3 s after the stop, then the doors
-    # open: the decision may come first, but the floor's level is the open floor's.
+    # open: the pressure settles first, but the visit (and the floor's level) comes after.
     plan = [(0.0, 60), (STOREY_M, 60), (0.0, 60), (STOREY_M, 60)]
     t, p = series(plan, noise_pa=0.2)
     p = p.copy()
@@ -265,23 +285,24 @@ def test_a_floor_level_decided_before_the_doors_opened_is_corrected() -> None:
     stop = 60 + STOREY_M
     p += np.where((s > stop - 5.0) & (s < stop + 3.0), 4.0, 0.0)
     detector, events = run(t, p)
-    assert [(e.from_floor, e.to_floor) for e in events] == [(0, 1), (1, 0), (0, 1)]
-    first = events[0]
-    assert first.t_ns / NS_PER_S < stop + 3.0  # decided while the doors were shut
+    assert moves(events) == [(0, 1), (1, 0), (0, 1)]
+    assert events[0].t_ns / NS_PER_S > stop + 3.0
     level = float(np.median(p[(s > stop + 10.0) & (s < stop + 50.0)]))
     expected = -pressure_drop_pa(STOREY_M, P0)
     assert detector.registry.relative_pa(1) == pytest.approx(expected, abs=1.0)
-    assert detector.transitions[0].level_pa == pytest.approx(level, abs=1.0)
+    assert events[0].level_pa == pytest.approx(level, abs=1.0)
 
 
-def test_a_decision_in_a_lull_of_the_ride_moves_the_new_floor_to_where_it_ended() -> None:
+def test_a_lull_in_the_ride_is_no_floor() -> None:
     # The car pauses for 3 s at 2.2 m (above the minimum height) and goes on to 3.2 m.
     plan = [(0.0, 60), (2.2, 3), (STOREY_M, 60), (0.0, 60), (STOREY_M, 60)]
     t, p = series(plan, noise_pa=0.2)
     detector, events = run(t, p)
-    assert [(e.from_floor, e.to_floor) for e in events] == [(0, 1), (1, 0), (0, 1)]
-    assert detector.state.elevation_m == pytest.approx(STOREY_M, abs=0.1)
-    assert events[0].delta_m < 2.5  # what was known when it was decided
+    assert moves(events) == [(0, 1), (1, 0), (0, 1)]
+    assert all(e.replaces is None for e in events)
+    assert events[0].delta_m == pytest.approx(STOREY_M, abs=0.1)
+    assert events[0].t_start_ns / NS_PER_S < 60.5  # dated from the first leg
+    assert detector.state().height_m == pytest.approx(STOREY_M, abs=0.1)
 
 
 def test_samples_before_a_gap_do_not_count_as_stillness() -> None:
@@ -289,8 +310,8 @@ def test_samples_before_a_gap_do_not_count_as_stillness() -> None:
     s = t / NS_PER_S
     keep = (s < 61.0) | (s > 75.0)  # 14 s without data during and after the ride
     _, events = run(t[keep], p[keep])
-    assert [(e.from_floor, e.to_floor) for e in events] == [(0, 1)]
-    assert events[0].t_ns / NS_PER_S >= 75.0 + FloorDetectorConfig().settle_s
+    assert moves(events) == [(0, 1)]
+    assert events[0].t_end_ns / NS_PER_S >= 75.0
 
 
 @settings(max_examples=60, deadline=None)

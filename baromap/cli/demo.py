@@ -55,8 +55,11 @@ def replay_floor_events(recording: Path) -> tuple[int, int]:
     last_settled: int | None = None
     t0: int | None = None
     events = 0
-    for rec in read_messages(recording, [topics.BARO, topics.TRUTH_FLOOR]):
+    for rec in read_messages(recording, [topics.BARO, topics.ODOM, topics.TRUTH_FLOOR]):
         msg = rec.message
+        if isinstance(msg, messages.Odometry):
+            detector.update_odometry(msg)
+            continue
         if isinstance(msg, messages.TruthFloor):
             if msg.floor is not None:
                 if last_settled is not None and msg.floor != last_settled:
@@ -71,13 +74,13 @@ def replay_floor_events(recording: Path) -> tuple[int, int]:
             events += 1
             truth = "riding" if truth_floor is None else f"true floor {truth_floor}"
             print(
-                f"  [{_clock(event.t_ns, t0)}] floor {event.from_floor} -> {event.to_floor} "
+                f"  [{_clock(event.t_ns, t0)}] floor {event.from_name} -> {event.to_name} "
                 f"({event.delta_m:+.2f} m, change {_clock(event.t_start_ns, t0)}.."
                 f"{_clock(event.t_end_ns, t0)}; {truth})"
             )
     for event in detector.finish():
         events += 1
-        print(f"  [end] floor {event.from_floor} -> {event.to_floor} ({event.delta_m:+.2f} m)")
+        print(f"  [end] floor {event.from_name} -> {event.to_name} ({event.delta_m:+.2f} m)")
     return events, truth_changes
 
 
@@ -106,8 +109,8 @@ def run(args: argparse.Namespace) -> int:
 
     print("\n2/3 online floor detection, replayed sample by sample (times are run time)")
     print(
-        "  detector floors count from the lowest floor visited so far (they renumber when a "
-        "lower one turns up);\n  true floors are the simulator's, 0 = ground"
+        "  detector floors are named from the start floor (called 0) in storeys; "
+        "true floors are the simulator's, 0 = ground"
     )
     events, truth_changes = replay_floor_events(recording)
     print(f"  {events} floor events; the simulator's truth has {truth_changes} floor changes")

@@ -1,20 +1,26 @@
-"""The side-by-side evaluation report: both methods over the real IPIN logs and simulated runs.
+"""The floor-detection evaluation: both methods over the real IPIN logs and simulated runs.
 
-Each case is a pressure series with its truth; each method is scored on it
-(:mod:`baromap.floors.evaluation`) and one line per case and method is printed, then totals
-over the simulated seeds.
+Each case is a pressure series with its truth (and odometry, a reference station, when it
+has them). Each method's post-run segmentation is scored on it
+(:mod:`baromap.floors.evaluation`); for the online method the live decisions are scored
+apart (:mod:`baromap.evaluation.floor_live`): what was published when, corrections applied,
+and whether that equals the post-run transitions. Nothing here prints: results are returned
+(and handed to ``on_result`` as they come) for the command to show.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+import itertools
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
 from baromap.errors import ConfigError
+from baromap.evaluation.floor_live import LiveScore, live_score
 from baromap.floors.config import FloorDetectorConfig
 from baromap.floors.detection import FloorDetection, detect_floors
 from baromap.floors.evaluation import (
@@ -24,19 +30,35 @@ from baromap.floors.evaluation import (
     truth_from_series,
     with_settle_times,
 )
+from baromap.floors.inputs import OdometrySeries as Odometry
 
-Print = Callable[[str], None]
+if TYPE_CHECKING:
+    from baromap.sim.scenario import Scenario
 
 
 @dataclass(frozen=True, slots=True, eq=False)
 class Case:
     name: str
-    kind: str  # "real" or "sim"
+    kind: str  # "real", "sim" or "input"
     t_ns: npt.NDArray[np.int64]
     pressure_pa: npt.NDArray[np.float64]
     temperature_c: npt.NDArray[np.float64] | None
     truth: FloorTruth
     reference: tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]] | None = None
+    #: ``(t_ns, x_m, y_m)`` of the robot's odometry, when the case has any.
+    odometry: Odometry | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class SimSettings:
+    """How the simulated runs of a report are made."""
+
+    drift_hpa_per_h: float = 1.5
+    minutes: float = 46.0
+    use_reference: bool = False
+    use_odometry: bool = True
+    stops: str = "none"
+    route: tuple[int, ...] | None = None
 
 
 def real_cases(directory: str | Path) -> list[Case]:
@@ -59,17 +81,18 @@ def real_cases(directory: str | Path) -> list[Case]:
     return cases
 
 
-def sim_case(
-    seed: int,
-    *,
-    drift_hpa_per_h: float = 1.5,
-    minutes: float = 46.0,
-    use_reference: bool = False,
-) -> Case:
+def sim_case(seed: int, settings: SimSettings | None = None) -> Case:
     from baromap.sim.scenario import make_scenario, pressure_run
 
-    run = pressure_run(seed, minutes=minutes, drift_hpa_per_h=drift_hpa_per_h)
-    scenario = make_scenario(seed, minutes=minutes, drift_hpa_per_h=drift_hpa_per_h)
+    s = settings or SimSettings()
+    shape: dict[str, Any] = {
+        "minutes": s.minutes,
+        "drift_hpa_per_h": s.drift_hpa_per_h,
+        "stops": s.stops,
+        "route": s.route,
+    }
+    run = pressure_run(seed, **shape)
+    scenario = make_scenario(seed, **shape)
     floor = np.where(np.asarray(run.truth_floor) < 0, np.nan, np.asarray(run.truth_floor))
     truth = truth_from_series(run.t_ns, floor)
     truth = FloorTruth(
@@ -83,7 +106,7 @@ def sim_case(
     # and filter lag, up to 1 Pa, into the 1.2 Pa settling band and date settles late.)
     own = np.asarray(run.true_pressure_pa) - scenario.reference_true_pa(run.t_s)
     truth = with_settle_times(truth, np.asarray(run.t_ns), own)
-    reference = (run.t_ns, np.asarray(run.reference_pa)) if use_reference else None
+    reference = (run.t_ns, np.asarray(run.reference_pa)) if s.use_reference else None
     return Case(
         f"sim seed {seed}",
         "sim",
@@ -92,12 +115,37 @@ def sim_case(
         np.asarray(run.temperature_c),
         truth,
         reference,
+        sim_odometry(scenario) if s.use_odometry else None,
     )
+
+
+def sim_odometry(scenario: Scenario) -> Odometry:
+    """The odometry a simulated run's robot reports: its true motion through the robot's own
+    error model, one pose per SIP (what ``sim record`` writes on /odom, before the wire)."""
+    from baromap.sim.odometry import (
+        SIP_PERIOD_S,
+        OdometryErrors,
+        OdometryModel,
+        true_increments,
+    )
+    from baromap.sim.scenario import STREAM_ODOMETRY
+
+    t = np.arange(SIP_PERIOD_S / 2, scenario.duration_s, SIP_PERIOD_S)
+    truth = scenario.truth(t)
+    rng = scenario.rng(STREAM_ODOMETRY)
+    model = OdometryModel(OdometryErrors.random(rng), rng)
+    start = scenario.moves.start[0]
+    ds, dth = true_increments(
+        truth.x, truth.y, truth.theta, (float(start[0]), float(start[1]), float(start[2]))
+    )
+    x, y, _ = model.step(ds, dth)
+    return scenario.t_ns(t), x, y
 
 
 def evaluate(
     case: Case, method: str, config: FloorDetectorConfig | None = None
 ) -> tuple[FloorDetection, Score]:
+    """The post-run segmentation of a case, scored."""
     detection = detect_floors(
         case.t_ns,
         case.pressure_pa,
@@ -105,29 +153,32 @@ def evaluate(
         method=method,
         reference=case.reference,
         config=config,
+        odometry=case.odometry,
     )
     return detection, score(detection, case.truth)
 
 
-HEADER = (
-    f"{'case':34s} {'method':6s} {'true':>4s} {'found':>5s} {'miss':>4s} {'false':>5s} "
-    f"{'dir':>4s} {'stor':>4s} {'acc%':>6s} {'delay med/max s':>16s} {'height err m':>12s}"
-)
+@dataclass(frozen=True, slots=True)
+class CaseResult:
+    """One case and method: the post-run score, and for the online method the live one."""
+
+    name: str
+    kind: str
+    method: str
+    post_run: Score
+    live: LiveScore | None
 
 
-def line(name: str, method: str, s: Score) -> str:
-    delay = f"{s.median_delay_s:6.1f}/{s.max_delay_s:6.1f}" if s.delays_s else f"{'-':>13s}"
-    height = f"{s.height_error_m:12.2f}" if s.height_error_m is not None else f"{'-':>12s}"
-    accuracy = f"{100 * s.accuracy:6.1f}" if np.isfinite(s.accuracy) else f"{'-':>6s}"
-    flushed = " (last at end of log)" if s.flushed else ""
-    return (
-        f"{name:34s} {method:6s} {s.true:4d} {s.found:5d} {s.missed:4d} {s.false:5d} "
-        f"{s.direction_right:4d} {s.storeys_right:4d} {accuracy} {delay:>16s} {height}{flushed}"
-    )
+def evaluate_case(case: Case, method: str, config: FloorDetectorConfig | None = None) -> CaseResult:
+    detection, post = evaluate(case, method, config)
+    live = live_score(detection, case.truth) if method == "online" else None
+    return CaseResult(case.name, case.kind, method, post, live)
 
 
 @dataclass
 class Totals:
+    """Scores summed over cases (one method, one kind of figure)."""
+
     true: int = 0
     found: int = 0
     false: int = 0
@@ -137,10 +188,8 @@ class Totals:
     accuracy_sum: float = 0.0
     height_max: float = 0.0
     heights: int = 0
-
-    def __post_init__(self) -> None:
-        self.delays: list[float] = []
-        self.settled_delays: list[float] = []
+    delays: list[float] = field(default_factory=list)
+    settled_delays: list[float] = field(default_factory=list)
 
     def add(self, s: Score) -> None:
         self.true += s.true
@@ -156,20 +205,50 @@ class Totals:
             self.heights += 1
             self.height_max = max(self.height_max, s.height_error_m)
 
-    def summary(self, method: str) -> str:
-        recall = self.found / self.true if self.true else 1.0
+    @property
+    def recall(self) -> float:
+        return self.found / self.true if self.true else 1.0
+
+    @property
+    def precision(self) -> float:
         detected = self.found + self.false
-        precision = self.found / detected if detected else 1.0
-        median = float(np.median(self.delays)) if self.delays else float("nan")
-        settled = float(np.median(self.settled_delays)) if self.settled_delays else float("nan")
-        return (
-            f"  {method:6s} recall {100 * recall:5.1f} %  precision {100 * precision:5.1f} %  "
-            f"({self.found}/{self.true} found, {self.false} false)  direction right "
-            f"{self.direction}/{self.found}  storeys right {self.storeys}/{self.found}  "
-            f"mean accuracy {100 * self.accuracy_sum / max(self.cases, 1):5.1f} %  "
-            f"median delay {median:4.1f} s after the car stops, {settled:4.1f} s after the "
-            f"pressure settles  worst height error {self.height_max:.2f} m"
-        )
+        return self.found / detected if detected else 1.0
+
+    @property
+    def mean_accuracy(self) -> float:
+        return self.accuracy_sum / max(self.cases, 1)
+
+
+def percentile(values: Sequence[float], q: float) -> float:
+    return float(np.percentile(values, q)) if len(values) else float("nan")
+
+
+@dataclass
+class MethodTotals:
+    """One method over the simulated cases: post-run and (online) live figures."""
+
+    post_run: Totals = field(default_factory=Totals)
+    live: Totals = field(default_factory=Totals)
+    events: int = 0
+    corrections: int = 0
+    agreeing: int = 0
+    live_cases: int = 0
+
+    def add(self, result: CaseResult) -> None:
+        self.post_run.add(result.post_run)
+        if result.live is not None:
+            self.live.add(result.live.score)
+            self.events += result.live.events
+            self.corrections += result.live.corrections
+            self.agreeing += result.live.agrees
+            self.live_cases += 1
+
+
+@dataclass
+class Report:
+    real: list[CaseResult] = field(default_factory=list)
+    sim: list[CaseResult] = field(default_factory=list)
+    totals: dict[str, MethodTotals] = field(default_factory=dict)
 
 
 def run_report(
@@ -177,41 +256,28 @@ def run_report(
     seeds: Sequence[int],
     methods: Sequence[str] = ("online", "paper"),
     *,
-    drift_hpa_per_h: float = 1.5,
-    minutes: float = 46.0,
-    use_reference: bool = False,
+    sim: SimSettings | None = None,
     config: FloorDetectorConfig | None = None,
-    out: Print = print,
-    progress: bool = False,
-) -> dict[str, Totals]:
-    """Print the report; returns the simulated totals per method."""
+    on_result: Callable[[CaseResult], None] | None = None,
+) -> Report:
+    """Score every real log and simulated seed; totals are over the simulated seeds."""
+    report = Report(totals={method: MethodTotals() for method in methods})
     cases = real_cases(real_dir) if real_dir is not None else []
-    out(HEADER)
     for real in cases:
         for method in methods:
-            out(line(real.name[-34:], method, evaluate(real, method, config)[1]))
-    totals = {method: Totals() for method in methods}
-    iterator: Iterable[int] = seeds
-    if progress:
-        from tqdm import tqdm
-
-        iterator = tqdm(seeds, desc="simulated runs", unit="run", leave=False)
-    for seed in iterator:
-        case = sim_case(
-            seed, drift_hpa_per_h=drift_hpa_per_h, minutes=minutes, use_reference=use_reference
-        )
+            result = evaluate_case(real, method, config)
+            report.real.append(result)
+            if on_result is not None:
+                on_result(result)
+    for seed in seeds:
+        case = sim_case(seed, sim)
         for method in methods:
-            s = evaluate(case, method, config)[1]
-            totals[method].add(s)
-            out(line(case.name, method, s))
-    if seeds:
-        out(
-            f"simulated: {len(seeds)} seeds x {minutes:g} min, drift {drift_hpa_per_h:g} hPa/h"
-            + (", reference station used" if use_reference else ", no reference station")
-        )
-        for method in methods:
-            out(totals[method].summary(method))
-    return totals
+            result = evaluate_case(case, method, config)
+            report.sim.append(result)
+            report.totals[method].add(result)
+            if on_result is not None:
+                on_result(result)
+    return report
 
 
 #: Settings varied by :func:`real_sweep`, around the defaults, by physically sensible amounts.
@@ -226,19 +292,24 @@ SWEEP_GRID: dict[str, tuple[float, ...]] = {
 }
 
 
-def real_sweep(directory: str | Path, out: Print = print) -> None:
+@dataclass(frozen=True, slots=True)
+class SweepResult:
+    cases: int
+    #: ``(setting, value) -> (combinations meeting the bar, combinations tried)``.
+    passed: dict[tuple[str, float], tuple[int, int]]
+
+
+def real_sweep(directory: str | Path) -> SweepResult:
     """How robust the online method's bar on the real logs is to its settings.
 
-    Prints, for each value of each setting, in how many combinations of the others every true
+    For each value of each setting: in how many combinations of the others every true
     transition was found with the right storey count and none was false on any log.
     """
-    import itertools
-
     cases = list(real_cases(directory))
     keys = list(SWEEP_GRID)
     passed: dict[tuple[str, float], list[int]] = {}
     for values in itertools.product(*SWEEP_GRID.values()):
-        settings = dict(zip(keys, values, strict=True))
+        settings: dict[str, Any] = dict(zip(keys, values, strict=True))
         try:
             config = FloorDetectorConfig(**settings)
         except ConfigError:
@@ -251,6 +322,4 @@ def real_sweep(directory: str | Path, out: Print = print) -> None:
             tally = passed.setdefault((key, value), [0, 0])
             tally[0] += ok
             tally[1] += 1
-    out(f"online method on {len(cases)} real logs: combinations meeting the bar, per setting")
-    for (key, value), (good, total) in passed.items():
-        out(f"  {key:18s} {value:5g}: {good:4d}/{total}")
+    return SweepResult(len(cases), {k: (v[0], v[1]) for k, v in passed.items()})

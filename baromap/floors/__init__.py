@@ -1,21 +1,28 @@
 """Floor detection from barometric pressure: which floor, when it changed, how high.
 
-- :mod:`~baromap.floors.online`: the causal, streaming detector the daemon drives.
+- :mod:`~baromap.floors.online`: the causal, streaming detector the daemon drives (pressure,
+  odometry, a reference station in; :class:`~baromap.messages.FloorEvent` out).
 - :mod:`~baromap.floors.paper`: the baseline of Ozkil et al. (batch segmentation).
 - :func:`detect_floors`: arrays in, :class:`FloorDetection` out, with either method.
 - :mod:`~baromap.floors.height`: pressure differences to metres (hypsometric equation).
+- :mod:`~baromap.floors.building_model`: floor names from an earlier run's ``building.yaml``.
 """
 
+from baromap.floors.building_model import BuildingModel, load_building_model
 from baromap.floors.config import FloorDetectorConfig
 from baromap.floors.detection import Floor, FloorDetection, Segment, Transition, detect_floors
+from baromap.floors.events import apply_corrections
 from baromap.floors.online import OnlineFloorDetector
 
 __all__ = [
+    "BuildingModel",
     "Floor",
     "FloorDetection",
     "FloorDetectorConfig",
     "OnlineFloorDetector",
     "Segment",
     "Transition",
+    "apply_corrections",
     "detect_floors",
+    "load_building_model",
 ]

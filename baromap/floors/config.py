@@ -24,13 +24,27 @@ Why the defaults are what they are:
   constant only sets how fast the Holt rate that starts a change reacts. A shorter trend
   constant makes that rate noisy on a hand-held phone.
 - ``drift_tau_s = 60``: while the robot stays on a floor, slow changes are weather (up to
-  ~3 hPa/h, i.e. 0.08 Pa/s) and the floor's level follows them with this time constant; the
-  drift rate itself is averaged over ``drift_rate_tau_s``.
+  ~3 hPa/h, i.e. 0.08 Pa/s) and the floor's level follows them with this time constant (a
+  critically damped tracker: level and drift rate, both from this one constant).
 - ``landing_s = 15``: a stop shorter than this between two legs of vertical motion in the same
-  direction (a stair landing) is part of one trip, which is then dated from its first leg.
-  For as long after a transition the trip may still be ending (doors opening, a ventilation
-  spike fading, a landing), so the new floor's level follows the pressure within ``start_m``
-  and a first visit's level moves to where a continuing leg ends.
+  direction (a stair landing) is part of one trip, which is then dated from its first leg; if
+  a visit was decided on such a stop (only possible with ``min_visit_s`` below ``landing_s``)
+  and the trip goes on, the decision is corrected to where the trip ended.
+- ``min_visit_s = 15``: without odometry, a stop at a storey's height between two legs in the
+  same direction is a visit only once it lasted this long; until then it is "stopped at a level
+  during a ride". An elevator stopping at a passing floor stands still for its door cycle:
+  opening (2-3 s), open for at least 3 s (the minimum dwell that accessibility codes such as
+  ADA 407.3.4 require, longer for hall calls), closing (3-4 s), about 8-12 s in all; 15 s
+  covers that with a margin, as ``landing_s`` covers a stair landing. A stop followed by a leg
+  the other way is a visit whatever its length (it was where the trip went).
+- ``leave_m = 1.0``: with odometry, a stop is a visit once the robot moved this far from
+  where it stood when the pressure came to rest, and never before: an elevator car is 1.4-2.1 m
+  deep and a P3-AT 0.63 m long, so about a metre of travel is where staying in the car ends.
+- ``start_floor = "0"``: the start floor's name (the paper starts on floor 5). With a
+  ``building`` model (:mod:`baromap.floors.building_model`) it must be one of its floors, and
+  floors are named after the model floor at their measured height; without one, names are
+  counted in storeys of ``storey_m = 3.5`` (floor to floor in offices and public buildings,
+  2.7-3 m in housing) from the nearest named floor.
 - The paper's constants (``paper_alpha``, ``paper_gamma``, ``paper_sigmas``) are per sample, as
   the paper states them.
 """
@@ -41,15 +55,39 @@ import math
 from dataclasses import dataclass, fields
 
 from baromap.errors import ConfigError
+from baromap.floors.building_model import BuildingModel
 from baromap.floors.height import STANDARD_TEMPERATURE_C
 
 #: Air temperatures a barometer can plausibly report; outside them a reading is a glitch.
 MIN_AIR_C, MAX_AIR_C = -80.0, 80.0
 
 
+#: Settings that must be finite positive numbers.
+_POSITIVE = (
+    "min_transition_m",
+    "start_m",
+    "start_rate_m_s",
+    "settle_rate_m_s",
+    "settle_s",
+    "level_tau_s",
+    "trend_tau_s",
+    "drift_tau_s",
+    "reference_tau_s",
+    "max_gap_s",
+    "paper_sigmas",
+    "leave_m",
+    "storey_m",
+)
+#: Settings that must be finite numbers of at least zero.
+_NOT_NEGATIVE = ("landing_s", "min_visit_s")
+
+
 @dataclass(frozen=True, slots=True)
 class FloorDetectorConfig:
-    """Floor-detection settings (see the module docstring for the reasons behind defaults)."""
+    """Floor-detection settings (see the module docstring for the reasons behind defaults).
+
+    Invalid values raise :class:`~baromap.errors.ConfigError` naming the field.
+    """
 
     min_transition_m: float = 1.8
     start_m: float = 0.5
@@ -59,39 +97,36 @@ class FloorDetectorConfig:
     level_tau_s: float = 0.5
     trend_tau_s: float = 1.5
     drift_tau_s: float = 60.0
-    drift_rate_tau_s: float = 300.0
     landing_s: float = 15.0
+    min_visit_s: float = 15.0
+    leave_m: float = 1.0
     reference_tau_s: float = 10.0
     default_temperature_c: float = STANDARD_TEMPERATURE_C
     max_gap_s: float = 10.0
     paper_alpha: float = 0.1
     paper_gamma: float = 0.1
     paper_sigmas: float = 2.0
+    start_floor: str = "0"
+    storey_m: float = 3.5
+    building: BuildingModel | None = None
 
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
-            if not isinstance(value, int | float) or not math.isfinite(value):
+            if f.name in ("start_floor", "building"):
+                continue
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, int | float)
+                or not math.isfinite(value)
+            ):
                 raise ConfigError(f"{f.name} must be a finite number, not {value!r}")
-        positive = (
-            "min_transition_m",
-            "start_m",
-            "start_rate_m_s",
-            "settle_rate_m_s",
-            "settle_s",
-            "level_tau_s",
-            "trend_tau_s",
-            "drift_tau_s",
-            "drift_rate_tau_s",
-            "reference_tau_s",
-            "max_gap_s",
-            "paper_sigmas",
-        )
-        for name in positive:
+        for name in _POSITIVE:
             if getattr(self, name) <= 0:
                 raise ConfigError(f"{name} must be positive, not {getattr(self, name)}")
-        if self.landing_s < 0:
-            raise ConfigError("landing_s must not be negative")
+        for name in _NOT_NEGATIVE:
+            if getattr(self, name) < 0:
+                raise ConfigError(f"{name} must not be negative, not {getattr(self, name)}")
         if self.start_m >= self.min_transition_m:
             raise ConfigError("start_m must be below min_transition_m, or no change could start")
         if self.settle_rate_m_s > self.start_rate_m_s:
@@ -101,3 +136,23 @@ class FloorDetectorConfig:
                 raise ConfigError(f"{name} must be in (0, 1], not {getattr(self, name)}")
         if not MIN_AIR_C < self.default_temperature_c < MAX_AIR_C:
             raise ConfigError("default_temperature_c must be a plausible air temperature")
+        self._check_names()
+
+    def _check_names(self) -> None:
+        if not isinstance(self.start_floor, str) or not self.start_floor.strip():
+            raise ConfigError(f"start_floor must be a floor name, not {self.start_floor!r}")
+        model = self.building
+        if model is None:
+            return
+        if not isinstance(model, BuildingModel):
+            raise ConfigError(f"building must be a BuildingModel, not {type(model).__name__}")
+        if model.elevation_of(self.start_floor) is None:
+            names = ", ".join(f.name for f in model.floors)
+            raise ConfigError(
+                f"start_floor {self.start_floor!r} is not a floor of the building model ({names})"
+            )
+        if model.closest_gap_m() < self.min_transition_m:
+            raise ConfigError(
+                f"building: two floors {model.closest_gap_m():.2f} m apart, closer than "
+                f"min_transition_m ({self.min_transition_m} m): they cannot both be floors"
+            )

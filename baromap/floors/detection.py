@@ -3,6 +3,10 @@
 Both methods end in the same :class:`FloorDetection`, so the mapping step, the plots and the
 evaluation treat them alike. Floor indices are ranked by height, 0 = lowest visited.
 
+The online method's transitions are the live detector's published transitions with their
+corrections applied, one for one (the live decisions are what the run is cut by); hindsight
+only tightens their time bounds and measures the floors' heights.
+
 Elevations differ by method on purpose: the paper's method takes them from the mean pressure
 of each floor's segments (as the paper does, and as drift spoils); the online method's come
 from the steps across transitions combined by least squares (:mod:`baromap.floors.elevation`).
@@ -12,7 +16,6 @@ from __future__ import annotations
 
 import bisect
 import dataclasses
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -31,7 +34,7 @@ from baromap.floors.elevation import (
     solve_levels,
 )
 from baromap.floors.height import height_difference_m, pressure_drop_pa
-from baromap.messages import NS_PER_S, PressureSample
+from baromap.messages import NS_PER_S, FloorEvent
 
 #: Span next to a transition whose median is the level it left or reached (for sharpening).
 SHARPEN_LOCAL_S = 3.0
@@ -40,12 +43,16 @@ METHODS: tuple[str, ...] = ("online", "paper")
 
 @dataclass(frozen=True, slots=True)
 class Floor:
-    """One floor: ``level_pa`` is its pressure referred to the start of the run."""
+    """One floor: ``level_pa`` is its pressure referred to the start of the run.
+
+    ``name`` is the live detector's name for it (online method; empty for the paper's).
+    """
 
     index: int
     level_pa: float
     elevation_m: float
     visits: int
+    name: str = ""
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,6 +89,10 @@ class FloorDetection:
     rate_pa_per_s: npt.NDArray[np.float64]
     #: The paper's rate threshold (mean + 2 sigma of the run), for its Figure 4; None online.
     threshold_pa_per_s: float | None = None
+    #: What the live detector published while the online method ran (corrections included,
+    #: in order): the transitions above are these with the corrections applied. Empty for
+    #: the paper's method.
+    events: tuple[FloorEvent, ...] = ()
 
     def floor_of(self, t_ns: int) -> int | None:
         """Floor at a time, None between segments (during a transition) or outside the run."""
@@ -114,6 +125,7 @@ class FloorDetection:
                     "level_pa": round(f.level_pa, 2),
                     "elevation_m": round(f.elevation_m, 3),
                     "visits": f.visits,
+                    "name": f.name,
                 }
                 for f in self.floors
             ],
@@ -157,13 +169,15 @@ def detect_floors(
     method: str = "online",
     reference: tuple[npt.ArrayLike, npt.ArrayLike] | None = None,
     config: FloorDetectorConfig | None = None,
+    odometry: tuple[npt.ArrayLike, npt.ArrayLike, npt.ArrayLike] | None = None,
 ) -> FloorDetection:
     """Detect floors in a whole run.
 
     ``reference`` is ``(t_ns, pressure_pa)`` of a reference station (a barometer that stays
-    put), which removes weather drift when present. Non-finite pressures and repeated stamps
-    are left out, so the result's ``t_ns`` (with ``smoothed_pa`` and ``rate_pa_per_s``) holds
-    the samples actually used.
+    put), which removes weather drift when present. ``odometry`` is ``(t_ns, x_m, y_m)`` of
+    the robot's odometry (online method: a stop is a visit once the robot drove off). Non-finite
+    pressures and repeated stamps are left out, so the result's ``t_ns`` (with ``smoothed_pa``
+    and ``rate_pa_per_s``) holds the samples actually used.
     """
     config = config or FloorDetectorConfig()
     if method not in METHODS:
@@ -190,7 +204,7 @@ def detect_floors(
         keep = np.concatenate(([True], np.diff(t) > 0))
         t, p, temp = t[keep], p[keep], temp[keep]
     if method == "online":
-        return _online(t, p, temp, reference, config)
+        return _online(t, p, temp, reference=reference, config=config, odometry=odometry)
     return _paper(t, p, temp, reference, config)
 
 
@@ -198,40 +212,35 @@ def _online(
     t: npt.NDArray[np.int64],
     p: npt.NDArray[np.float64],
     temp: npt.NDArray[np.float64],
+    *,
     reference: tuple[npt.ArrayLike, npt.ArrayLike] | None,
     config: FloorDetectorConfig,
+    odometry: tuple[npt.ArrayLike, npt.ArrayLike, npt.ArrayLike] | None,
 ) -> FloorDetection:
-    from baromap.floors.online import OnlineFloorDetector
+    from baromap.floors.replay import replay
 
-    detector = OnlineFloorDetector(config)
-    smoothed = np.empty(t.size)
-    rate = np.empty(t.size)
-    ref_t: list[int] = []
-    ref_p: list[float] = []
-    if reference is not None:
-        ref_t = np.asarray(reference[0], dtype=np.int64).tolist()
-        ref_p = np.asarray(reference[1], dtype=np.float64).tolist()
-    r = 0
-    temps = temp.tolist()
-    for i, (ti, pi) in enumerate(zip(t.tolist(), p.tolist(), strict=True)):
-        while r < len(ref_t) and ref_t[r] <= ti:
-            detector.update_reference(PressureSample(ref_t[r], ref_p[r]))
-            r += 1
-        ci = temps[i]
-        detector.update(PressureSample(ti, pi, None if math.isnan(ci) else ci))
-        smoothed[i] = detector.level
-        rate[i] = detector.rate
-    detector.finish()
+    detector, smoothed, rate = replay(t, p, temp, config, reference=reference, odometry=odometry)
+    registry = detector.registry
+    # Stable live ids to dense ids (floors merged into others are gone); the start floor is 0.
+    dense = {floor_id: k for k, floor_id in enumerate(registry.ids())}
     raw = [
         _Raw(
-            rec.t_start_ns, rec.t_end_ns, rec.t_ns, rec.from_id, rec.to_id, rec.delta_pa, rec.at_end
+            ev.t_start_ns,
+            ev.t_end_ns,
+            ev.t_ns,
+            dense[registry.resolve(ev.from_id)],
+            dense[registry.resolve(ev.to_id)],
+            ev.delta_pa,
+            ev.at_end,
         )
-        for rec in detector.transitions
+        for ev in detector.transitions
     ]
     corrected = p
-    if reference is not None and len(ref_t) > 1:
-        corrected = p - _reference_change(t, np.asarray(ref_t), np.asarray(ref_p))
-    return _assemble(
+    if reference is not None:
+        ref_t = np.asarray(reference[0], dtype=np.int64)
+        if ref_t.size > 1:
+            corrected = p - _reference_change(t, ref_t, np.asarray(reference[1], dtype=np.float64))
+    detection = _assemble(
         "online",
         t,
         corrected,
@@ -239,9 +248,11 @@ def _online(
         smoothed,
         rate=rate,
         raw=raw,
-        n_ids=len(detector.registry),
+        n_ids=len(dense),
         config=config,
+        names=[registry.name(floor_id) for floor_id in dense],
     )
+    return dataclasses.replace(detection, events=tuple(detector.events))
 
 
 def _paper(
@@ -302,6 +313,7 @@ def _assemble(
     config: FloorDetectorConfig,
     segment_levels: npt.NDArray[np.float64] | None = None,
     threshold_pa_per_s: float | None = None,
+    names: Sequence[str] | None = None,
 ) -> FloorDetection:
     valid_temp = temp[np.isfinite(temp)]
     temperature = float(np.median(valid_temp)) if valid_temp.size else config.default_temperature_c
@@ -341,6 +353,7 @@ def _assemble(
             level_pa=float(base_level + relative_pa[i]),
             elevation_m=float(heights[i] - lowest),
             visits=visits[i],
+            name=names[i] if names is not None else "",
         )
         for i in order
     )

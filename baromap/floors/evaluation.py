@@ -12,8 +12,11 @@ in transition or unknown).
 
 Matching, one to one in time order: a detected transition matches a true one when its
 interval ``[t_start, t_end]`` overlaps the true window widened by ``tolerance_s`` (the
-smoothing and the start estimate blur the edges by a second or two) and it was decided no
-later than ``max_delay_s`` after the window ended. Everything unmatched is missed or false.
+smoothing and the start estimate blur the edges by a second or two), and, when
+``max_delay_s`` is given, it was decided no later than that after the window ended. The
+post-run segmentation is scored without that limit: when the live detector decided is a
+figure of its own (a visit is decided once the robot drove off or stayed long enough).
+Everything unmatched is missed or false.
 
 Direction and storey count compare ``to - from`` of the detected indices (ranked by height
 over the floors the run visited) with the true floor numbers. Per-sample accuracy aligns the
@@ -37,7 +40,6 @@ from baromap.floors.detection import FloorDetection
 from baromap.messages import NS_PER_S
 
 TOLERANCE_S = 2.0
-MAX_DELAY_S = 15.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,10 +151,10 @@ def score(
     detection: FloorDetection,
     truth: FloorTruth,
     tolerance_s: float = TOLERANCE_S,
-    max_delay_s: float = MAX_DELAY_S,
+    max_delay_s: float | None = None,
 ) -> Score:
     tol = round(tolerance_s * NS_PER_S)
-    late = round(max_delay_s * NS_PER_S)
+    late = None if max_delay_s is None else round(max_delay_s * NS_PER_S)
     detected = list(detection.transitions)
     used = [False] * len(detected)
     matches = []
@@ -163,7 +165,7 @@ def score(
             overlaps = (
                 det.t_start_ns <= true.t_end_ns + tol and det.t_end_ns >= true.t_begin_ns - tol
             )
-            if overlaps and det.t_detect_ns <= true.t_end_ns + late:
+            if overlaps and (late is None or det.t_detect_ns <= true.t_end_ns + late):
                 used[j] = True
                 matches.append((true, det))
                 break

@@ -1,4 +1,4 @@
-"""The online floor detector: one pressure sample in, floor events out, never a look ahead.
+"""The online floor detector: pressure samples (and odometry) in, floor events out, causally.
 
 How it decides, and why:
 
@@ -10,46 +10,50 @@ How it decides, and why:
    critically damped second-order tracker (level and drift rate; no lag on a steady drift),
    its drift rate clipped to what weather can do.
 3. A change *begins* when the Holt level leaves the tracked level by ``start_m`` or moves
-   faster than ``start_rate_m_s``. From then on the level is only extrapolated with the drift
-   rate; nothing the robot does moves it.
+   faster than ``start_rate_m_s``. From then on the floor's level is only extrapolated with
+   the drift rate; nothing the robot does moves it.
 4. The change *ends* when the last ``settle_s`` seconds (all after the change began) were
-   still: the smoothed pressure stayed within the band a vertical speed of ``settle_rate_m_s``
-   would cross in that time, and the least-squares slope of the raw pressures over the same
-   window is below that speed. One window, one test, one lag: the band catches a bump or a dip
-   inside the window (where a slope alone reads zero), the slope catches pressure still moving
-   at the window's end that the smoothing has not shown yet. (A Holt rate that must stay quiet
-   for ``settle_s`` puts two lags in a row: the trend's exponential memory of the ride, about
-   a second after the sensor has settled, then the hold.) The settled level is the smoothed
-   pressure at that moment. The window holds only samples taken since the change began and
-   is kept with running sums and monotonic queues, so the test costs O(1) per sample.
-5. Only if the settled level differs from the current floor's by at least
-   ``min_transition_m`` (hypsometric, measured temperature) is a transition emitted. An
-   elevator ventilation spike or a door draught goes and comes back: no event. A settle short
-   of that height (a ramp, a stair landing) is kept as an offset from the floor, so several
-   small steps in a row still add up against the floor's own level.
-6. Arrival: a decision comes as soon as the robot is still, which in an elevator is often
-   before the doors open (the car is slightly pressurised) or while a ventilation spike is
-   still fading. For ``landing_s`` after a transition the new floor's level therefore follows
-   the smoothed pressure, as long as it stays within ``start_m`` of the decided level (beyond
-   that it is a new change); then the floor keeps the level it arrived at (a new floor's
-   relative level is corrected by as much) and the weather tracker takes over.
-7. A stop of less than ``landing_s`` between two legs in the same direction (a stair landing)
-   belongs to the trip: the transition is dated from the first leg; and if a first visit to a
-   floor was decided on such a landing, the floor's level is moved to where the trip ended.
-8. The destination is matched against known floors by level relative to the floor just left
-   (:mod:`baromap.floors.identity`), so revisits get their old index back despite drift.
+   still (:class:`~baromap.floors.still_window.StillWindow`): the smoothed pressure stayed
+   within the band a vertical speed of ``settle_rate_m_s`` would cross in that time, and the
+   least-squares slope of the raw pressures is below that speed. One window, one lag.
+5. A level less than ``min_transition_m`` from the floor's (hypsometric, measured
+   temperature) is no floor change: a ramp, a stair landing, a spike that went away. It is
+   kept as an offset from the floor, so several small legs in a row still add up.
+6. A level at least that far is a *stop* (phase ``STOPPED``), not yet a visit: an elevator
+   stops at passing floors, a walker pauses on landings. It becomes a visit, and only then
+   the transition event is published, when the robot drives ``leave_m`` away from where it
+   stood when the pressure came to rest (odometry, :mod:`baromap.floors.motion`); or, with no
+   live odometry, when it lasted ``min_visit_s``, or the next leg goes back the other way (the
+   stop was where the trip went). A leg on in the same direction continues the same trip,
+   dated from its first leg. With live odometry a stop where the robot stayed put is never a
+   visit: the robot is in the car.
+7. The level of the new floor is the smoothed pressure when the visit is decided (by then
+   the car's doors are open and their transient has faded), matched against the known floors
+   by level relative to the floor just left (:mod:`baromap.floors.identity`): a revisit gets
+   its old stable id despite drift, a new floor a new id and a name
+   (:mod:`baromap.floors.names`).
+8. Decisions are final unless the trip was not over: if a leg in the same direction begins
+   within ``landing_s`` of the stop a visit was decided on, without the robot having driven
+   off (only possible when ``min_visit_s`` is below ``landing_s``), the transition is revised
+   by a :attr:`~baromap.messages.FloorEventKind.CORRECTION` event to where the trip ended, and
+   the floor's identity is decided again there: a new floor that turns out to be a known one
+   is merged into it (two floors closer than ``min_transition_m`` cannot both exist).
+
+Every event returned is also kept in :attr:`OnlineFloorDetector.events`; the detector's
+results change only through events, so :attr:`OnlineFloorDetector.transitions` is always the
+published transitions with their corrections applied, and a replay of the same inputs in the
+same order gives the same events, ids included.
 
 With a reference station (a barometer that does not move), its smoothed pressure change since
 the start is subtracted from the robot's, which removes the weather directly.
 
 All per-sample work is a few float operations on attributes; objects are built only when
-something happens (an event) or someone asks (:attr:`OnlineFloorDetector.state`).
+something happens (an event) or someone asks (:meth:`OnlineFloorDetector.state`).
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import structlog
@@ -57,7 +61,18 @@ import structlog
 from baromap.floors.config import MAX_AIR_C, MIN_AIR_C, FloorDetectorConfig
 from baromap.floors.height import height_difference_m, pa_per_m, pressure_drop_pa
 from baromap.floors.identity import FloorRegistry
-from baromap.messages import NS_PER_S, FloorEvent, FloorPhase, FloorState, PressureSample
+from baromap.floors.motion import StopWatch
+from baromap.floors.names import FloorNamer
+from baromap.floors.still_window import StillWindow
+from baromap.messages import (
+    NS_PER_S,
+    FloorEvent,
+    FloorEventKind,
+    FloorPhase,
+    FloorState,
+    Odometry,
+    PressureSample,
+)
 
 log = structlog.get_logger(__name__)
 
@@ -65,54 +80,62 @@ log = structlog.get_logger(__name__)
 MAX_WEATHER_RATE_PA_S = 0.2
 #: Fewest samples in the settle window: a line through two points says nothing about stillness.
 MIN_WINDOW_SAMPLES = 3
-#: How often the window's running sums are recomputed around a new origin, ns (keeps the sums
-#: small, so subtracting the samples that leave the window loses no precision).
-_REBASE_NS = 60 * NS_PER_S
 
-_UNKNOWN, _SETTLED, _CHANGING = 0, 1, 2
-_PHASES = (FloorPhase.UNKNOWN, FloorPhase.SETTLED, FloorPhase.CHANGING)
+_UNKNOWN, _SETTLED, _CHANGING, _STOPPED = 0, 1, 2, 3
+_PHASES = (FloorPhase.UNKNOWN, FloorPhase.SETTLED, FloorPhase.CHANGING, FloorPhase.STOPPED)
 
 
 @dataclass(slots=True)
-class TransitionRecord:
-    """What the detector concluded about one transition (by floor id, not index).
+class _Held:
+    """A stop left by a change that may turn out to be a spike (then the stop goes on)."""
 
-    ``at_end`` says the stream ended before the pressure
-    had settled, and the decision was taken on what there was. ``delta_pa`` and ``level_pa``
-    are refined after the decision while the robot arrives; ``completed`` says a first visit
-    decided before its trip ended has been moved to where the trip ended (that happens once).
-    """
+    level: float
+    start_ns: int
+    since_ns: int
 
-    t_ns: int
-    t_start_ns: int
-    t_end_ns: int
-    from_id: int
-    to_id: int
-    delta_pa: float
-    level_pa: float
-    temperature_c: float
-    at_end: bool = False
-    new_floor: bool = False
-    completed: bool = False
+
+@dataclass(slots=True)
+class _Visit:
+    """The last decided transition, while its trip could still turn out to go on."""
+
+    position: int
+    stop_ns: int
+    direction: float
+    new_floor: bool
 
 
 class OnlineFloorDetector:
     """Streaming floor detector; see the module docstring for the method.
 
-    ``update(sample)`` is to be called with samples in time order (older or repeated stamps are
-    ignored and counted); ``update_reference`` with a reference station's samples when there is
-    one; ``finish()`` when the stream ends, to decide on a change still in progress.
+    Call :meth:`update` with the robot's pressure samples in time order (older or repeated
+    stamps are ignored and counted), :meth:`update_odometry` with its odometry when there is
+    any, :meth:`update_reference` with a reference station's samples when there is one, and
+    :meth:`finish` when the stream ends, to decide on a change or stop still in progress.
+    Events come only from :meth:`update` and :meth:`finish`; decisions depend only on the
+    sequence of calls, so a replay in the recorded order gives identical events.
     """
 
     def __init__(self, config: FloorDetectorConfig | None = None) -> None:
         self.config = config or FloorDetectorConfig()
         c = self.config
         self.registry = FloorRegistry()
-        self.transitions: list[TransitionRecord] = []
+        #: Every event published, in order (transitions and corrections).
+        self.events: list[FloorEvent] = []
+        self._current: list[FloorEvent] = []
+        self._next_id = 1
         self.ignored_samples = 0
+        self.ignored_odometry = 0
+        self._namer = FloorNamer(
+            c.start_floor,
+            storey_m=c.storey_m,
+            tolerance_m=c.min_transition_m / 2,
+            model=c.building,
+        )
+        self._motion = StopWatch()
         self._settle_ns = round(c.settle_s * NS_PER_S)
         self._gap_ns = round(c.max_gap_s * NS_PER_S)
         self._landing_ns = round(c.landing_s * NS_PER_S)
+        self._visit_ns = round(c.min_visit_s * NS_PER_S)
         self._level_tau = c.level_tau_s
         self._trend_tau = c.trend_tau_s
         self._drift_tau = c.drift_tau_s
@@ -124,24 +147,30 @@ class OnlineFloorDetector:
         self._temperature = c.default_temperature_c
         self._n = 0
         self._t = 0
-        self.level = math.nan  # smoothed pressure, Pa (reference-corrected)
+        self.level = math.nan  # Holt level of the pressure, Pa (reference-corrected)
         self.rate = 0.0  # Pa/s
+        self.smoothed = math.nan  # exponential average of the pressure, Pa (no trend)
         self._phase = _UNKNOWN
         self._since = 0
-        self._calm_ns = 0  # last time the rate was quiet while settled
-        self.smoothed = math.nan  # exponential average of the pressure, Pa (no trend)
+        self._calm_ns = 0  # last time the pressure was quiet where the robot is
         self._window = StillWindow(self._settle_ns)
-        self._anchor = math.nan  # tracked level of where the robot is, Pa
+        # Where the robot is: the tracked level there, and the current floor's level.
+        self._anchor = math.nan
         self._drift = 0.0  # Pa/s
-        self._offset = 0.0  # anchor minus the current floor's level, Pa
-        self._floor = -1  # current floor id
-        self._change_start = 0
+        self._offset = 0.0  # anchor minus the floor's level while settled (ramp, landing)
+        self._floor = -1  # stable id of the current floor
+        self._floor_level = math.nan
+        # The trip under way and the landings of sub-threshold legs.
+        self._change_start = 0  # the calm moment before the current leg
+        self._trip_start = -1  # start of the trip's first leg (-1: no trip at storey height)
         self._departed_ns = -1  # when the current offset from the floor's level began
         self._landed_ns = 0  # when the robot stopped at that offset
-        self._arrival_until = -1  # while t < this, the floor's level follows the pressure
-        self._arrival_level = 0.0  # the level decided on arrival (drift-extrapolated), Pa
-        self._arrival_record: TransitionRecord | None = None
-        self._continued: TransitionRecord | None = None  # arrival a change broke into
+        # A stop at a storey's height, not yet a visit.
+        self._stop_level = math.nan
+        self._stop_start = 0
+        self._held: _Held | None = None
+        self._visit: _Visit | None = None
+        # Reference station.
         self._ref_level = math.nan
         self._ref_origin = math.nan
         self._ref_t = 0
@@ -166,6 +195,12 @@ class OnlineFloorDetector:
         gain = dt / (self.config.reference_tau_s + dt)
         self._ref_level += gain * (sample.pressure_pa - self._ref_level)
         self._correction = self._ref_level - self._ref_origin
+
+    def update_odometry(self, odometry: Odometry) -> None:
+        """The robot's odometry: says whether it drove off during a stop (no events here;
+        a visit it makes certain is published by the next :meth:`update`)."""
+        if not self._motion.update(odometry):
+            self.ignored_odometry += 1
 
     def update(self, sample: PressureSample) -> list[FloorEvent]:
         """Feed one sample; returns the floor events it completes (usually none)."""
@@ -197,40 +232,14 @@ class OnlineFloorDetector:
         self.rate = rate
         average = self.smoothed + dt / (self._level_tau + dt) * (p - self.smoothed)
         self.smoothed = average
-        quiet = -self._settle_rate < rate < self._settle_rate
         phase = self._phase
         if phase == _SETTLED:
-            if t < self._arrival_until:
-                return self._arriving(dt, smoothed, rate, quiet)
-            if self._arrival_until >= 0:
-                self._arrived()
-            anchor = self._anchor + self._drift * dt
-            error = smoothed - anchor
-            if (
-                error > self._start_pa
-                or error < -self._start_pa
-                or rate > self._start_rate
-                or rate < -self._start_rate
-            ):
-                self._anchor = anchor
-                self._begin_change()
-                return []
-            if quiet:
-                # Critically damped tracker with time constant drift_tau: weather only.
-                tau = self._drift_tau
-                self._anchor = anchor + 2.0 * dt / tau * error
-                drift = self._drift + dt / (tau * tau) * error
-                if drift > MAX_WEATHER_RATE_PA_S:
-                    drift = MAX_WEATHER_RATE_PA_S
-                elif drift < -MAX_WEATHER_RATE_PA_S:
-                    drift = -MAX_WEATHER_RATE_PA_S
-                self._drift = drift
-                self._calm_ns = t
-            else:
-                self._anchor = anchor
+            self._on_floor(t, dt, smoothed, rate)
             return []
+        if phase == _STOPPED:
+            return self._on_stop(t, dt, smoothed, rate)
         # Changing (or not yet settled at the start): wait until the last settle_s were still.
-        self._anchor += self._drift * dt
+        self._floor_level += self._drift * dt
         window = self._window
         window.push(t, p, average)
         if (
@@ -249,14 +258,21 @@ class OnlineFloorDetector:
         return self._settled(t, average, window.start_ns, at_end=False)
 
     def finish(self) -> list[FloorEvent]:
-        """The stream ended: decide on a change in progress from the samples there were."""
-        if self._phase == _SETTLED and self._arrival_until >= 0:
-            self._arrived()
-        if self._phase != _CHANGING or self._n == 0:
+        """The stream ended: decide on a change or a stop in progress from what there was."""
+        if self._n == 0:
+            return []
+        if self._phase == _STOPPED:
+            return self._confirm(self._t, at_end=True)
+        if self._phase != _CHANGING:
             return []
         return self._settled(self._t, self.smoothed, self._t, at_end=True)
 
-    # -- state ---------------------------------------------------------------------------
+    # -- results -------------------------------------------------------------------------
+
+    @property
+    def transitions(self) -> tuple[FloorEvent, ...]:
+        """The published transitions with their corrections applied, in order."""
+        return tuple(self._current)
 
     @property
     def phase(self) -> FloorPhase:
@@ -264,37 +280,97 @@ class OnlineFloorDetector:
 
     @property
     def floor_id(self) -> int | None:
-        """Stable id (discovery order) of the current floor, None before the first settle."""
+        """Stable id of the current floor, None before the first settle."""
         return self._floor if self._floor >= 0 else None
 
-    @property
     def state(self) -> FloorState:
         """The live answer to "which floor are we on?" (built on demand)."""
+        level_pa = self.level + self._correction if self._n else math.nan
         if self._floor < 0:
             return FloorState(
                 t_ns=self._t,
-                floor=None,
                 phase=_PHASES[self._phase],
-                level_pa=self.level + self._correction if self._n else math.nan,
-                elevation_m=math.nan,
-                floors_known=0,
+                floor_id=None,
+                name=None,
+                height_m=math.nan,
+                level_m=math.nan,
+                level_pa=level_pa,
                 since_ns=self._since,
+                floors_known=0,
             )
         registry = self.registry
-        here = registry.relative_pa(self._floor)
-        lowest = max(registry.relative_pa(i) for i in range(len(registry)))
-        floor_level = self._anchor - self._offset
+        here = self._anchor if self._phase in (_SETTLED, _STOPPED) else self.smoothed
+        stop_id: int | None = None
+        if self._phase == _STOPPED:
+            stop_id = registry.match(
+                registry.relative_pa(self._floor) + self._stop_level - self._floor_level,
+                pressure_drop_pa(self.config.min_transition_m, here, self._temperature),
+                exclude=self._floor,
+            )
         return FloorState(
             t_ns=self._t,
-            floor=registry.index(self._floor),
             phase=_PHASES[self._phase],
-            level_pa=floor_level + self._correction,
-            elevation_m=height_difference_m(
-                floor_level + lowest - here, floor_level, self._temperature
-            ),
-            floors_known=len(registry),
+            floor_id=self._floor,
+            name=registry.name(self._floor),
+            height_m=registry.height_m(self._floor),
+            level_m=self._height_of(here - self._floor_level + registry.relative_pa(self._floor)),
+            level_pa=level_pa,
             since_ns=self._since,
+            floors_known=registry.known,
+            stop_floor_id=stop_id,
+            stop_name=None if stop_id is None else registry.name(stop_id),
         )
+
+    # -- per sample, by phase ------------------------------------------------------------
+
+    def _on_floor(self, t: int, dt: float, smoothed: float, rate: float) -> None:
+        anchor = self._anchor + self._drift * dt
+        error = smoothed - anchor
+        if self._leaves(error, rate):
+            self._anchor = anchor
+            self._floor_level = anchor - self._offset
+            self._begin_change()
+            return
+        if -self._settle_rate < rate < self._settle_rate:
+            anchor = self._track(anchor, error, dt)
+            self._calm_ns = t
+        self._anchor = anchor
+        self._floor_level = anchor - self._offset
+
+    def _on_stop(self, t: int, dt: float, smoothed: float, rate: float) -> list[FloorEvent]:
+        """Stopped at a storey's height during a ride: a visit yet?"""
+        self._floor_level += self._drift * dt
+        stop = self._stop_level + self._drift * dt
+        error = smoothed - stop
+        if self._leaves(error, rate):
+            self._held = _Held(stop, self._stop_start, self._since)
+            self._stop_level = stop
+            self._begin_change()
+            return []
+        if -self._settle_rate < rate < self._settle_rate:
+            stop = self._track(stop, error, dt)
+            self._calm_ns = t
+        self._stop_level = stop
+        # The level of the stop is the pressure now: the car's doors open and their
+        # transient fades while it waits, and the decision takes the level it has reached.
+        self._anchor = smoothed
+        if self._motion.live(t):
+            if self._motion.moved_m >= self.config.leave_m:
+                return self._confirm(t, at_end=False)
+        elif t - self._stop_start >= self._visit_ns:
+            return self._confirm(t, at_end=False)
+        return []
+
+    def _leaves(self, error: float, rate: float) -> bool:
+        start_pa, start_rate = self._start_pa, self._start_rate
+        return error > start_pa or error < -start_pa or rate > start_rate or rate < -start_rate
+
+    def _track(self, level: float, error: float, dt: float) -> float:
+        """Critically damped tracker with time constant drift_tau: weather only."""
+        tau = self._drift_tau
+        drift = self._drift + dt / (tau * tau) * error
+        self._drift = min(max(drift, -MAX_WEATHER_RATE_PA_S), MAX_WEATHER_RATE_PA_S)
+        return level + 2.0 * dt / tau * error
 
     # -- decisions -----------------------------------------------------------------------
 
@@ -322,19 +398,24 @@ class OnlineFloorDetector:
     def _gap(self, t: int, p: float) -> None:
         """No data for longer than ``max_gap_s``: the robot may have moved meanwhile."""
         log.info("pressure gap", seconds=(t - self._t) / NS_PER_S)
+        elapsed = (t - self._t) * 1e-9
         previous = self._t
         self._n += 1
         self._t = t
         self.level = self.smoothed = p
         self.rate = 0.0
-        self._continued = None
-        if self._phase == _SETTLED:
-            if self._arrival_until >= 0:
-                self._arrived()
-            self._anchor += self._drift * (t - previous) * 1e-9
+        if self._phase in (_SETTLED, _STOPPED):
+            self._floor_level += self._drift * elapsed
+            if self._phase == _SETTLED:
+                self._anchor += self._drift * elapsed
+            else:
+                self._stop_level += self._drift * elapsed
+                self._held = _Held(self._stop_level, self._stop_start, self._since)
             self._calm_ns = previous
             self._begin_change()
         else:
+            if self._floor >= 0:
+                self._floor_level += self._drift * elapsed
             self._window.clear()  # what came before the gap says nothing about now
         self._window.push(t, p, p)
 
@@ -344,155 +425,172 @@ class OnlineFloorDetector:
         self._since = self._t
         self._change_start = self._calm_ns
 
-    def _arriving(self, dt: float, smoothed: float, rate: float, quiet: bool) -> list[FloorEvent]:
-        """Just arrived: the floor's level follows the pressure while the air settles."""
-        self._arrival_level += self._drift * dt
-        error = smoothed - self._arrival_level
-        if (
-            error > self._start_pa
-            or error < -self._start_pa
-            or rate > self._start_rate
-            or rate < -self._start_rate
-        ):
-            self._anchor += self._drift * dt
-            self._continued = self._arrival_record
-            self._arrived()
-            self._begin_change()
+    def _settled(self, t: int, settled: float, t_end: int, *, at_end: bool) -> list[FloorEvent]:
+        """The pressure came to rest (or the input ended): where does that leave the robot?"""
+        self._thresholds(settled)
+        held, self._held = self._held, None
+        if self._floor < 0:
+            # First settle of the run: this is the start floor.
+            self._floor = self.registry.add(0.0, 0.0, self._namer.start_name)
+            self._enter(t, settled, 0.0)
             return []
-        self._anchor = self.smoothed
-        if quiet:
-            self._calm_ns = self._t
+        min_pa = pressure_drop_pa(self.config.min_transition_m, settled, self._temperature)
+        if held is not None:
+            back = settled - held.level
+            if -self._start_pa < back < self._start_pa:
+                # A spike or a shuffle: the stop goes on as it was.
+                self._resume(held, settled)
+                return self._due(t, at_end)
+            if back * (held.level - self._floor_level) < 0.0 and not self._motion.live(t):
+                # The trip turned back: the stop was where it went, however short.
+                events = self._confirm_at(t, held, at_end=False)
+                return events + self._settled_on_floor(t, settled, t_end, min_pa, at_end)
+        elif self._continues(t, settled):
+            return self._continue_trip(t, settled, t_end, min_pa)
+        return self._settled_on_floor(t, settled, t_end, min_pa, at_end)
+
+    def _settled_on_floor(
+        self, t: int, settled: float, t_end: int, min_pa: float, at_end: bool
+    ) -> list[FloorEvent]:
+        step = settled - self._floor_level
+        if -min_pa < step < min_pa:
+            self._sub_threshold(t, t_end, settled, step)
+            return []
+        if self._trip_start < 0:
+            self._trip_start = self._change_start
+            if (
+                self._departed_ns >= 0
+                and self._offset * step > 0.0
+                and self._change_start - self._landed_ns <= self._landing_ns
+            ):
+                self._trip_start = self._departed_ns  # the trip paused on a landing first
+        self._phase = _STOPPED
+        self._since = t
+        self._calm_ns = t
+        self._anchor = self._stop_level = settled
+        self._stop_start = t_end
+        self._motion.watch(t_end)
+        return self._due(t, at_end)
+
+    def _resume(self, held: _Held, settled: float) -> None:
+        self._phase = _STOPPED
+        self._since = held.since_ns
+        self._calm_ns = self._t
+        self._anchor = self._stop_level = settled
+        self._stop_start = held.start_ns
+
+    def _due(self, t: int, at_end: bool) -> list[FloorEvent]:
+        """A stop just began or went on: is it a visit already?"""
+        if at_end or (self._motion.live(t) and self._motion.moved_m >= self.config.leave_m):
+            return self._confirm(t, at_end=at_end)
         return []
 
-    def _arrived(self) -> None:
-        """The arrival is over: the level the floor has now is the one it arrived at."""
-        self._arrival_until = -1
-        moved = self._anchor - self._arrival_level
-        record = self._arrival_record
-        self._arrival_record = None
-        if record is None:
-            return
-        record.delta_pa += moved
-        record.level_pa += moved
-        if record.new_floor and record.to_id == self._floor:
-            self.registry.move(self._floor, moved)
+    def _confirm_at(self, t: int, held: _Held, *, at_end: bool) -> list[FloorEvent]:
+        """Decide on a stop that a change has already left (the trip turned back)."""
+        self._stop_level = held.level
+        self._stop_start = held.start_ns
+        self._anchor = held.level
+        events = self._confirm(t, at_end=at_end)
+        return events
 
-    def _arrive(self, t: int, settled: float, record: TransitionRecord | None) -> None:
-        self._arrival_until = t + self._landing_ns
-        self._arrival_level = settled
-        self._arrival_record = record
-
-    def _settled(self, t: int, settled: float, t_end: int, *, at_end: bool) -> list[FloorEvent]:
-        self._thresholds(settled)
-        continued = self._continued
-        self._continued = None
-        if self._floor < 0:
-            # First settle of the run: this is where we are.
-            self._floor = self.registry.add(0.0)
-            self._enter(t, settled, 0.0)
-            self._arrive(t, settled, None)
-            return []
-        floor_level = self._anchor - self._offset
-        step = settled - floor_level
-        min_pa = pressure_drop_pa(self.config.min_transition_m, settled, self._temperature)
-        if abs(step) < min_pa:
-            self._sub_threshold(t, t_end, settled, step, floor_level, last=continued)
-            return []
-        relative = self.registry.relative_pa(self._floor) + step
-        to_id = self.registry.match(relative, min_pa, exclude=self._floor)
+    def _confirm(self, t: int, *, at_end: bool) -> list[FloorEvent]:
+        """The stop is a visit: publish the transition to the floor at its level."""
+        registry = self.registry
+        level = self._anchor
+        step = level - self._floor_level
+        from_id = self._floor
+        relative = registry.relative_pa(from_id) + step
+        min_pa = pressure_drop_pa(self.config.min_transition_m, level, self._temperature)
+        to_id = registry.match(relative, min_pa, exclude=from_id)
         new_floor = to_id is None
         if to_id is None:
-            to_id = self.registry.add(relative)
+            to_id = self._new_floor(relative)
         else:
-            self.registry.revisit(to_id)
-        t_start = self._change_start
-        if (
-            self._departed_ns >= 0
-            and self._offset * step > 0.0
-            and self._change_start - self._landed_ns <= self._landing_ns
-        ):
-            t_start = self._departed_ns  # the trip paused on a landing: it began earlier
-        record = TransitionRecord(
-            t_ns=t,
-            t_start_ns=t_start,
-            t_end_ns=t_end,
-            from_id=self._floor,
+            registry.revisit(to_id)
+        event = self._publish(
+            t,
+            t_start=self._trip_start if self._trip_start >= 0 else self._change_start,
+            t_end=self._stop_start,
+            from_id=from_id,
             to_id=to_id,
             delta_pa=step,
-            level_pa=settled + self._correction,
-            temperature_c=self._temperature,
+            level=level,
             at_end=at_end,
-            new_floor=new_floor,
         )
-        self.transitions.append(record)
-        event = FloorEvent(
-            t_ns=t,
-            t_start_ns=record.t_start_ns,
-            t_end_ns=t_end,
-            from_floor=self.registry.index(self._floor),
-            to_floor=self.registry.index(to_id),
-            delta_pa=step,
-            delta_m=height_difference_m(floor_level, settled, self._temperature),
-            level_pa=record.level_pa,
-        )
-        log.debug(
-            "floor transition",
-            from_floor=event.from_floor,
-            to_floor=event.to_floor,
-            delta_m=round(event.delta_m, 2),
-        )
+        self._visit = _Visit(len(self._current) - 1, self._stop_start, step, new_floor)
         self._floor = to_id
-        self._enter(t, settled, 0.0)
-        self._arrive(t, settled, record)
+        self._trip_start = -1
+        self._departed_ns = -1
+        self._enter(t, level, 0.0)
         return [event]
 
-    def _sub_threshold(
-        self,
-        t: int,
-        t_end: int,
-        settled: float,
-        step: float,
-        floor_level: float,
-        *,
-        last: TransitionRecord | None,
-    ) -> None:
-        """Settled short of a floor change: a landing, a ramp, or a spike that went away.
+    def _continues(self, t: int, settled: float) -> bool:
+        """Did the leg that just ended carry on the trip of the last transition?"""
+        visit = self._visit
+        if visit is None or self._trip_start >= 0:
+            return False
+        step = settled - self._floor_level
+        if step * visit.direction <= 0.0 or -self._start_pa < step < self._start_pa:
+            return False
+        if self._change_start - visit.stop_ns >= self._landing_ns:
+            return False  # a stop as long as a landing can be was no landing
+        moved = self._motion.live(t) and self._motion.moved_m >= self.config.leave_m
+        return not moved
 
-        ``last`` is the transition whose arrival this change interrupted, if it did.
-        """
-        if (
-            last is not None
-            and last.new_floor
-            and not last.completed
-            and last.to_id == self._floor
-            and step * last.delta_pa > 0.0
-        ):
-            # A first visit decided on a landing (or in a lull of the ride): the change began
-            # while the robot was still arriving and went on the same way, so the trip went
-            # on and the floor is where it ended. Only once, and only for a floor never seen
-            # before (a known floor's level is already known: a leg away from it is a trip).
-            last.completed = True
-            last.t_end_ns = t_end
-            last.delta_pa += step
-            last.level_pa = settled + self._correction
-            self.registry.move(self._floor, step)
-            self._departed_ns = -1
-            self._enter(t, settled, 0.0)
-            self._arrive(t, settled, last)
-            return
-        offset = settled - floor_level
-        if abs(offset) < self._start_pa:
+    def _continue_trip(self, t: int, settled: float, t_end: int, min_pa: float) -> list[FloorEvent]:
+        """The trip of the last transition went on: correct it to where it ended."""
+        visit = self._visit
+        assert visit is not None  # checked by _continues
+        registry = self.registry
+        old = self._current[visit.position]
+        origin_level = self._floor_level - old.delta_pa
+        total = settled - origin_level
+        relative = registry.relative_pa(old.from_id) + total
+        to_id = registry.match(relative, min_pa, exclude=old.from_id)
+        if to_id is None or to_id == old.to_id:
+            if visit.new_floor:
+                to_id = old.to_id
+                registry.move(to_id, relative, self._height_of(relative))
+            elif to_id is None:
+                to_id = self._new_floor(relative)
+        elif visit.new_floor:
+            registry.merge(old.to_id, into=to_id)  # the landing was no floor
+        else:
+            registry.revisit(to_id)
+        event = self._publish(
+            t,
+            t_start=old.t_start_ns,
+            t_end=t_end,
+            from_id=old.from_id,
+            to_id=to_id,
+            delta_pa=total,
+            level=settled,
+            at_end=False,
+            replaces=old,
+        )
+        self._visit = _Visit(
+            visit.position, t_end, visit.direction, visit.new_floor and to_id == old.to_id
+        )
+        self._floor = to_id
+        self._departed_ns = -1
+        self._enter(t, settled, 0.0)
+        return [event]
+
+    def _sub_threshold(self, t: int, t_end: int, settled: float, step: float) -> None:
+        """Settled short of a floor change: a landing, a ramp, or a spike that went away."""
+        self._trip_start = -1
+        if -self._start_pa < step < self._start_pa:
             self._departed_ns = -1  # back at (or never left) the floor's level
         elif (
             self._departed_ns < 0
-            or offset * self._offset <= 0.0
+            or step * self._offset <= 0.0
             or self._change_start - self._landed_ns > self._landing_ns
         ):
             # a new trip: the first leg, a turn back, or a leg after a stop too long for a
             # landing (the robot stayed at the old offset; that was no part of this trip)
             self._departed_ns = self._change_start
         self._landed_ns = t_end
-        self._enter(t, settled, offset)
+        self._enter(t, settled, step)
 
     def _enter(self, t: int, settled: float, offset: float) -> None:
         self._phase = _SETTLED
@@ -500,114 +598,63 @@ class OnlineFloorDetector:
         self._calm_ns = t
         self._anchor = settled
         self._offset = offset
+        self._floor_level = settled - offset
 
+    # -- floors and events ---------------------------------------------------------------
 
-class StillWindow:
-    """The latest samples spanning at least ``window_ns``: were they still all along?
+    def _height_of(self, relative_pa: float) -> float:
+        """Height above the start floor of a level ``relative_pa`` from the start floor's."""
+        start = self._floor_level - self.registry.relative_pa(self._floor)
+        return height_difference_m(start, start + relative_pa, self._temperature)
 
-    Holds the shortest run of recent samples that spans the window, with running sums for a
-    least-squares line through the raw pressures (:meth:`slope`) and monotonic queues for the
-    highest and lowest smoothed pressure (:meth:`spread`), so each sample costs O(1) amortised
-    at any sample rate. Sums are taken about an origin that is moved every ``_REBASE_NS``, so
-    they stay small and removing old samples does not eat their precision.
-    """
+    def _new_floor(self, relative_pa: float) -> int:
+        height = self._height_of(relative_pa)
+        name = self._namer.name(height, self.registry.names())
+        return self.registry.add(relative_pa, height, name)
 
-    __slots__ = (
-        "_highs",
-        "_lows",
-        "_p0",
-        "_samples",
-        "_sx",
-        "_sxx",
-        "_sxy",
-        "_sy",
-        "_t0",
-        "window_ns",
-    )
-
-    def __init__(self, window_ns: int) -> None:
-        self.window_ns = window_ns
-        self._samples: deque[tuple[int, float, float]] = deque()  # (t_ns, x s, y Pa)
-        self._highs: deque[tuple[int, float]] = deque()  # (t_ns, smoothed), decreasing
-        self._lows: deque[tuple[int, float]] = deque()  # (t_ns, smoothed), increasing
-        self._t0 = 0
-        self._p0 = 0.0
-        self._sx = self._sxx = self._sy = self._sxy = 0.0
-
-    @property
-    def count(self) -> int:
-        return len(self._samples)
-
-    @property
-    def start_ns(self) -> int:
-        """Time of the oldest sample in the window (-1 when empty)."""
-        return self._samples[0][0] if self._samples else -1
-
-    def clear(self) -> None:
-        self._samples.clear()
-        self._highs.clear()
-        self._lows.clear()
-        self._sx = self._sxx = self._sy = self._sxy = 0.0
-
-    def push(self, t: int, p: float, smoothed: float) -> None:
-        samples = self._samples
-        if not samples:
-            self._t0, self._p0 = t, p
-        elif t - self._t0 > _REBASE_NS:
-            self._rebase(t, p)
-        x = (t - self._t0) * 1e-9
-        y = p - self._p0
-        samples.append((t, x, y))
-        self._sx += x
-        self._sxx += x * x
-        self._sy += y
-        self._sxy += x * y
-        highs = self._highs
-        while highs and highs[-1][1] <= smoothed:
-            highs.pop()
-        highs.append((t, smoothed))
-        lows = self._lows
-        while lows and lows[-1][1] >= smoothed:
-            lows.pop()
-        lows.append((t, smoothed))
-        limit = t - self.window_ns
-        while len(samples) > 1 and samples[1][0] <= limit:
-            _, x, y = samples.popleft()
-            self._sx -= x
-            self._sxx -= x * x
-            self._sy -= y
-            self._sxy -= x * y
-        oldest = samples[0][0]
-        while highs[0][0] < oldest:
-            highs.popleft()
-        while lows[0][0] < oldest:
-            lows.popleft()
-
-    def slope(self) -> float:
-        """Least-squares slope of the raw pressures over the window, Pa/s (0 if undefined)."""
-        n = len(self._samples)
-        sxx = n * self._sxx - self._sx * self._sx
-        if n < 2 or sxx <= 0.0:
-            return 0.0
-        return (n * self._sxy - self._sx * self._sy) / sxx
-
-    def spread(self) -> float:
-        """Highest minus lowest smoothed pressure over the window, Pa."""
-        if not self._samples:
-            return 0.0
-        return self._highs[0][1] - self._lows[0][1]
-
-    def _rebase(self, t: int, p: float) -> None:
-        shift_y = self._p0 - p
-        self._t0, self._p0 = t, p
-        old = list(self._samples)
-        self._samples.clear()
-        self._sx = self._sxx = self._sy = self._sxy = 0.0
-        for ti, _, yi in old:
-            x = (ti - t) * 1e-9
-            y = yi + shift_y
-            self._samples.append((ti, x, y))
-            self._sx += x
-            self._sxx += x * x
-            self._sy += y
-            self._sxy += x * y
+    def _publish(
+        self,
+        t: int,
+        *,
+        t_start: int,
+        t_end: int,
+        from_id: int,
+        to_id: int,
+        delta_pa: float,
+        level: float,
+        at_end: bool,
+        replaces: FloorEvent | None = None,
+    ) -> FloorEvent:
+        registry = self.registry
+        event = FloorEvent(
+            t_ns=t,
+            event_id=self._next_id,
+            kind=FloorEventKind.TRANSITION if replaces is None else FloorEventKind.CORRECTION,
+            replaces=None if replaces is None else replaces.event_id,
+            t_start_ns=t_start,
+            t_end_ns=t_end,
+            from_id=from_id,
+            to_id=to_id,
+            from_name=registry.name(from_id),
+            to_name=registry.name(to_id),
+            height_m=registry.height_m(to_id),
+            delta_pa=delta_pa,
+            delta_m=height_difference_m(level - delta_pa, level, self._temperature),
+            level_pa=level + self._correction,
+            at_end=at_end,
+        )
+        self._next_id += 1
+        self.events.append(event)
+        if replaces is None:
+            self._current.append(event)
+        else:
+            self._current[self._current.index(replaces)] = event
+        log.debug(
+            "floor event",
+            kind=event.kind.value,
+            event_id=event.event_id,
+            from_name=event.from_name,
+            to_name=event.to_name,
+            delta_m=round(event.delta_m, 2),
+        )
+        return event

@@ -1,10 +1,11 @@
 """The robot's true motion as a list of simple moves, evaluated at any times at once.
 
 A P3-AT driven through a building does four things: stand still, turn in place, drive
-straight, and ride an elevator. Each move follows a trapezoidal speed profile (accelerate,
-cruise, brake) as the robot's own motion controller does, so velocities and accelerations
-are realistic for odometry, and every quantity has a closed form: a whole 46-minute run is
-sampled at any rate with a handful of numpy operations, and a real-time twin asks for "now".
+straight, and ride an elevator (which may halt at a floor on the way, the robot inside).
+Each move follows a trapezoidal speed profile (accelerate, cruise, brake) as the robot's own
+motion controller does, so velocities and accelerations are realistic for odometry, and every
+quantity has a closed form: a whole 46-minute run is sampled at any rate with a handful of
+numpy operations, and a real-time twin asks for "now".
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ class Move(enum.IntEnum):
     TURN = 1
     DRIVE = 2
     RIDE = 3
+    #: The car stands at a passing floor with the robot inside: still part of the ride.
+    HALT = 4
 
 
 def trapezoid_duration(distance: float, vmax: float, accel: float) -> float:
@@ -94,7 +97,7 @@ class PoseSamples:
     y: FloatArray
     theta: FloatArray
     z: FloatArray
-    #: Floor the robot stands on; -1 while the elevator car is moving.
+    #: Floor the robot stands on; -1 while the elevator car is moving or halted on the way.
     floor: IntArray
     v: FloatArray
     omega: FloatArray
@@ -122,7 +125,7 @@ def sample(moves: Moves, t_s: npt.ArrayLike) -> PoseSamples:
     v = np.where(kind == Move.DRIVE, speed, 0.0)
     omega = np.where(kind == Move.TURN, speed * sign_turn, 0.0)
     vz = np.where(kind == Move.RIDE, speed * sign_z, 0.0)
-    riding = (kind == Move.RIDE) & (tau > 0) & (tau < moves.duration[idx])
+    riding = ((kind == Move.RIDE) & (tau > 0) & (tau < moves.duration[idx])) | (kind == Move.HALT)
     floor = np.where(
         riding, -1, np.where(tau >= moves.duration[idx], moves.to_floor[idx], moves.floor[idx])
     )
@@ -166,6 +169,10 @@ class MovesBuilder:
 
     def wait(self, duration: float) -> None:
         self._add(Move.WAIT, duration, [0.0, 0.0, 0.0, 0.0], vmax=0.0, accel=0.0, to=self.floor)
+
+    def halt(self, duration: float) -> None:
+        """The car stops at the floor it reached, doors open and close, the robot stays in."""
+        self._add(Move.HALT, duration, [0.0, 0.0, 0.0, 0.0], vmax=0.0, accel=0.0, to=self.floor)
 
     def turn_to(self, heading: float, rate: float, accel: float) -> None:
         dth = float(np.arctan2(np.sin(heading - self.state[2]), np.cos(heading - self.state[2])))

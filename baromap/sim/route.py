@@ -6,6 +6,10 @@ recognised as the same floor. On each floor the robot leaves the elevator into t
 visits rooms and corridor ends along the navigation graph (turning in place, driving at
 0.3-0.6 m/s), which closes loops through the lobby and around ring corridors, and returns to
 the lobby to wait for the elevator. Time is budgeted so the whole run lasts what was asked.
+
+A ride past at least one floor may stop at one of them on the way (``stops``): ``"stay"``,
+the car halts for its door cycle with the robot inside (part of the ride); ``"leave"``, the
+robot drives out to the lobby to make room, waits, and drives back in (a short visit).
 """
 
 from __future__ import annotations
@@ -46,6 +50,22 @@ class ElevatorProfile:
     doors_open_s: tuple[float, float] = (2.0, 5.0)
 
 
+#: What the car does at a passing floor: nothing, halt with the robot in, or let it out.
+STOP_KINDS = ("none", "stay", "leave")
+#: How long the robot waits in the lobby when it left the car to make room, s.
+LEAVE_WAIT_S = (3.0, 10.0)
+
+
+@dataclass(frozen=True, slots=True)
+class _Stop:
+    """A stop at a passing floor: door opening, a wait (robot out of the car), closing."""
+
+    floor: int
+    opening_s: float
+    wait_s: float
+    closing_s: float
+
+
 @dataclass(frozen=True, slots=True)
 class Visit:
     """One stay on a floor, as planned (seconds from the run's start)."""
@@ -75,6 +95,12 @@ def check_route(route: Sequence[int], floors: int) -> tuple[int, ...]:
         if a == b:
             raise ConfigError(f"route repeats floor {a} without leaving it")
     return out
+
+
+def check_stops(stops: str) -> str:
+    if stops not in STOP_KINDS:
+        raise ConfigError(f"stops must be one of {', '.join(STOP_KINDS)}, not {stops!r}")
+    return stops
 
 
 class _FloorNav:
@@ -232,7 +258,14 @@ class Planner:
         self._follow(mb, legs)
 
     # -- the whole run ---------------------------------------------------------------------
-    def plan(self, route: Sequence[int], duration_s: float) -> tuple[Moves, list[Visit]]:
+    def plan(
+        self,
+        route: Sequence[int],
+        duration_s: float,
+        *,
+        stops: str = "none",
+        stop_rng: np.random.Generator | None = None,
+    ) -> tuple[Moves, list[Visit]]:
         b = self.building
         el = self.elevator
         lobby_xy = b.lobby_xy
@@ -242,20 +275,35 @@ class Planner:
             lobby_xy[0], lobby_xy[1], math.pi / 2, floors[route[0]].elevation_m, route[0]
         )
         warmup = 15.0
+        into_car = trapezoid_duration(
+            math.dist(lobby_xy, car_xy), self.drive.speed_min_mps, self.drive.accel_mps2
+        ) + trapezoid_duration(math.pi, self.drive.turn_rate_radps, self.drive.turn_accel_radps2)
         rides = []
+        on_the_way: list[_Stop | None] = []
         for a, c in itertools.pairwise(route):
-            dz = abs(floors[c].elevation_m - floors[a].elevation_m)
+            stop = self._stop(a, c, check_stops(stops), stop_rng)
+            on_the_way.append(stop)
+            if stop is None:
+                ride_s = trapezoid_duration(
+                    abs(floors[c].elevation_m - floors[a].elevation_m), el.speed_mps, el.accel_mps2
+                )
+            else:
+                z = [floors[f].elevation_m for f in (a, stop.floor, c)]
+                ride_s = sum(
+                    trapezoid_duration(abs(z1 - z0), el.speed_mps, el.accel_mps2)
+                    for z0, z1 in itertools.pairwise(z)
+                )
+                ride_s += stop.opening_s + stop.wait_s + stop.closing_s
+                if stops == "leave":
+                    ride_s += 2 * into_car
             rides.append(
                 (
                     self.rng.uniform(*el.call_wait_s),
                     self.rng.uniform(*el.doors_close_s),
-                    trapezoid_duration(dz, el.speed_mps, el.accel_mps2),
+                    ride_s,
                     self.rng.uniform(*el.doors_open_s),
                 )
             )
-        into_car = trapezoid_duration(
-            math.dist(lobby_xy, car_xy), self.drive.speed_min_mps, self.drive.accel_mps2
-        ) + trapezoid_duration(math.pi, self.drive.turn_rate_radps, self.drive.turn_accel_radps2)
         fixed = warmup + sum(sum(r) + 2 * into_car for r in rides)
         weights = []
         seen_w: set[int] = set()
@@ -286,9 +334,45 @@ class Planner:
             mb.wait(close)
             leave = mb.t
             visits.append(Visit(floor, arrive, leave))
+            stop = on_the_way[i]
+            if stop is not None:
+                mb.ride(floors[stop.floor].elevation_m, stop.floor, el.speed_mps, el.accel_mps2)
+                if stops == "stay":
+                    mb.halt(stop.opening_s + stop.wait_s + stop.closing_s)
+                else:
+                    visits.append(self._make_room(mb, stop))
             nxt = route[i + 1]
             mb.ride(floors[nxt].elevation_m, nxt, el.speed_mps, el.accel_mps2)
             mb.wait(opened)
         if mb.t < duration_s:
             mb.wait(duration_s - mb.t)
         return mb.build(), visits
+
+    def _stop(self, a: int, c: int, stops: str, rng: np.random.Generator | None) -> _Stop | None:
+        """Where (and for how long) a ride from ``a`` to ``c`` stops on the way, if it does."""
+        if stops == "none" or abs(c - a) < 2:
+            return None
+        if rng is None:
+            raise ConfigError("stops on the way need their own random stream")
+        step = 1 if c > a else -1
+        el = self.elevator
+        return _Stop(
+            floor=int(rng.choice(list(range(a + step, c, step)))),
+            opening_s=float(rng.uniform(*el.doors_open_s)),
+            wait_s=float(rng.uniform(*LEAVE_WAIT_S)) if stops == "leave" else 0.0,
+            closing_s=float(rng.uniform(*el.doors_close_s)),
+        )
+
+    def _make_room(self, mb: MovesBuilder, stop: _Stop) -> Visit:
+        """Out of the car to the lobby, a wait there, and back in (facing the doors)."""
+        d = self.drive
+        b = self.building
+        arrive = mb.t
+        mb.wait(stop.opening_s)
+        mb.drive_to(*b.lobby_xy, d.speed_min_mps, d.accel_mps2)
+        mb.turn_to(math.pi / 2, d.turn_rate_radps, d.turn_accel_radps2)
+        mb.wait(stop.wait_s)
+        mb.drive_to(*b.elevator_xy, d.speed_min_mps, d.accel_mps2)
+        mb.turn_to(-math.pi / 2, d.turn_rate_radps, d.turn_accel_radps2)
+        mb.wait(stop.closing_s)
+        return Visit(stop.floor, arrive, mb.t)

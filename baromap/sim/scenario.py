@@ -27,7 +27,7 @@ from baromap.sim.atmosphere import AirTemperature, Ventilation, Weather, hydrost
 from baromap.sim.bmp280 import Bmp280
 from baromap.sim.building import Building, make_building
 from baromap.sim.motion import Move, Moves, PoseSamples, sample
-from baromap.sim.route import Planner, Visit, check_route, default_route
+from baromap.sim.route import Planner, Visit, check_route, check_stops, default_route
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -45,11 +45,13 @@ MAX_MINUTES = 24 * 60.0
 _STREAM_ROUTE, _STREAM_WEATHER, _STREAM_VENT, _STREAM_AIR = 1, 2, 3, 4
 STREAM_ROBOT_BARO, STREAM_REFERENCE_BARO, STREAM_LASER, STREAM_ODOMETRY = 5, 6, 7, 8
 STREAM_FAULTS = 9
+_STREAM_STOPS = 10
 
 
 @dataclass(frozen=True, slots=True)
 class Transition:
-    """A true floor change: the elevator car moving from one floor to another."""
+    """A true floor change: the elevator car moving from one floor to another (halts on the
+    way with the robot inside included)."""
 
     t_start_ns: int
     t_end_ns: int
@@ -68,6 +70,8 @@ class Scenario:
     route: tuple[int, ...]
     start_ns: int
     building: Building
+    #: What rides past a floor do there (:data:`baromap.sim.route.STOP_KINDS`).
+    stops: str
     moves: Moves
     visits: tuple[Visit, ...]
     weather: Weather
@@ -94,11 +98,23 @@ class Scenario:
 
     def transitions(self) -> list[Transition]:
         rides = np.nonzero(self.moves.kind == Move.RIDE)[0]
-        out = []
+        out: list[Transition] = []
         for i in rides:
             t0 = float(self.moves.t0[i])
             t1 = t0 + float(self.moves.duration[i])
             if t1 > self.duration_s:
+                continue
+            if i > 0 and self.moves.kind[i - 1] == Move.HALT and out:
+                # the car halted on the way with the robot inside: one ride
+                first = out.pop()
+                out.append(
+                    Transition(
+                        first.t_start_ns,
+                        int(self.t_ns(t1)),
+                        first.from_floor,
+                        int(self.moves.to_floor[i]),
+                    )
+                )
                 continue
             out.append(
                 Transition(
@@ -132,6 +148,7 @@ def _make_scenario(
     route: tuple[int, ...] | None,
     start_ns: int,
     twins: TwinSettings,
+    stops: str,
 ) -> Scenario:
     if seed < 0:
         raise ConfigError(f"seed must not be negative, got {seed}")
@@ -145,7 +162,9 @@ def _make_scenario(
     def rng(stream: int) -> np.random.Generator:
         return np.random.default_rng([seed, floors, stream])
 
-    moves, visits = Planner(building, rng(_STREAM_ROUTE)).plan(chosen, minutes * 60.0)
+    moves, visits = Planner(building, rng(_STREAM_ROUTE)).plan(
+        chosen, minutes * 60.0, stops=check_stops(stops), stop_rng=rng(_STREAM_STOPS)
+    )
     return Scenario(
         seed=seed,
         floors=floors,
@@ -154,6 +173,7 @@ def _make_scenario(
         route=chosen,
         start_ns=start_ns,
         building=building,
+        stops=stops,
         moves=moves,
         visits=tuple(visits),
         weather=Weather.random(rng(_STREAM_WEATHER), drift_hpa_per_h),
@@ -172,8 +192,13 @@ def make_scenario(
     route: Sequence[int] | None = None,
     start_ns: int = SIM_EPOCH_NS,
     twins: TwinSettings | None = None,
+    stops: str = "none",
 ) -> Scenario:
-    """The scenario of a seed (cached: the twins and the recorder share one)."""
+    """The scenario of a seed (cached: the twins and the recorder share one).
+
+    ``stops`` says what rides past a floor do there: ``"none"`` (go straight through),
+    ``"stay"`` (halt with the robot inside) or ``"leave"`` (the robot gets out to make room).
+    """
     return _make_scenario(
         int(seed),
         floors=int(floors),
@@ -182,6 +207,7 @@ def make_scenario(
         route=tuple(int(f) for f in route) if route is not None else None,
         start_ns=int(start_ns),
         twins=twins if twins is not None else TwinSettings(),
+        stops=str(stops),
     )
 
 
@@ -231,6 +257,7 @@ def pressure_run(
     rate_hz: float = 25.0,
     route: Sequence[int] | None = None,
     start_ns: int = SIM_EPOCH_NS,
+    stops: str = "none",
 ) -> PressureRun:
     """The robot's barometer readings over a whole run, with the truth to score them by."""
     sc = make_scenario(
@@ -240,6 +267,7 @@ def pressure_run(
         drift_hpa_per_h=drift_hpa_per_h,
         route=route,
         start_ns=start_ns,
+        stops=stops,
     )
     t = sample_times(sc.duration_s, rate_hz)
     truth = sc.truth(t)

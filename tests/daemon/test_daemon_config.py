@@ -76,8 +76,8 @@ def test_values_reach_the_configuration() -> None:
     )
     assert config.laser.mount.x_m == 0.16
     assert config.laser.mount.yaw_rad == pytest.approx(1.5707963)
-    assert config.live.listen == ("tcp/127.0.0.1:7448",)  # read by the live part's settings
-    assert config.reference is not None and config.reference.station == "roof"
+    assert config.zenoh == {"mode": "peer", "listen": ["tcp/127.0.0.1:7448"]}  # for daemon.live
+    assert config.reference == {"station": "roof"}
     assert config.role == "robot"
 
 

@@ -28,7 +28,6 @@ def test_health_and_pressure_reach_a_watcher(rig: Rig) -> None:
         "[zenoh]\nenabled = false", f'[zenoh]\nlisten = ["{endpoint}"]\npressure_period_s = 0.2'
     )
     config = parse_config(text)
-    assert config.live.enabled
     seen: dict[str, DeviceState] = {}
     pressure = 0
     gone = False

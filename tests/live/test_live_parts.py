@@ -171,7 +171,7 @@ def test_reference_table() -> None:
 # -- payloads ---------------------------------------------------------------------------
 
 
-def test_payloads_carry_a_schema_version_and_round_trip() -> None:
+def test_payloads_are_json_with_a_schema_version_and_round_trip() -> None:
     unknown = state(floor=None, level=math.nan, elevation_m=math.nan, phase=FloorPhase.UNKNOWN)
     health = DeviceHealth(5 * S, "baro", DeviceState.UP, "/dev/ttyACM0", "", {"crc_errors": 2})
     for channel, message in (
@@ -184,7 +184,9 @@ def test_payloads_carry_a_schema_version_and_round_trip() -> None:
         assert json.loads(payload)["schema"] == jsonmsg.SCHEMA_VERSION
         assert payload == jsonmsg.dumps(message)  # what a recording's JSON channel holds
         assert decode(channel, payload) == message
-    back = decode(Channel.STATE, encode(unknown))
+    payload = encode(unknown)
+    assert json.loads(payload, parse_constant=pytest.fail)["level_pa"] is None  # no NaN: JSON
+    back = decode(Channel.STATE, payload)
     assert back.floor is None and math.isnan(back.level_pa) and math.isnan(back.elevation_m)
 
 

@@ -1,0 +1,336 @@
+"""The live floor contract: stops that are no visits, corrections, stable ids and names.
+
+Each failure class of the live-decisions issue is reproduced on a trace built for it
+(:mod:`baromap.evaluation.floor_traces`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from baromap.errors import ConfigError, InputFormatError
+from baromap.evaluation.floor_traces import TRACE_EPOCH_NS, Stay, Trace, trace
+from baromap.floors import (
+    FloorDetectorConfig,
+    OnlineFloorDetector,
+    apply_corrections,
+    detect_floors,
+    load_building_model,
+)
+from baromap.floors.building_model import BuildingModel, ModelFloor
+from baromap.floors.replay import replay
+from baromap.messages import NS_PER_S, FloorEvent, FloorEventKind, FloorPhase, Odometry
+from baromap.messages import PressureSample as Sample
+
+STOREY_M = 3.2
+
+
+def live(
+    tr: Trace, config: FloorDetectorConfig | None = None, *, odometry: bool = True
+) -> OnlineFloorDetector:
+    detector, _, _ = replay(
+        tr.t_ns,
+        tr.pressure_pa,
+        tr.temperature_c,
+        config,
+        odometry=tr.odometry if odometry else None,
+    )
+    return detector
+
+
+def secs(t_ns: int) -> float:
+    return (t_ns - TRACE_EPOCH_NS) / NS_PER_S
+
+
+def moves(events: list[FloorEvent] | tuple[FloorEvent, ...]) -> list[tuple[int, int]]:
+    return [(e.from_id, e.to_id) for e in events]
+
+
+# -- 1. a trip that pauses and continues ends near a known floor: no new floor -----------
+
+
+def landing_near_a_known_floor(pause_s: float) -> Trace:
+    """Up two storeys and back, then up again with a pause at one storey (a floor never
+    visited), ending 0.4 m above the known floor: the level is that floor's, a little off."""
+    return trace(
+        [
+            Stay(0.0, 60),
+            Stay(2 * STOREY_M, 60, drive_m=3.0),
+            Stay(0.0, 60, drive_m=3.0),
+            Stay(STOREY_M, pause_s),
+            Stay(2 * STOREY_M + 0.4, 60, drive_m=3.0),
+        ]
+    )
+
+
+def test_a_landing_that_ends_near_a_known_floor_is_that_floor() -> None:
+    detector = live(landing_near_a_known_floor(5.0), odometry=False)
+    assert moves(detector.events) == [(0, 1), (1, 0), (0, 1)]
+    assert all(e.kind is FloorEventKind.TRANSITION for e in detector.events)
+    assert detector.registry.known == 2
+
+
+def test_a_visit_decided_on_a_landing_is_corrected_and_merged() -> None:
+    # A walker-like setting: visits after 3 s. The pause at one storey (5 s) is then taken for
+    # a visit to a new floor, until the trip goes on to the known floor: a correction replaces
+    # the event, and the floor that was a landing is merged into the known one.
+    config = FloorDetectorConfig(min_visit_s=3.0)
+    detector = live(landing_near_a_known_floor(5.0), config, odometry=False)
+    kinds = [e.kind for e in detector.events]
+    assert kinds == [FloorEventKind.TRANSITION] * 3 + [FloorEventKind.CORRECTION]
+    landing, correction = detector.events[2], detector.events[3]
+    assert landing.to_id == 2 and landing.height_m == pytest.approx(STOREY_M, abs=0.15)
+    assert correction.replaces == landing.event_id
+    assert (correction.from_id, correction.to_id) == (0, 1)
+    assert correction.t_start_ns == landing.t_start_ns
+    assert correction.t_end_ns > landing.t_end_ns
+    assert moves(detector.transitions) == [(0, 1), (1, 0), (0, 1)]
+    assert detector.registry.known == 2 and detector.registry.resolve(2) == 1
+    assert apply_corrections(detector.events) == list(detector.transitions)
+    state = detector.state()
+    assert state.floor_id == 1 and state.floors_known == 2
+
+
+def test_a_landing_visit_on_a_new_floor_moves_to_where_the_trip_ended() -> None:
+    config = FloorDetectorConfig(min_visit_s=3.0)
+    tr = trace([Stay(0.0, 60), Stay(2.2, 5.0), Stay(3.5, 60, drive_m=3.0)])
+    detector = live(tr, config, odometry=False)
+    assert [e.kind for e in detector.events] == [
+        FloorEventKind.TRANSITION,
+        FloorEventKind.CORRECTION,
+    ]
+    (final,) = detector.transitions
+    assert (final.from_id, final.to_id) == (0, 1)
+    assert final.height_m == pytest.approx(3.5, abs=0.15)
+    assert detector.registry.height_m(1) == pytest.approx(3.5, abs=0.15)
+
+
+# -- 2. a stop at a passing floor: part of the ride unless the robot drives off ----------
+
+
+def intermediate_stop(stop_s: float, drive_m: float) -> Trace:
+    return trace(
+        [
+            Stay(0.0, 60),
+            Stay(STOREY_M, stop_s, drive_m=drive_m, drive_after_s=0.5),
+            Stay(2 * STOREY_M, 60, drive_m=3.0),
+        ]
+    )
+
+
+@pytest.mark.parametrize("odometry", [True, False])
+def test_a_5_s_stop_in_the_car_is_part_of_the_ride(odometry: bool) -> None:
+    tr = intermediate_stop(5.0, drive_m=0.0)
+    detector = live(tr, odometry=odometry)
+    (event,) = detector.events
+    assert (event.from_id, event.to_id) == (0, 1)
+    assert event.delta_m == pytest.approx(2 * STOREY_M, abs=0.15)
+    assert secs(event.t_start_ns) < 60.5  # the trip began with the first leg
+
+
+def test_a_5_s_stop_where_the_robot_drives_off_is_a_visit() -> None:
+    tr = intermediate_stop(5.0, drive_m=1.5)
+    detector = live(tr)
+    assert moves(detector.events) == [(0, 1), (1, 2)]
+    first = detector.events[0]
+    assert first.height_m == pytest.approx(STOREY_M, abs=0.15)
+    # decided when it had driven a metre (0.5 s into the stop, 0.5 m/s), not later
+    stop_start, _ = tr.stays_s[1]
+    assert secs(first.t_ns) - stop_start < 0.5 + 1.0 / 0.5 + 1.0
+
+
+def test_a_long_stop_without_moving_stays_in_the_car_with_odometry() -> None:
+    tr = intermediate_stop(40.0, drive_m=0.0)
+    assert moves(live(tr).events) == [(0, 1)]
+    # Without odometry, 40 s at a storey is a visit.
+    assert moves(live(tr, odometry=False).events) == [(0, 1), (1, 2)]
+
+
+def test_while_stopped_the_state_says_so() -> None:
+    # Floor 1 is known from a first visit; on the way up again the car stops there.
+    tr = trace(
+        [
+            Stay(0.0, 60),
+            Stay(STOREY_M, 60, drive_m=3.0),
+            Stay(0.0, 60, drive_m=3.0),
+            Stay(STOREY_M, 8.0),
+            Stay(2 * STOREY_M, 60, drive_m=3.0),
+        ]
+    )
+    stop_start = tr.stays_s[3][0]
+    detector = OnlineFloorDetector()
+    odo_t, odo_x, odo_y = tr.odometry
+    o = 0
+    seen = None
+    for ti, pi in zip(tr.t_ns.tolist(), tr.pressure_pa.tolist(), strict=True):
+        while o < odo_t.size and odo_t[o] <= ti:
+            detector.update_odometry(Odometry(int(odo_t[o]), float(odo_x[o]), float(odo_y[o]), 0))
+            o += 1
+        detector.update(Sample(ti, pi, 15.0))
+        if seen is None and secs(ti) > stop_start + 4.0:
+            seen = detector.state()
+    assert seen is not None and seen.phase is FloorPhase.STOPPED
+    assert (seen.floor_id, seen.name) == (0, "0")  # still where the ride began
+    assert (seen.stop_floor_id, seen.stop_name) == (1, "1")
+    assert seen.level_m == pytest.approx(STOREY_M, abs=0.15)
+    assert moves(detector.transitions) == [(0, 1), (1, 0), (0, 2)]
+
+
+def test_a_stop_followed_by_a_turn_back_is_a_visit() -> None:
+    # Without odometry: down a storey for 8 s (shorter than min_visit_s) and back up.
+    tr = trace([Stay(0.0, 60), Stay(-STOREY_M, 8.0), Stay(0.0, 60)])
+    detector = live(tr, odometry=False)
+    assert moves(detector.events) == [(0, 1), (1, 0)]
+    # With odometry and the robot never leaving the car, it was one ride there and back.
+    assert moves(live(tr).events) == []
+
+
+# -- 3. what was published is what a replay gives ------------------------------------------
+
+
+def test_a_replay_gives_the_same_events_corrections_included() -> None:
+    config = FloorDetectorConfig(min_visit_s=3.0)
+    tr = landing_near_a_known_floor(5.0)
+    first = live(tr, config, odometry=False)
+    again = live(tr, config, odometry=False)
+    assert any(e.kind is FloorEventKind.CORRECTION for e in first.events)
+    assert again.events == first.events
+    # Post-run, the run is cut by the same transitions, corrections applied.
+    detection = detect_floors(tr.t_ns, tr.pressure_pa, tr.temperature_c, config=config)
+    assert detection.events == tuple(first.events)
+    rank = {1: 1, 0: 0}  # floor 1 (3.2 m) above the start floor
+    assert [(x.from_floor, x.to_floor) for x in detection.transitions] == [
+        (rank[a], rank[b]) for a, b in moves(apply_corrections(first.events))
+    ]
+    assert [x.t_detect_ns for x in detection.transitions] == [
+        e.t_ns for e in apply_corrections(first.events)
+    ]
+
+
+def test_event_ids_are_unique_and_increasing() -> None:
+    config = FloorDetectorConfig(min_visit_s=3.0)
+    events = live(landing_near_a_known_floor(5.0), config, odometry=False).events
+    ids = [e.event_id for e in events]
+    assert ids == sorted(set(ids)) and ids[0] == 1
+
+
+def test_a_correction_of_an_unknown_event_is_refused() -> None:
+    tr = intermediate_stop(40.0, drive_m=0.0)
+    (event,) = live(tr).events
+    orphan = FloorEvent(**{**_fields(event), "kind": FloorEventKind.CORRECTION, "replaces": 99})
+    with pytest.raises(InputFormatError):
+        apply_corrections([event, orphan])
+
+
+def _fields(event: FloorEvent) -> dict[str, object]:
+    return {name: getattr(event, name) for name in event.__dataclass_fields__}
+
+
+# -- 4. stable ids and names ---------------------------------------------------------------
+
+
+def test_ids_never_renumber_and_names_count_from_the_start_floor() -> None:
+    # The paper starts on floor 5: up one, down two (a floor below the start turns up).
+    tr = trace(
+        [
+            Stay(0.0, 60),
+            Stay(STOREY_M, 60, drive_m=3.0),
+            Stay(0.0, 60, drive_m=3.0),
+            Stay(-STOREY_M, 60, drive_m=3.0),
+            Stay(STOREY_M, 60, drive_m=3.0),
+        ]
+    )
+    detector = live(tr, FloorDetectorConfig(start_floor="5"))
+    assert moves(detector.events) == [(0, 1), (1, 0), (0, 2), (2, 1)]
+    assert [(e.from_name, e.to_name) for e in detector.events] == [
+        ("5", "6"),
+        ("6", "5"),
+        ("5", "4"),
+        ("4", "6"),
+    ]
+    assert [round(e.height_m, 1) for e in detector.events] == pytest.approx(
+        [STOREY_M, 0.0, -STOREY_M, STOREY_M], abs=0.15
+    )
+
+
+def test_names_come_from_a_building_model_by_relative_height(tmp_path: Path) -> None:
+    path = tmp_path / "building.yaml"
+    path.write_text(
+        "floors:\n"
+        "  - {index: 0, elevation_m: 0.0, name: B}\n"
+        "  - {index: 1, elevation_m: 5.4, name: G}\n"
+        "  - {index: 2, elevation_m: 9.1}\n"
+        "  - {index: 3, elevation_m: 12.6, name: roof}\n"
+    )
+    model = load_building_model(path)
+    assert [f.name for f in model.floors] == ["B", "G", "2", "roof"]
+    config = FloorDetectorConfig(start_floor="G", building=model)
+    # From G: up 3.5 m (model: 3.7 m to "2"), up 3.5 m more ("roof"), down to B (-5.4 m).
+    tr = trace(
+        [
+            Stay(0.0, 60),
+            Stay(3.5, 60, drive_m=3.0),
+            Stay(7.0, 60, drive_m=3.0),
+            Stay(-5.4, 60, drive_m=3.0),
+        ]
+    )
+    events = live(tr, config).events
+    assert [(e.from_name, e.to_name) for e in events] == [("G", "2"), ("2", "roof"), ("roof", "B")]
+
+
+def test_a_floor_the_model_does_not_know_gets_a_counted_name() -> None:
+    model = BuildingModel((ModelFloor("G", 0.0), ModelFloor("1", 4.0)))
+    config = FloorDetectorConfig(start_floor="G", building=model)
+    tr = trace([Stay(0.0, 60), Stay(-3.4, 60, drive_m=3.0)])
+    (event,) = live(tr, config).events
+    assert event.to_name == "G-1"
+
+
+@pytest.mark.parametrize(
+    ("changes", "field"),
+    [
+        ({"start_floor": ""}, "start_floor"),
+        ({"start_floor": "9", "building": BuildingModel((ModelFloor("G", 0.0),))}, "start_floor"),
+        (
+            {"building": BuildingModel((ModelFloor("0", 0.0), ModelFloor("1", 1.0)))},
+            "building",
+        ),
+        ({"min_visit_s": -1.0}, "min_visit_s"),
+        ({"leave_m": 0.0}, "leave_m"),
+        ({"storey_m": float("nan")}, "storey_m"),
+        ({"min_visit_s": True}, "min_visit_s"),
+    ],
+)
+def test_config_errors_name_the_field(changes: dict[str, object], field: str) -> None:
+    with pytest.raises(ConfigError, match=field):
+        FloorDetectorConfig(**changes)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    "text",
+    ["floors: []\n", "nothing: 1\n", "floors:\n  - {index: 0}\n", "floors: [1, 2]\n", ":\n- ["],
+)
+def test_a_bad_building_model_is_an_input_error(tmp_path: Path, text: str) -> None:
+    path = tmp_path / "building.yaml"
+    path.write_text(text)
+    with pytest.raises(InputFormatError):
+        load_building_model(path)
+
+
+def test_odometry_that_stops_arriving_falls_back_to_the_dwell() -> None:
+    tr = intermediate_stop(40.0, drive_m=0.0)
+    t_odo, x, y = tr.odometry
+    cut = t_odo < tr.t_ns[0] + 30 * NS_PER_S  # the base went silent before the ride
+    detector = live(
+        Trace(tr.t_ns, tr.pressure_pa, tr.temperature_c, (t_odo[cut], x[cut], y[cut]), ())
+    )
+    assert moves(detector.events) == [(0, 1), (1, 2)]
+    bad = OnlineFloorDetector()
+    bad.update_odometry(Odometry(5, float("nan"), 0.0, 0.0))
+    bad.update_odometry(Odometry(10, 0.0, 0.0, 0.0))
+    bad.update_odometry(Odometry(5, 0.0, 0.0, 0.0))
+    assert bad.ignored_odometry == 2
+    assert np.isnan(bad.state().height_m)
