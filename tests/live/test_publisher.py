@@ -52,7 +52,15 @@ def event(i: int) -> FloorEvent:
 
 def state(t_ns: int, floor: int) -> FloorState:
     return FloorState(
-        t_ns, FloorPhase.SETTLED, floor, str(floor), 3.3 * floor, 3.3 * floor, 99_960.0, t_ns, 2
+        t_ns=t_ns,
+        phase=FloorPhase.SETTLED,
+        floor_id=floor,
+        name=str(floor),
+        height_m=3.3 * floor,
+        level_m=3.3 * floor,
+        level_pa=99_960.0,
+        since_ns=t_ns,
+        floors_known=2,
     )
 
 
