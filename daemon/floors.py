@@ -1,4 +1,7 @@
-"""The online floor detector inside the daemon: pressure in, floor events and state out.
+"""The online floor detector inside the daemon: pressure (and odometry) in, floor events out.
+
+Odometry tells the detector whether the robot drove off at a stop, which makes the stop a
+visit to that floor (``OnlineFloorDetector.update_odometry``).
 
 It runs on its own thread behind a bounded queue like every consumer, so a burst of work in
 the detector can never hold up the barometer's reader. Its events are published back through
@@ -15,7 +18,7 @@ from typing import Final
 import structlog
 
 from baromap.floors import FloorDetectorConfig, OnlineFloorDetector
-from baromap.messages import NS_PER_S, FloorState, Message, PressureSample
+from baromap.messages import NS_PER_S, FloorState, Message, Odometry, PressureSample
 from daemon.fanout import QueueWorker
 
 log = structlog.get_logger(__name__)
@@ -38,7 +41,7 @@ class FloorTracker(QueueWorker):
         self.events = 0
 
     def offer(self, message: Message) -> None:
-        if isinstance(message, PressureSample):
+        if isinstance(message, PressureSample | Odometry):
             super().offer(message)
 
     def offer_received(self, message: Message, received_ns: int) -> None:
@@ -50,6 +53,9 @@ class FloorTracker(QueueWorker):
         self._put((sample, _REFERENCE))
 
     def handle(self, message: Message, received_ns: int | None) -> None:
+        if isinstance(message, Odometry):  # did the robot drive off at a stop? (a visit)
+            self.detector.update_odometry(message)
+            return
         assert isinstance(message, PressureSample)
         if received_ns == _REFERENCE:
             self.detector.update_reference(message)
@@ -59,21 +65,23 @@ class FloorTracker(QueueWorker):
             self.events += 1
             log.info(
                 "floor event",
-                from_floor=event.from_floor,
-                to_floor=event.to_floor,
+                event_id=event.event_id,
+                kind=event.kind.value,
+                replaces=event.replaces,
+                from_floor=event.from_name,
+                to_floor=event.to_name,
                 delta_m=round(event.delta_m, 2),
             )
             self._publish(event)
         due = self._last_state_ns is None or message.t_ns - self._last_state_ns >= STATE_EVERY_NS
         if events or due:
             self._last_state_ns = message.t_ns
-            self._publish(self.detector.state)
+            self._publish(self.detector.state())
 
     def finished(self) -> None:
         for event in self.detector.finish():
             self.events += 1
             self._publish(event)
 
-    @property
     def state(self) -> FloorState:
-        return self.detector.state
+        return self.detector.state()

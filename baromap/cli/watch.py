@@ -120,18 +120,23 @@ def _text_line(report: Any, connect: tuple[str, ...]) -> str:
         case w.StateReport(robot=robot, state=s, answered=answered):
             how = "state" if answered else "state published"
             since = f"{s.phase.value} since {_clock(s.since_ns)}"
-            if s.floor is None:
+            if s.floor_id is None:
                 return f"{now} {robot}: {how}: floor not known yet ({since})"
+            stopped = ""
+            if s.stop_name is not None or s.phase.value == "stopped":
+                at = s.stop_name if s.stop_name is not None else f"{s.level_m:+.2f} m"
+                stopped = f", stopped at {at} during a ride"
             return (
-                f"{now} {robot}: {how}: floor {s.floor} ({since}), "
-                f"{s.elevation_m:+.2f} m above the lowest, {s.floors_known} floor(s) known, "
+                f"{now} {robot}: {how}: floor {s.name} ({since}{stopped}), "
+                f"{s.height_m:+.2f} m above the start floor, {s.floors_known} floor(s) known, "
                 f"level {s.level_pa:.1f} Pa"
             )
         case w.EventReport(robot=robot, event=e):
+            corrects = f" (corrects event {e.replaces})" if e.replaces is not None else ""
             return (
-                f"{now} {robot}: floor {e.from_floor} -> {e.to_floor} ({e.delta_m:+.2f} m, "
-                f"{e.delta_pa:+.1f} Pa), moving {_clock(e.t_start_ns)} to {_clock(e.t_end_ns)}, "
-                f"decided {_clock(e.t_ns)}"
+                f"{now} {robot}: floor {e.from_name} -> {e.to_name}{corrects} "
+                f"({e.delta_m:+.2f} m, {e.delta_pa:+.1f} Pa), moving {_clock(e.t_start_ns)} to "
+                f"{_clock(e.t_end_ns)}, decided {_clock(e.t_ns)}"
             )
         case w.PressureReport(robot=robot, sample=p):
             return f"{now} {robot}: pressure {p.pressure_pa:.2f} Pa at {_clock(p.t_ns)}"
