@@ -59,7 +59,8 @@ def _room_ranges(rng: random.Random, beams: int, field_deg: float) -> np.ndarray
 
 
 def lms_stream(n_frames: int, seed: int = 1) -> bytes:
-    """Continuous output at 0.5 deg (361-value B0 scans, mm) with an occasional ACK + reply."""
+    """Continuous output at 0.5 deg (361-value B0 scans, mm) with an occasional ACK + reply,
+    power-on telegram or subrange (B7) / mean subrange (BF) scan of a 32 m mode."""
     rng = random.Random(seed)
     scans = []
     for _ in range(16):
@@ -67,10 +68,15 @@ def lms_stream(n_frames: int, seed: int = 1) -> bytes:
         flags[rng.randrange(361)] = int(BeamFlag.DAZZLE)
         words = lms200.range_words(_room_ranges(rng, 361, 180.0), flags, units="mm")
         scans.append(lms200.encode_scan(words, units="mm"))
+    subrange = lms200.range_words(_room_ranges(rng, 40, 40.0), units="mm", bits=15)
     replies = [
         bytes((lms200.ACK,)) + lms200.mode_reply(),
         bytes((lms200.ACK,)) + lms200.status_reply(lms200.StatusReport()),
         bytes((lms200.ACK,)) + lms200.variant_reply(lms200.VariantReply(True, 180, 50)),
+        bytes((lms200.ACK,)) + lms200.reset_reply(),
+        lms200.power_on_telegram("V02.10 LMS ready"),
+        lms200.encode_scan(subrange, units="mm", sample_size=5, subrange=(100, 139)),
+        lms200.encode_scan(subrange, units="mm", subrange=(100, 139), extra=b"\x07"),
     ]
     parts = [
         rng.choice(replies) if rng.random() < 0.05 else rng.choice(scans) for _ in range(n_frames)

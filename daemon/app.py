@@ -40,7 +40,7 @@ HEALTH_EVERY_NS: Final = NS_PER_S
 #: A part whose heartbeat is older than this is stuck (reads time out every 50 ms, the
 #: recorder wakes every 200 ms; a handshake write may block for its 1 s timeout).
 STUCK_NS: Final = 10 * NS_PER_S
-#: Module the live session provides: ``create_publisher(config) -> Consumer``.
+#: Module the live session provides: ``create_publisher(config, reference=...) -> Consumer``.
 LIVE_MODULE: Final = "daemon.live"
 
 
@@ -129,7 +129,8 @@ class Daemon:
                 raise
             log.info("live publishing is not available in this build")
             return None
-        publisher: Consumer = module.create_publisher(self.config)
+        reference = self.floors.offer_reference if self.floors is not None else None
+        publisher: Consumer | None = module.create_publisher(self.config, reference=reference)
         return publisher
 
     # ---- lifetime -------------------------------------------------------------------------------
@@ -190,7 +191,11 @@ class Daemon:
 
     def health(self) -> list[DeviceHealth]:
         t = self.clock.now_unix_ns()
-        return [s.health(t) for s in self.sessions] + [self.recorder.health(t)]
+        out = [s.health(t) for s in self.sessions] + [self.recorder.health(t)]
+        live_health = getattr(self.live, "device_health", None)
+        if live_health is not None:  # the Zenoh publisher's state and counters
+            out.append(live_health(t))
+        return out
 
     def _publish_health(self) -> None:
         for health in self.health():

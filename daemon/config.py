@@ -21,6 +21,7 @@ from baromap.errors import ConfigError
 from baromap.floors import FloorDetectorConfig
 from baromap.protocols import baro, lms200
 from baromap.protocols.robot_models import MODELS, find_model
+from daemon.live import config_problems
 
 Role = Literal["robot", "station"]
 ROLES: Final = ("robot", "station")
@@ -396,6 +397,9 @@ def parse_config(text: str, source: str = "<config>") -> DaemonConfig:
     base = _base(r, sections["base"]) if sections["base"] is not None else None
     barometer = _barometer(r, sections["barometer"]) if sections["barometer"] is not None else None
     floors = _floors(r, sections["floors"] or {})
+    live = config_problems(sections["zenoh"], sections["reference"], robot=robot, role=role)
+    for key, message in live:
+        r.problem(key, message)
     if role == "station" and (laser is not None or base is not None):
         r.problem("role", "a station records a barometer only", "remove [laser] and [base]")
     if laser is None and base is None and barometer is None and not r.problems:

@@ -22,6 +22,8 @@ from daemon.fanout import QueueWorker
 log = structlog.get_logger(__name__)
 
 STATE_EVERY_NS: Final = NS_PER_S
+#: Marks a queued sample as the reference station's (no real receive time is negative).
+_REFERENCE: Final = -1
 
 
 class FloorTracker(QueueWorker):
@@ -44,11 +46,19 @@ class FloorTracker(QueueWorker):
     def offer_received(self, message: Message, received_ns: int) -> None:
         self.offer(message)
 
+    def offer_reference(self, sample: PressureSample) -> None:
+        """A reference station's reading (from a Zenoh thread): queued like the robot's own,
+        so the detector only ever runs on this worker's thread."""
+        self._put((sample, _REFERENCE))
+
     def handle(self, message: Message, received_ns: int | None) -> None:
         if isinstance(message, Odometry):
             self.detector.update_odometry(message)
             return
         assert isinstance(message, PressureSample)
+        if received_ns == _REFERENCE:
+            self.detector.update_reference(message)
+            return
         events = self.detector.update(message)
         for event in events:
             self.events += 1

@@ -20,7 +20,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import structlog
 
@@ -30,11 +30,19 @@ from baromap.live.payloads import MEDIA_TYPE, encode, schema_of
 from baromap.live.reference import ReferenceListener
 from baromap.live.schedule import Outgoing, PublishSchedule
 from baromap.live.session import LiveError, close_session, open_session
-from baromap.live.settings import LiveSettings
-from baromap.messages import FloorEvent, FloorState, PressureSample
+from baromap.live.settings import LiveSettings, ReferenceSettings
+from baromap.messages import (
+    DeviceHealth,
+    DeviceState,
+    FloorEvent,
+    FloorState,
+    PressureSample,
+)
 
 if TYPE_CHECKING:
     import zenoh
+
+    from daemon.config import DaemonConfig
 
 log = structlog.get_logger(__name__)
 
@@ -42,6 +50,13 @@ log = structlog.get_logger(__name__)
 URGENT_QUEUE = 256
 #: First wait before opening a session again after a failure, s (doubled up to retry_max_s).
 RETRY_FIRST_S = 0.25
+#: The publisher's state as a device state (anything else, like "connecting", is degraded).
+_DEVICE_STATES = {
+    "open": DeviceState.UP,
+    "stopped": DeviceState.DOWN,
+    "failed": DeviceState.DOWN,
+    "disabled": DeviceState.DOWN,
+}
 
 
 @dataclass(slots=True)
@@ -155,6 +170,29 @@ class LivePublisher:
         if self._reference is not None:
             out.update(self._reference.counters())
         return out
+
+    def close(self) -> None:
+        """The daemon's name for :meth:`stop` (every fan-out consumer has ``close``)."""
+        self.stop()
+
+    def device_health(self, t_ns: int) -> DeviceHealth:
+        """The publisher as one more device of the daemon's ``/diagnostics`` and ``STATUS=``."""
+        health = self.health()
+        status = str(health["state"])
+        state = _DEVICE_STATES.get(status, DeviceState.DEGRADED)
+        detail = "" if status == "open" else status
+        dropped = int(health["dropped_urgent"]) + int(health["dropped_bulk"])
+        if state is DeviceState.UP and dropped:
+            detail = f"{dropped} messages dropped"
+        endpoints = self.settings.connect if self.settings.connect else self.settings.listen
+        return DeviceHealth(
+            t_ns=t_ns,
+            device="zenoh",
+            state=state,
+            port=",".join(endpoints),
+            detail=detail,
+            counters={k: v for k, v in health.items() if isinstance(v, int)},
+        )
 
     # -- the worker ----------------------------------------------------------------------
 
@@ -294,3 +332,55 @@ class LivePublisher:
             self._counters.queries += 1
         if payload is not None:
             query.reply(self.keys.key(Channel.STATE), payload, encoding=encoding)
+
+
+def create_publisher(
+    config: DaemonConfig, *, reference: Callable[[PressureSample], None] | None = None
+) -> LivePublisher | None:
+    """The daemon's publisher, started, from its configuration (None: ``enabled = false``).
+
+    A robot's ``[reference]`` station's samples go to ``reference`` (the floor tracker's
+    input: called on a Zenoh thread); a station (``role = "station"``) publishes its pressure
+    under ``baromap/reference/<robot>/``.
+    """
+    settings = LiveSettings.from_table(config.zenoh or {})
+    if not settings.enabled:
+        return None
+    station = config.role == "station"
+    publisher = LivePublisher(settings, config.robot, station=station)
+    if config.reference is not None:
+        follow = ReferenceSettings.from_table(config.reference)
+        if reference is None:
+            raise ConfigError(
+                "reference.station: this node runs no floor detector for the station to correct"
+            )
+        publisher.follow_reference(follow.station, reference)
+    publisher.start()
+    return publisher
+
+
+def config_problems(
+    zenoh: Mapping[str, Any] | None,
+    reference: Mapping[str, Any] | None,
+    *,
+    robot: str,
+    role: str,
+) -> list[tuple[str, str]]:
+    """(key, message) of each problem of the ``[zenoh]`` and ``[reference]`` tables, and of
+    the robot id as a Zenoh key."""
+    problems = []
+    keys = NodeKeys.reference if role == "station" else NodeKeys.robot
+    checks: list[Callable[[], object]] = [lambda: LiveSettings.from_table(zenoh or {})]
+    if robot:  # a missing id is the configuration's own problem
+        checks.append(lambda: keys(robot))
+    if reference is not None:
+        checks.append(lambda: ReferenceSettings.from_table(reference))
+        if role == "station":
+            problems.append(("reference", "a station is the reference; it follows none"))
+    for check in checks:
+        try:
+            check()
+        except ConfigError as exc:
+            key, _, message = str(exc).partition(": ")
+            problems.append(("robot" if key.endswith(" id") else key, message))
+    return problems

@@ -39,6 +39,8 @@ LONGEST_REPLY: Final = 900
 REPLY_WAIT_S: Final = 0.3
 #: After a baud switch the sensor needs a moment on the new speed (drivers wait 250 ms).
 BAUD_SETTLE_S: Final = 0.25
+#: Re-initialisations in place after scans stopped, before the port is closed and retried.
+MAX_IN_PLACE: Final = 2
 HEADER_AND_CRC: Final = lms200.HEADER_BYTES + lms200.CRC_BYTES
 
 
@@ -61,6 +63,7 @@ class Lms200Session(DeviceSession):
         self._fed = 0
         self._consumed = 0
         self.streaming = False
+        self._in_place = 0
 
     # ---- handshake ----------------------------------------------------------------------------
     def handshake(self) -> None:
@@ -179,6 +182,7 @@ class Lms200Session(DeviceSession):
             self._consumed += wire_size(message)
             if isinstance(message, lms200.ScanTelegram):
                 self.good_frame()
+                self._in_place = 0
                 end_ns = self.frame_end_ns(read_ns, min(len(data), self._fed - self._consumed))
                 start_ns = end_ns - transmission_ns(wire_size(message), self.baud)
                 scan = message.to_laser_scan(self.clock.unix_ns(start_ns))
@@ -192,6 +196,15 @@ class Lms200Session(DeviceSession):
                 self.bad_frame(message)
             else:
                 self.good_frame()
+
+    def reinitialise_note(self, reason: str) -> str | None:
+        """Scans stopped: a power cycle puts the sensor back at 9600 baud, where its power-on
+        telegram cannot be read at a higher speed; so search and set it up again in place,
+        a few times, before giving the port up."""
+        if not self.streaming or self._in_place >= MAX_IN_PLACE:
+            return None
+        self._in_place += 1
+        return "in place: a power cycle restarts an LMS200 at 9600 baud"
 
     def shutdown(self) -> None:
         """Stop streaming and put the sensor back to 9600 baud, where it powers up."""

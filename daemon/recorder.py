@@ -96,6 +96,7 @@ class Recorder(QueueWorker):
         self._lock = threading.Lock()
         self.paused: str | None = None  # why writing is paused (disk guard, write error)
         self.lost: Counter[str] = Counter()
+        self._syncer: Syncer | None = None
 
     # ---- from other threads -----------------------------------------------------------------
     def set_device_metadata(self, device: str, data: Mapping[str, str]) -> None:
@@ -112,6 +113,7 @@ class Recorder(QueueWorker):
         counters.update({f"dropped_paused_{k}": v for k, v in self.lost.items()})
         counters["backlog"] = self.backlog
         for topic, hist in list(self.latency.items()):
+            counters[f"latency_p50_us{topic}"] = hist.percentile_ns(50) // 1000
             counters[f"latency_p99_us{topic}"] = hist.percentile_ns(99) // 1000
         if self.error:
             state, detail = messages.DeviceState.DOWN, f"writer thread failed: {self.error}"
@@ -128,6 +130,7 @@ class Recorder(QueueWorker):
 
     # ---- the writer thread --------------------------------------------------------------------
     def started(self) -> None:
+        self._syncer = Syncer()
         self._open()
 
     def handle(self, message: messages.Message, received_ns: int | None) -> None:
@@ -162,6 +165,8 @@ class Recorder(QueueWorker):
 
     def finished(self) -> None:
         self._close()
+        if self._syncer is not None:
+            self._syncer.close()
 
     # ---- files -------------------------------------------------------------------------------
     def _path(self) -> Path:
@@ -216,9 +221,11 @@ class Recorder(QueueWorker):
         assert self._writer is not None
         try:
             self._writer.flush()
-            _fsync(self._writer.path)
         except (BaromapError, OSError) as exc:
             self._pause(f"flush failed: {exc}")
+            return
+        assert self._syncer is not None
+        self._syncer.request(self._writer.path)
 
     def _write_pending_devices(self) -> None:
         with self._lock:
@@ -252,6 +259,50 @@ class Recorder(QueueWorker):
         log.error("recording paused", reason=why)
         self.paused = why
         self._close()
+
+
+class Syncer:
+    """fsyncs the current file on its own thread, so a slow disk never holds up the writer.
+
+    The writer hands every flushed chunk to the OS at once; the wait until the disk has it
+    (tens of milliseconds on an SD card or a busy disk) happens here, while the writer goes
+    on taking messages from the queue.
+    """
+
+    def __init__(self) -> None:
+        self._wanted: Path | None = None
+        self._cond = threading.Condition()
+        self._stopped = False
+        self.syncs = 0
+        self.errors = 0
+        self._thread = threading.Thread(target=self._run, name="baromapd-fsync")
+        self._thread.start()
+
+    def request(self, path: Path) -> None:
+        with self._cond:
+            self._wanted = path
+            self._cond.notify()
+
+    def close(self) -> None:
+        with self._cond:
+            self._stopped = True
+            self._cond.notify()
+        self._thread.join()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while self._wanted is None and not self._stopped:
+                    self._cond.wait()
+                path, self._wanted = self._wanted, None
+                if path is None:
+                    return
+            try:
+                _fsync(path)
+                self.syncs += 1
+            except OSError as exc:  # the file may have been finished and moved meanwhile
+                self.errors += 1
+                log.warning("fsync failed", path=str(path), error=str(exc))
 
 
 def _fsync(path: Path) -> None:

@@ -13,16 +13,11 @@ from hypothesis import strategies as st
 from baromap.errors import ConfigError, InputFormatError
 from baromap.mapping import se2
 from baromap.messages import BeamFlag, LaserScan, Odometry
+from baromap.odometry.errors import OdometryErrorModel
+from baromap.odometry.synthesis import synthesize_odometry
 from baromap.recording import read_messages, read_metadata
-from baromap.recording.carmen import (
-    OdometryErrorModel,
-    import_carmen,
-    parse_lines,
-    parse_time_ns,
-    read_carmen,
-    synthesize_odometry,
-    to_laser_scan,
-)
+from baromap.recording.carmen import parse_lines, parse_time_ns, read_carmen
+from baromap.recording.carmen_import import import_carmen, to_laser_scan
 
 RANGES = " ".join(["1.5"] * 178 + ["81.83", "2.25"])
 FLASER = f"FLASER 180 {RANGES} 1.0 2.0 0.5 1.1 2.1 0.5 976052890.244111 pippo 976052890.244111"
@@ -168,7 +163,14 @@ def test_synth_odometry_is_seeded() -> None:
 @given(st.integers(0, 2**32 - 1))
 def test_synth_odometry_without_error_is_the_reference(seed: int) -> None:
     ref = _reference_path(20)
-    model = OdometryErrorModel(0.0, 0.0, 0.0, 0.0, 0.0)
+    model = OdometryErrorModel(
+        scale=0.0,
+        drift_rad_per_m=0.0,
+        sigma_trans_per_m=0.0,
+        sigma_side_per_m=0.0,
+        sigma_rot_per_m=0.0,
+        sigma_rot_per_rad=0.0,
+    )
     np.testing.assert_allclose(synthesize_odometry(ref, seed, model), ref, atol=1e-9)
 
 

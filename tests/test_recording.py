@@ -229,8 +229,10 @@ def test_flush_interval_writes_chunks_while_recording(tmp_path: Path) -> None:
     with RecordingWriter(path, robot="r1", flush_interval_s=0.0) as writer:
         writer.write(m.PressureSample(T0, 100000.0))
         size_after_one = path.stat().st_size
+        assert writer.size_bytes == size_after_one
         writer.write(m.PressureSample(T0 + 1, 100000.0))
         assert path.stat().st_size > size_after_one
+        assert not writer.flush_if_due()  # nothing new since the last flush
 
 
 def test_clear_errors_for_bad_paths_and_inputs(tmp_path: Path) -> None:
@@ -334,6 +336,17 @@ def test_static_laser_transform_is_in_every_chunk_and_every_second(tmp_path: Pat
         assert (tf.translation.x, tf.translation.y) == pytest.approx((0.16, -0.02))
         assert 2 * math.atan2(tf.rotation.z, tf.rotation.w) == pytest.approx(0.05)
         assert LaserMount.from_metadata(read_metadata(path)) == mount
+
+
+def test_a_mount_stated_in_metadata_becomes_the_static_transform(tmp_path: Path) -> None:
+    path = tmp_path / "daemon.mcap"
+    mount = LaserMount(0.2, 0.0, -0.1)
+    with RecordingWriter(path, robot="r", metadata={"laser_mount": mount.to_json()}) as writer:
+        writer.write(m.PressureSample(T0, 1.0))
+    (static,) = [rec.message for rec in read_messages(path, [t.TF_STATIC])]
+    assert static.translation.x == pytest.approx(0.2)
+    with pytest.raises(RecordingError):
+        RecordingWriter(tmp_path / "bad.mcap", robot="r", metadata={"laser_mount": "{x"})
 
 
 def test_a_recording_states_one_laser_mount(tmp_path: Path) -> None:

@@ -49,7 +49,7 @@ def register(subparsers: Any) -> None:
 
 
 def run_import_carmen(args: argparse.Namespace) -> int:
-    from baromap.recording.carmen import import_carmen
+    from baromap.recording.carmen_import import import_carmen
 
     counts = import_carmen(args.log, args.output, args.synth_odometry)
     print(

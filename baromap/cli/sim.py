@@ -132,7 +132,7 @@ def run_twins(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         truth = None
         if args.truth_log is not None:
-            truth = stack.enter_context(JsonlTruthWriter(args.truth_log))
+            truth = stack.enter_context(contextlib.closing(JsonlTruthWriter(args.truth_log)))
         devices = SimDevices(
             seed=args.seed,
             floors=args.floors,

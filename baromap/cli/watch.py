@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
 from datetime import datetime
 from pathlib import Path
@@ -172,15 +171,4 @@ def _json_line(report: Any, _connect: tuple[str, ...]) -> str:
             out |= {"report": "health", "robot": robot, "health": jsonmsg.to_dict(h)}
         case w.Unreadable(key=key, reason=reason):
             out |= {"report": "unreadable", "key": key, "reason": reason}
-    return json.dumps(_no_nan(out), allow_nan=False)
-
-
-def _no_nan(value: Any) -> Any:
-    """NaN (a value not known yet) as null: JSON lines are for any reader, and NaN is not JSON."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _no_nan(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_no_nan(v) for v in value]
-    return value
+    return json.dumps(out, allow_nan=False)

@@ -69,7 +69,9 @@ def intel_relations(
     import time
 
     from baromap.mapping.scans import ScanBlock
-    from baromap.recording.carmen import read_carmen, synthesize_odometry, to_laser_scan
+    from baromap.odometry.synthesis import synthesize_odometry
+    from baromap.recording.carmen import read_carmen
+    from baromap.recording.carmen_import import to_laser_scan
 
     laser = Path(data_dir)
     carmen = read_carmen(laser / "intel-corrected-abstime.log.gz")

@@ -33,7 +33,6 @@ their origin z at the floor's elevation (RViz and Foxglove stack them; Nav2 read
 
 from __future__ import annotations
 
-import json
 import math
 from collections import Counter
 from collections.abc import Callable
@@ -268,12 +267,7 @@ def _truth_pose(bag: _Bag, pose: messages.TruthPose) -> Any:
 
 
 def _json(bag: _Bag, message: Any) -> Any:
-    """Strict JSON (a NaN, such as an unknown elevation, becomes null)."""
-    data = {
-        k: None if isinstance(v, float) and not math.isfinite(v) else v
-        for k, v in jsonmsg.to_dict(message).items()
-    }
-    return bag.string(json.dumps(data, separators=(",", ":"), allow_nan=False))
+    return bag.string(jsonmsg.dumps(message).decode())  # strict JSON: NaN goes out as null
 
 
 def export_ros2(

@@ -5,7 +5,8 @@ first, then ask the state queryables. An event decided while the question is on 
 then seen as an event, and the answer tells the state after it (or before it: both carry
 their own stamps). Liveliness with history says at once which robots are up; a robot whose
 token disappears (its process died, its machine or its link went away) is reported gone, and
-when its token comes back its state is asked again.
+when its token comes back its state is asked again (as it is of a robot that comes up after
+the first question was answered).
 
 Zenoh delivers on its own threads; they only put reports on a queue, and the caller takes
 them with :meth:`FloorWatch.next` on its own thread.
@@ -144,6 +145,7 @@ class FloorWatch:
         self._alive: set[str] = set()
         self._seen: set[str] = set()
         self._session: zenoh.Session | None = None
+        self._first_answered = False
         self.lost = 0
 
     # -- lifetime ------------------------------------------------------------------------
@@ -215,13 +217,13 @@ class FloorWatch:
         robot = robot_of(str(sample.key_expr))
         if robot is None:
             return
+        ask = False
         with self._lock:
             if sample.kind == zenoh.SampleKind.DELETE:
                 if robot not in self._alive:
                     return
                 self._alive.discard(robot)
                 report: WatchReport = RobotGone(robot)
-                returned = False
             else:
                 if robot in self._alive:
                     return
@@ -229,8 +231,10 @@ class FloorWatch:
                 returned = robot in self._seen
                 self._seen.add(robot)
                 report = RobotUp(robot, returned=returned)
+                # one that came back, or came up after the first question was answered
+                ask = returned or self._first_answered
         self._put(report)
-        if returned:
+        if ask:
             self._ask_state(robot, first=False)
 
     def _ask_state(self, robot: str | None, *, first: bool) -> None:
@@ -252,6 +256,8 @@ class FloorWatch:
 
         def on_done() -> None:
             if first:
+                with self._lock:
+                    self._first_answered = True
                 self._put(QueryDone(tuple(sorted(set(answered)))))
 
         session.get(

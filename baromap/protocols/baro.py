@@ -21,12 +21,7 @@ from typing import ClassVar, Final
 
 from baromap.errors import EncodeError
 from baromap.messages import PressureSample
-from baromap.protocols.framing import (
-    BAD_FRAME_SAMPLE_BYTES,
-    MAX_DISCARD_RUN,
-    BadFrame,
-    DecoderStats,
-)
+from baromap.protocols.framing import BadFrame, DecoderStats, DiscardRun
 
 PROTOCOL_VERSION: Final = 1
 DELIMITER: Final = 0x00
@@ -417,11 +412,14 @@ class Decoder:
     def __init__(self) -> None:
         self.stats = DecoderStats()
         self._buf = bytearray()
-        self._skipping = False
-        self._skipped = 0
-        self._skipped_sample = b""
-        self._sampling = False
+        # An over-long run without a delimiter: discarded through the shared DiscardRun, less
+        # its last MAX_ENCODED bytes (the tail), which may still end in a whole frame.
+        self._run = DiscardRun(self.stats)
         self._tail = b""
+
+    @property
+    def _skipping(self) -> bool:
+        return self._run.reason is not None
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[DecodedItem]:
         chunk = bytes(data)
@@ -437,10 +435,7 @@ class Decoder:
             elif len(self._buf) + len(piece) > MAX_ENCODED:
                 run = bytes(self._buf) + piece
                 self._buf.clear()
-                self._skipping = True
-                self._skipped = 0
-                self._skipped_sample = b""
-                self._sampling = True
+                self._run.start("oversized", out)
                 self._tail = b""
                 self._skip(run, out)
             elif stop >= 0:
@@ -477,35 +472,23 @@ class Decoder:
         return len(self._buf) + len(self._tail)
 
     def _skip(self, piece: bytes, out: list[DecodedItem]) -> None:
-        if self._sampling:  # the first bytes of the run, whatever the chunking
-            self._skipped_sample += piece[: BAD_FRAME_SAMPLE_BYTES - len(self._skipped_sample)]
-        self._skipped += len(piece)
-        self._tail = (self._tail + piece)[-MAX_ENCODED:]
-        # An endless run is reported in fixed blocks so health counters keep moving and the
-        # output does not depend on how the bytes were chunked. The last MAX_ENCODED bytes are
-        # never reported early: they may still end in a frame.
-        while self._skipped - len(self._tail) >= MAX_DISCARD_RUN:
-            bad = BadFrame("oversized", MAX_DISCARD_RUN, self._skipped_sample)
-            out.append(self.stats.count_bad(bad))
-            self._skipped -= MAX_DISCARD_RUN
-            self._skipped_sample = b""
-            self._sampling = False
+        # Bytes that leave the tail window are surely garbage; the run reports them in fixed
+        # blocks (DiscardRun), so counters move on an endless run and chunking changes nothing.
+        tail = self._tail + piece
+        gone = len(tail) - MAX_ENCODED
+        if gone > 0:
+            self._run.absorb(tail, 0, gone, out)
+            tail = tail[gone:]
+        self._tail = tail
 
     def _end_skip(self, out: list[DecodedItem], *, at_delimiter: bool) -> None:
         found = _glued_frame_start(self._tail, 0) if at_delimiter else None
-        if found is None:
-            out.append(
-                self.stats.count_bad(BadFrame("oversized", self._skipped, self._skipped_sample))
-            )
-        else:
-            offset, frame = found
-            garbage = self._skipped - (len(self._tail) - offset)
-            out.append(self.stats.count_bad(BadFrame("oversized", garbage, self._skipped_sample)))
+        garbage = len(self._tail) if found is None else found[0]
+        self._run.absorb(self._tail, 0, garbage, out)
+        self._run.end(out)
+        if found is not None:
             self.stats.frames += 1
-            out.append(frame)
-        self._skipping = False
-        self._skipped = 0
-        self._skipped_sample = b""
+            out.append(found[1])
         self._tail = b""
 
     def _decode(self, encoded: bytes, out: list[DecodedItem]) -> None:

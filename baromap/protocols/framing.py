@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 #: Discarded bytes kept in a :class:`BadFrame` for diagnosis; the rest is only counted.
 BAD_FRAME_SAMPLE_BYTES = 64
@@ -81,7 +81,7 @@ class DiscardRun:
         self.end(out)
         self.reason = reason
 
-    def absorb(self, buf: bytearray, start: int, stop: int, out: list[Any]) -> None:
+    def absorb(self, buf: bytes | bytearray, start: int, stop: int, out: list[Any]) -> None:
         """Discard ``buf[start:stop]``; a decoder in sync starts a ``garbage`` run."""
         if self.reason is None:
             self.reason = "garbage"
@@ -129,3 +129,34 @@ def flush_truncated(buf: bytearray, run: DiscardRun, process: Callable[[], list[
         out += process()
     run.end(out)
     return out
+
+
+MessageT = TypeVar("MessageT")
+
+
+class BufferedDecoder(Generic[MessageT]):
+    """A length-prefixed decoder's bookkeeping: bytes in, a bounded buffer, a discard run.
+
+    Subclasses implement :meth:`_process`, which decodes what it can from ``_buf`` and
+    removes it; ``initial_reason`` starts the run out of sync (joining a line mid-stream).
+    """
+
+    def __init__(self, initial_reason: str | None = None) -> None:
+        self.stats = DecoderStats()
+        self._buf = bytearray()
+        self._run = DiscardRun(self.stats, initial_reason)
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[MessageT]:
+        self.stats.bytes_in += len(data)
+        self._buf += data
+        return self._process()
+
+    def flush(self) -> list[MessageT]:
+        """End of stream or of a line setting (baud switch): settle what is pending.
+
+        See :func:`flush_truncated`.
+        """
+        return flush_truncated(self._buf, self._run, self._process)
+
+    def _process(self) -> list[MessageT]:
+        raise NotImplementedError

@@ -25,7 +25,7 @@ import numpy.typing as npt
 
 from baromap.errors import ConfigError, EncodeError
 from baromap.messages import BeamFlag, LaserScan
-from baromap.protocols.framing import BadFrame, DecoderStats, DiscardRun, flush_truncated
+from baromap.protocols.framing import BadFrame, BufferedDecoder
 
 STX: Final = 0x02
 ACK: Final = 0x06
@@ -973,7 +973,7 @@ def parse_status_reply(telegram: Telegram) -> StatusReport | None:
 _STX_BYTE: Final = bytes((STX,))
 
 
-class Decoder:
+class Decoder(BufferedDecoder[LmsMessage]):
     """Bytes in, LMS messages out; usable on either side of the line.
 
     It accepts host (ADR 0x00) and sensor (ADR 0x80) telegrams, bounds LEN by
@@ -993,22 +993,8 @@ class Decoder:
     """
 
     def __init__(self, *, at_boundary: bool = True) -> None:
-        self.stats = DecoderStats()
-        self._buf = bytearray()
-        # None: at a telegram boundary, where a lone 0x06 / 0x15 is an ACK / NAK.
-        self._run = DiscardRun(self.stats, None if at_boundary else "garbage")
-
-    def feed(self, data: bytes | bytearray | memoryview) -> list[LmsMessage]:
-        self.stats.bytes_in += len(data)
-        self._buf += data
-        return self._process()
-
-    def flush(self) -> list[LmsMessage]:
-        """End of stream or of a line setting (baud switch): settle what is pending.
-
-        See :func:`baromap.protocols.framing.flush_truncated`.
-        """
-        return flush_truncated(self._buf, self._run, self._process)
+        # No run (None): at a telegram boundary, where a lone 0x06 / 0x15 is an ACK / NAK.
+        super().__init__(None if at_boundary else "garbage")
 
     def _process(self) -> list[LmsMessage]:
         buf = self._buf

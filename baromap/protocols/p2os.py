@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import Any, Final, Literal
 
 from baromap.errors import ConfigError, EncodeError
-from baromap.protocols.framing import BadFrame, DecoderStats, DiscardRun, flush_truncated
+from baromap.protocols.framing import BadFrame, BufferedDecoder
 
 SYNC: Final = b"\xfa\xfb"
 HEADER_BYTES: Final = 3
@@ -577,7 +577,7 @@ def _decode_command(data: bytes) -> CommandPacket | None:
 Source = Literal["robot", "host"]
 
 
-class Decoder:
+class Decoder(BufferedDecoder[P2osMessage]):
     """Bytes in, P2OS messages out.
 
     ``source="robot"`` (the daemon) decodes what a robot sends; ``source="host"`` (the
@@ -592,22 +592,8 @@ class Decoder:
     def __init__(self, source: Source = "robot") -> None:
         if source not in ("robot", "host"):
             raise ConfigError(f"P2OS decoder source is 'robot' or 'host', not {source!r}")
+        super().__init__()
         self.source: Source = source
-        self.stats = DecoderStats()
-        self._buf = bytearray()
-        self._run = DiscardRun(self.stats)
-
-    def feed(self, data: bytes | bytearray | memoryview) -> list[P2osMessage]:
-        self.stats.bytes_in += len(data)
-        self._buf += data
-        return self._process()
-
-    def flush(self) -> list[P2osMessage]:
-        """End of stream or of a line setting (baud switch): settle what is pending.
-
-        See :func:`baromap.protocols.framing.flush_truncated`.
-        """
-        return flush_truncated(self._buf, self._run, self._process)
 
     def _process(self) -> list[P2osMessage]:
         buf = self._buf

@@ -1,4 +1,4 @@
-"""CARMEN log import: public laser datasets (Intel, FR079, ...) become baromap recordings.
+"""CARMEN log parser: public laser datasets (Intel, FR079, ...) as typed records.
 
 CARMEN logs are text, one message per line. Three messages matter for mapping:
 
@@ -12,8 +12,8 @@ CARMEN logs are text, one message per line. Three messages matter for mapping:
 
 The robot pose on laser lines is the best pose the log's producer had: raw odometry in a raw
 log, a SLAM solution in a "corrected" log. Corrected logs often carry no usable ``ODOM`` (the
-Intel log's are all zeros), so :func:`synthesize_odometry` degrades the reference poses with a
-seeded error model to give a SLAM front end something realistic to correct.
+Intel log's are all zeros); :func:`baromap.odometry.synthesis.synthesize_odometry` degrades
+the reference poses instead, and :mod:`baromap.recording.carmen_import` writes a recording.
 
 Malformed lines are skipped and counted (a long public log always has a few); a file with no
 laser line at all is an :class:`~baromap.errors.InputFormatError`.
@@ -28,14 +28,14 @@ from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TextIO
 
 import numpy as np
 import numpy.typing as npt
 import structlog
 
-from baromap.errors import ConfigError, InputFormatError
-from baromap.messages import NS_PER_S, BeamFlag, LaserScan, Odometry
+from baromap.errors import InputFormatError
+from baromap.messages import NS_PER_S
 
 log = structlog.get_logger(__name__)
 
@@ -234,140 +234,3 @@ def read_carmen(path: str | Path) -> CarmenLog:
         skipped=dict(result.skipped),
     )
     return result
-
-
-@dataclass(frozen=True, slots=True)
-class OdometryErrorModel:
-    """How wheel odometry goes wrong, per step of motion between two poses.
-
-    Systematic: the distance travelled is over-read by ``scale_error`` (tyre radius off by a few
-    percent) and the heading creeps by ``drift_rad_per_m`` per metre travelled (unequal wheel
-    radii, skidding of a four-wheel skid-steer base such as the P3-AT). Random: zero-mean
-    Gaussian noise whose standard deviation grows with the step (``sigma_*_per_m`` times the
-    distance, ``sigma_rot_per_rad`` times the rotation), the usual odometry motion model.
-    """
-
-    scale_error: float = 0.05
-    drift_rad_per_m: float = math.radians(2.0)
-    sigma_trans_per_m: float = 0.02
-    sigma_rot_per_m: float = math.radians(0.5)
-    sigma_rot_per_rad: float = 0.02
-
-
-def synthesize_odometry(
-    reference: FloatArray, seed: int, model: OdometryErrorModel | None = None
-) -> FloatArray:
-    """Odometry poses (N, 3) made from reference poses (N, 3) by a seeded error model.
-
-    Each step's motion (expressed in the robot frame of the previous pose) is degraded and
-    integrated from the first reference pose, so errors accumulate the way odometry does.
-    """
-    if seed < 0:
-        raise ConfigError(f"the odometry seed must not be negative, got {seed}")
-    model = model or OdometryErrorModel()
-    ref = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
-    out = np.empty_like(ref)
-    if len(ref) == 0:
-        return out
-    rng = np.random.default_rng(seed)
-    dx_w = np.diff(ref[:, 0])
-    dy_w = np.diff(ref[:, 1])
-    c, s = np.cos(ref[:-1, 2]), np.sin(ref[:-1, 2])
-    fwd = c * dx_w + s * dy_w
-    side = -s * dx_w + c * dy_w
-    dtheta = np.angle(np.exp(1j * np.diff(ref[:, 2])))
-    dist = np.hypot(fwd, side)
-    k = len(dist)
-    gain = 1.0 + model.scale_error
-    fwd_o = fwd * gain + rng.normal(size=k) * model.sigma_trans_per_m * dist
-    side_o = side * gain + rng.normal(size=k) * model.sigma_trans_per_m * dist
-    rot_sigma = model.sigma_rot_per_m * dist + model.sigma_rot_per_rad * np.abs(dtheta)
-    dtheta_o = dtheta + model.drift_rad_per_m * dist + rng.normal(size=k) * rot_sigma
-    out[0] = ref[0]
-    x, y, theta = ref[0]
-    for i in range(k):
-        ci, si = math.cos(theta), math.sin(theta)
-        x += ci * fwd_o[i] - si * side_o[i]
-        y += si * fwd_o[i] + ci * side_o[i]
-        theta = math.remainder(theta + dtheta_o[i], math.tau)
-        out[i + 1] = (x, y, theta)
-    return out
-
-
-def to_laser_scan(scan: CarmenScan, index: int) -> LaserScan:
-    """CARMEN ranges as a baromap scan: no-return markers become NaN flagged OVER_RANGE."""
-    ranges = scan.ranges_m.astype(np.float32)
-    bad = ~np.isfinite(ranges) | (ranges >= scan.range_max_m) | (ranges <= 0.0)
-    flags = np.where(bad, np.uint16(BeamFlag.OVER_RANGE), np.uint16(0)).astype(np.uint16)
-    ranges = np.where(bad, np.float32(np.nan), ranges)
-    return LaserScan(
-        t_ns=scan.t_ns,
-        angle_min_rad=scan.angle_min_rad,
-        angle_increment_rad=scan.angle_increment_rad,
-        range_max_m=scan.range_max_m,
-        ranges_m=ranges,
-        flags=flags,
-        scan_index=index,
-    )
-
-
-def odometry_messages(carmen: CarmenLog, synth_seed: int | None) -> list[Odometry]:
-    """The log's own odometry, or odometry synthesised from its reference poses."""
-    if synth_seed is not None:
-        poses = synthesize_odometry(carmen.reference_poses(), synth_seed)
-        times = carmen.scan_times_ns()
-        return [
-            Odometry(t_ns=int(t), x_m=float(p[0]), y_m=float(p[1]), theta_rad=float(p[2]))
-            for t, p in zip(times, poses, strict=True)
-        ]
-    if not carmen.has_odometry():
-        raise ConfigError(
-            "this log carries no raw odometry (its ODOM lines are missing or all zero); "
-            "pass --synth-odometry SEED to synthesise it from the reference poses"
-        )
-    return [
-        Odometry(
-            t_ns=o.t_ns,
-            x_m=o.x_m,
-            y_m=o.y_m,
-            theta_rad=o.theta_rad,
-            v_mps=o.v_mps,
-            omega_radps=o.omega_radps,
-        )
-        for o in carmen.odometry
-    ]
-
-
-def laser_offset(carmen: CarmenLog) -> tuple[float, float, float]:
-    """Mounting of the laser on the robot, from the first scan's two poses."""
-    first = carmen.scans[0]
-    rx, ry, rt = first.robot_pose
-    lx, ly, lt = first.laser_pose
-    c, s = math.cos(rt), math.sin(rt)
-    dx, dy = lx - rx, ly - ry
-    return c * dx + s * dy, -s * dx + c * dy, math.remainder(lt - rt, math.tau)
-
-
-def import_carmen(
-    log_path: str | Path, out_path: str | Path, synth_seed: int | None = None
-) -> dict[str, Any]:
-    """Write a CARMEN log as a baromap recording; returns counts for the caller to print."""
-    from baromap.recording import RecordingWriter
-
-    carmen = read_carmen(log_path)
-    odometry = odometry_messages(carmen, synth_seed)
-    offset = laser_offset(carmen)
-    metadata = {
-        "source": str(log_path),
-        "odometry": "synthesised" if synth_seed is not None else "recorded",
-        "synth_seed": "" if synth_seed is None else str(synth_seed),
-        "laser_offset": " ".join(f"{v:.6f}" for v in offset),
-    }
-    scans = [to_laser_scan(s, i) for i, s in enumerate(carmen.scans)]
-    merged: list[LaserScan | Odometry] = [*scans, *odometry]
-    merged.sort(key=lambda m: (m.t_ns, 0 if isinstance(m, Odometry) else 1))
-    with RecordingWriter(out_path, robot="carmen") as writer:
-        writer.write_metadata("baromap.carmen", metadata)
-        for message in merged:
-            writer.write(message)
-    return {"scans": len(scans), "odometry": len(odometry), "skipped": dict(carmen.skipped)}

@@ -45,7 +45,7 @@ from foxglove.messages import (
 )
 
 from baromap import __version__, jsonmsg, messages
-from baromap.errors import RecordingError
+from baromap.errors import BaromapError, RecordingError
 from baromap.recording import topics
 from baromap.recording.frames import LASER_MOUNT_KEY, LaserMount, yaw_to_quaternion
 
@@ -137,6 +137,13 @@ class RecordingWriter:
         except (OSError, RuntimeError, ValueError) as exc:
             raise RecordingError(f"cannot create recording {self.path}: {exc}") from exc
         self._closed = False
+        if laser_mount is None and metadata and metadata.get(LASER_MOUNT_KEY):
+            # a caller that states the mount in the metadata gets the transform too
+            try:
+                laser_mount = LaserMount.from_json(metadata[LASER_MOUNT_KEY])
+            except BaromapError as exc:
+                self.close()
+                raise RecordingError(f"{self.path}: {exc}") from exc
         header = {
             "robot": robot,
             "format_version": topics.FORMAT_VERSION,
@@ -162,6 +169,16 @@ class RecordingWriter:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+    @property
+    def size_bytes(self) -> int:
+        """Bytes on disk so far (what has been flushed), for a recorder that rotates by size."""
+        try:
+            if self._sync_fd >= 0:
+                return os.fstat(self._sync_fd).st_size
+            return self.path.stat().st_size
+        except OSError as exc:
+            raise RecordingError(f"cannot stat recording {self.path}: {exc}") from exc
 
     @property
     def laser_mount(self) -> LaserMount | None:

@@ -4,8 +4,8 @@ A skid-steered P3-AT misjudges distance a little (tyre wear, load: a translation
 of a percent or two) and rotation a lot (the wheels slip sideways when it turns in place: a
 rotation scale error of a few percent), and it drifts in heading while driving straight
 (uneven tyres: a fraction of a degree per metre). On top comes random slip that grows with
-the square root of the distance. These are what the odometry of a real run looks like and
-what scan matching has to correct.
+the square root of the distance. :meth:`OdometryErrorModel.random` draws such a robot; these
+are what the odometry of a real run looks like and what scan matching has to correct.
 
 The robot integrates its belief in its own units and reports it every SIP cycle (100 ms) as
 15-bit position counters (wrapping at 0x8000, about every 15 m on a P3-AT) and a 12-bit
@@ -15,12 +15,12 @@ heading; the host unwraps them (``baromap.protocols.OdometryIntegrator``).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from baromap.odometry.errors import OdometryErrorModel
 from baromap.protocols import p2os
 from baromap.protocols.robot_models import P3AT, RobotModel
 
@@ -30,45 +30,17 @@ IntArray = npt.NDArray[np.int64]
 SIP_PERIOD_S = 0.1
 
 
-@dataclass(frozen=True, slots=True)
-class OdometryErrors:
-    """Systematic and random odometry errors of one robot."""
-
-    scale: float
-    rotation_scale: float
-    heading_bias_rad_per_m: float
-    translation_noise_m_per_sqrt_m: float
-    rotation_noise_rad_per_sqrt_rad: float
-
-    @classmethod
-    def random(cls, rng: np.random.Generator) -> OdometryErrors:
-        def signed(lo: float, hi: float) -> float:
-            return float(rng.choice([-1.0, 1.0]) * rng.uniform(lo, hi))
-
-        return cls(
-            scale=signed(0.005, 0.02),
-            rotation_scale=signed(0.01, 0.04),
-            heading_bias_rad_per_m=signed(math.radians(0.2), math.radians(0.8)),
-            translation_noise_m_per_sqrt_m=0.01,
-            rotation_noise_rad_per_sqrt_rad=math.radians(1.0),
-        )
-
-    def as_dict(self) -> dict[str, float]:
-        return {
-            "scale": self.scale,
-            "rotation_scale": self.rotation_scale,
-            "heading_bias_deg_per_m": math.degrees(self.heading_bias_rad_per_m),
-            "translation_noise_m_per_sqrt_m": self.translation_noise_m_per_sqrt_m,
-            "rotation_noise_deg_per_sqrt_rad": math.degrees(self.rotation_noise_rad_per_sqrt_rad),
-        }
-
-
 class OdometryModel:
-    """The robot's dead reckoning: true increments in, believed pose out (stateful, chunked)."""
+    """The robot's dead reckoning: true increments in, believed pose out (stateful, chunked).
+
+    Errors come from :class:`~baromap.odometry.errors.OdometryErrorModel` (usually
+    :meth:`~baromap.odometry.errors.OdometryErrorModel.random`); the belief integrates each
+    step along the arc's mean heading, as the robot's controller does between SIPs.
+    """
 
     def __init__(
         self,
-        errors: OdometryErrors,
+        errors: OdometryErrorModel,
         rng: np.random.Generator,
         model: RobotModel = P3AT,
     ) -> None:
@@ -81,19 +53,9 @@ class OdometryModel:
 
     def step(self, ds: FloatArray, dtheta: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Believed poses after each of the true increments (forward metres, radians)."""
-        e = self.errors
         ds = np.asarray(ds, dtype=np.float64)
-        dtheta = np.asarray(dtheta, dtype=np.float64)
+        ds_o, _, dth_o = self.errors.degrade(ds, np.zeros_like(ds), dtheta, self.rng)
         n = ds.shape[0]
-        noise = self.rng.standard_normal((2, n))
-        ds_o = ds * (1.0 + e.scale) + noise[0] * e.translation_noise_m_per_sqrt_m * np.sqrt(
-            np.abs(ds)
-        )
-        dth_o = (
-            dtheta * (1.0 + e.rotation_scale)
-            + e.heading_bias_rad_per_m * np.abs(ds)
-            + noise[1] * e.rotation_noise_rad_per_sqrt_rad * np.sqrt(np.abs(dtheta))
-        )
         theta = self.theta + np.cumsum(dth_o)
         mid = theta - dth_o / 2.0
         x = self.x_m + np.cumsum(ds_o * np.cos(mid))

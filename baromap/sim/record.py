@@ -32,6 +32,7 @@ import numpy.typing as npt
 import structlog
 
 from baromap.messages import Message, PressureSample, TruthFloor, TruthPose
+from baromap.odometry.errors import OdometryErrorModel
 from baromap.odometry.integrator import OdometryIntegrator
 from baromap.protocols import baro
 from baromap.protocols.robot_models import P3AT
@@ -41,7 +42,6 @@ from baromap.sim.laser import LaserConfig, Lms200Model
 from baromap.sim.motion import PoseSamples
 from baromap.sim.odometry import (
     SIP_PERIOD_S,
-    OdometryErrors,
     OdometryModel,
     counters,
     sip,
@@ -109,7 +109,7 @@ def scan_floors(truth: PoseSamples, sc: Scenario) -> npt.NDArray[np.int64]:
 
 
 def sim_metadata(
-    sc: Scenario, laser: LaserConfig, rate_hz: float, odo: OdometryErrors
+    sc: Scenario, laser: LaserConfig, rate_hz: float, odo: OdometryErrorModel
 ) -> dict[str, str]:
     b = sc.building
     return {
@@ -193,7 +193,7 @@ class RunGenerator:
         self.rate_hz = rate_hz
         self.lms = Lms200Model(laser, self.sc.rng(STREAM_LASER))
         odo_rng = self.sc.rng(STREAM_ODOMETRY)
-        self.odo_errors = OdometryErrors.random(odo_rng)
+        self.odo_errors = OdometryErrorModel.random(odo_rng)
         self.odometry = OdometryModel(self.odo_errors, odo_rng)
         self.integrator = OdometryIntegrator(P3AT)
         self.baro_clock_ppm = float(odo_rng.uniform(-800.0, 800.0))

@@ -1,25 +1,23 @@
-"""Stand-in processes for the Zenoh tests: a router, and a robot fed from a simulated run.
+"""Processes for the Zenoh tests: a router, a bare listener, and a robot without devices.
 
-Until the daemon drives the publisher, a robot is this script: a simulated pressure run goes
+The robot is the daemon's publisher fed from a simulated run, for tests that need a robot's
+events in seconds and on cue (where the daemon on twins would take a minute): the run goes
 through the online floor detector, and every sample, event, state and a health message each
-simulated second are offered to a :class:`daemon.live.LivePublisher`, as the daemon's
-fan-out does. It talks JSON lines: ``{"ready": ...}`` once its session is open, then waits
-for ``go`` on stdin, feeds the run, prints ``{"done": ..., "events": [...]}`` and waits for
-``stop`` (or the end of stdin) to shut down cleanly. A station publishes the run's reference
-barometer instead.
+simulated second are offered to :class:`daemon.live.LivePublisher`, as the daemon's fan-out
+does. It talks JSON lines: ``{"ready": ...}`` once its session is open, then it waits for
+``go`` on stdin, feeds the run, prints ``{"done": ..., "events": [...]}`` and waits for
+``stop`` (or the end of stdin) to shut down cleanly.
 
-    python tests/live/nodes.py router --listen tcp/127.0.0.1:PORT
+    python tests/live/nodes.py router --listen tcp/127.0.0.1:PORT | --config router.json5
     python tests/live/nodes.py robot ID --listen EP --connect EP --seed 1 [--rate 3000]
-    python tests/live/nodes.py station ID --connect EP --seed 1
-    python tests/live/nodes.py router --config router.json5
     python tests/live/nodes.py robot ID --table baromapd.toml --seed 1
+    python tests/live/nodes.py listener --mode client --connect EP
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import queue
 import sys
 import time
 import tomllib
@@ -77,22 +75,17 @@ def run_router(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_node(args: argparse.Namespace, *, station: bool) -> int:
+def run_robot(args: argparse.Namespace) -> int:
     from baromap.floors import OnlineFloorDetector
     from baromap.sim.scenario import pressure_run
     from daemon.live import LivePublisher
 
     run = pressure_run(args.seed, floors=args.floors, minutes=args.minutes, rate_hz=25.0)
-    pressure = run.reference_pa if station else run.pressure_pa
-    temperature = run.reference_temperature_c if station else run.temperature_c
     samples = [
         PressureSample(int(t), float(p), float(c))
-        for t, p, c in zip(run.t_ns, pressure, temperature, strict=True)
+        for t, p, c in zip(run.t_ns, run.pressure_pa, run.temperature_c, strict=True)
     ]
-    publisher = LivePublisher(settings(args), args.id, station=station)
-    references: queue.SimpleQueue[PressureSample] = queue.SimpleQueue()
-    if args.follow:
-        publisher.follow_reference(args.follow, references.put)
+    publisher = LivePublisher(settings(args), args.id)
     detector = OnlineFloorDetector()
     publisher.start()
     deadline = time.monotonic() + 20.0
@@ -103,25 +96,18 @@ def run_node(args: argparse.Namespace, *, station: bool) -> int:
             return 1
         time.sleep(0.02)
     publisher.offer(samples[0])
-    if not station:
-        detector.update(samples[0])
-        publisher.offer(detector.state())
+    detector.update(samples[0])
+    publisher.offer(detector.state())
     say(ready=args.id)
     wait_for("go")
     events = []
     start = time.monotonic()
-    used_references = 0
     for i, sample in enumerate(samples[1:], start=1):
         if args.rate > 0:
             ahead = start + i / args.rate - time.monotonic()
             if ahead > 0:
                 time.sleep(ahead)
         publisher.offer(sample)
-        if station:
-            continue
-        while not references.empty():
-            detector.update_reference(references.get())
-            used_references += 1
         decided = detector.update(sample)
         for event in decided:
             publisher.offer(event)
@@ -130,18 +116,16 @@ def run_node(args: argparse.Namespace, *, station: bool) -> int:
             publisher.offer(detector.state())
         if i % 25 == 0:
             publisher.offer(DeviceHealth(sample.t_ns, "baro", DeviceState.UP, counters={"n": i}))
-    if not station:
-        last = detector.finish()
-        for event in last:
-            publisher.offer(event)
-        events.extend(last)
-        publisher.offer(detector.state())
+    last = detector.finish()
+    for event in last:
+        publisher.offer(event)
+    events.extend(last)
+    publisher.offer(detector.state())
     time.sleep(0.2)  # let the worker drain before the counters are read
     say(
         done=args.id,
         events=[jsonmsg.to_dict(e) for e in events],
-        state=jsonmsg.to_dict(detector.state()) if not station else None,
-        references=used_references,
+        state=jsonmsg.to_dict(detector.state()),
         health=dict(publisher.health()),
     )
     wait_for("stop")
@@ -163,7 +147,7 @@ def run_listener(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser()
-    parser.add_argument("role", choices=("router", "robot", "station", "listener"))
+    parser.add_argument("role", choices=("router", "robot", "listener"))
     parser.add_argument("id", nargs="?", default="node")
     parser.add_argument("--mode", default="peer")
     parser.add_argument("--listen", action="append")
@@ -173,7 +157,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--minutes", type=float, default=6.0)
     parser.add_argument("--rate", type=float, default=3000.0, help="samples per second, 0: max")
     parser.add_argument("--state-period", type=float, default=5.0)
-    parser.add_argument("--follow", help="reference station to follow")
     parser.add_argument("--table", help="TOML file whose [zenoh] table configures the node")
     parser.add_argument("--config", help="Zenoh JSON5 file of the router")
     args = parser.parse_args(argv)
@@ -182,7 +165,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return run_router(args)
     if args.role == "listener":
         return run_listener(args)
-    return run_node(args, station=args.role == "station")
+    return run_robot(args)
 
 
 if __name__ == "__main__":

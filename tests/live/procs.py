@@ -56,6 +56,11 @@ class Child:
         return cls(name, [sys.executable, str(NODES), *args], log_dir)
 
     @classmethod
+    def command(cls, name: str, args: Sequence[str], log_dir: Path) -> Child:
+        """A ``baromap`` subcommand."""
+        return cls(name, [sys.executable, "-m", "baromap.cli.main", *args], log_dir)
+
+    @classmethod
     def watch(cls, name: str, args: Sequence[str], log_dir: Path) -> Child:
         argv = [sys.executable, "-m", "baromap.cli.main", "watch", "--json", *args]
         return cls(name, argv, log_dir)
@@ -114,14 +119,19 @@ class Child:
         self.proc.kill()
         self.proc.wait(10)
 
-    def close(self, *, interrupt: bool = False, timeout: float = 20.0) -> int:
-        """Ask the child to stop (``stop``, or SIGINT for ``baromap watch``); kill if it hangs."""
+    def close(
+        self, *, interrupt: bool = False, terminate: bool = False, timeout: float = 20.0
+    ) -> int:
+        """Ask the child to stop (``stop`` on stdin, SIGINT for ``baromap watch``, SIGTERM for
+        ``baromapd`` and ``baromap sim``); kill it if it hangs."""
         if self.proc.stdout is not None and self.proc.stdout.closed:
             return self.proc.wait()  # closed before
         if self.proc.poll() is None:
             try:
                 if interrupt:
                     self.proc.send_signal(signal.SIGINT)
+                elif terminate:
+                    self.proc.send_signal(signal.SIGTERM)
                 else:
                     self.send("stop")
             except (BrokenPipeError, OSError):

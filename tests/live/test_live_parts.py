@@ -180,7 +180,7 @@ def test_reference_table() -> None:
 # -- payloads ---------------------------------------------------------------------------
 
 
-def test_payloads_carry_a_schema_version_and_round_trip() -> None:
+def test_payloads_are_json_with_a_schema_version_and_round_trip() -> None:
     unknown = state(
         floor=None, level=math.nan, height_m=math.nan, level_m=math.nan, phase=FloorPhase.UNKNOWN
     )
@@ -195,7 +195,9 @@ def test_payloads_carry_a_schema_version_and_round_trip() -> None:
         assert json.loads(payload)["schema"] == jsonmsg.SCHEMA_VERSION
         assert payload == jsonmsg.dumps(message)  # what a recording's JSON channel holds
         assert decode(channel, payload) == message
-    back = decode(Channel.STATE, encode(unknown))
+    payload = encode(unknown)
+    assert json.loads(payload, parse_constant=pytest.fail)["level_pa"] is None  # no NaN: JSON
+    back = decode(Channel.STATE, payload)
     assert back.floor_id is None and math.isnan(back.level_pa) and math.isnan(back.height_m)
 
 

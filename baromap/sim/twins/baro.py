@@ -12,7 +12,6 @@ time (which stops while the base's watchdog holds the robot) and the weather's o
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -20,8 +19,7 @@ from baromap.protocols import baro
 from baromap.protocols.framing import BadFrame
 from baromap.sim.bmp280 import Bmp280
 from baromap.sim.scenario import STREAM_ROBOT_BARO
-from baromap.sim.twins.base import SimClock, Twin
-from baromap.sim.twins.truth import TruthSink
+from baromap.sim.twins.base import Twin
 
 BAUD = 115200
 FIRMWARE = (1, 0, 0)
@@ -38,16 +36,8 @@ class BaroTwin(Twin):
     name = "baro"
     initial_baud = BAUD
 
-    def __init__(
-        self,
-        clock: SimClock,
-        link: str | Path | None = None,
-        rate_hz: int | None = None,
-        *,
-        truth_sink: TruthSink | None = None,
-    ) -> None:
-        super().__init__(clock, link, truth_sink=truth_sink)
-        self.default_rate = rate_hz if rate_hz is not None else self.settings.baro_rate_hz
+    def setup(self) -> None:
+        self.default_rate = self.settings.baro_rate_hz
         self.samples_sent = 0
 
     def power_on(self) -> None:

@@ -34,12 +34,15 @@ class SimClock:
     weather keeps its own course.
     """
 
-    def __init__(self, scenario: Scenario, speed: float = 1.0) -> None:
+    def __init__(self, scenario: Scenario, speed: float = 1.0, start_s: float = 0.0) -> None:
+        """``start_s``: simulated seconds already gone when the clock starts (join mid-route)."""
         if not 0 < speed < math.inf:
             raise ConfigError(f"speed must be positive and finite, got {speed}")
+        if not 0 <= start_s <= scenario.duration_s:
+            raise ConfigError(f"start must be within the run's {scenario.duration_s:g} s")
         self.scenario = scenario
         self.speed = speed
-        self._t0 = time.monotonic()
+        self._t0 = time.monotonic() - start_s / speed
         self._lock = threading.Lock()
         self._halted_at: float | None = None
         self._halted_total = 0.0
@@ -100,6 +103,7 @@ class Twin:
         self._replug_at: float | None = None
         self._power_on_at: float | None = None
         self._faults = list(self.settings.faults_of(self.name))
+        self.setup()
 
     # ---- lifetime -------------------------------------------------------------------------------
     @property
@@ -181,6 +185,9 @@ class Twin:
             self.replug()
 
     # ---- the device -----------------------------------------------------------------------------
+    def setup(self) -> None:
+        """What the device keeps across power cycles (models, counters): once, at creation."""
+
     def _power_up(self) -> None:
         self.boot += 1
         self.power_on()

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import struct
 import time
-from pathlib import Path
 from typing import Final
 
 import numpy as np
@@ -40,8 +39,7 @@ from baromap.protocols.framing import BadFrame
 from baromap.sim.laser import LaserConfig, Lms200Model, cast
 from baromap.sim.record import CAR_DOOR_SEGMENT, doors_closed, scan_floors
 from baromap.sim.scenario import STREAM_LASER
-from baromap.sim.twins.base import SimClock, Twin
-from baromap.sim.twins.truth import TruthSink
+from baromap.sim.twins.base import Twin
 
 #: The sensor's reply delay after a command (it answers well within the 60 ms drivers wait).
 REPLY_DELAY_S: Final = 0.01
@@ -62,16 +60,9 @@ class Lms200Twin(Twin):
     name = "lms200"
     initial_baud = 9600
 
-    def __init__(
-        self,
-        clock: SimClock,
-        link: str | Path | None = None,
-        *,
-        truth_sink: TruthSink | None = None,
-    ) -> None:
-        super().__init__(clock, link, truth_sink=truth_sink)
+    def setup(self) -> None:
         self.decoder = lms200.Decoder()
-        self.model = Lms200Model(LaserConfig(), clock.scenario.rng(STREAM_LASER))
+        self.model = Lms200Model(LaserConfig(), self.clock.scenario.rng(STREAM_LASER))
         self.scans_sent = 0
         self.commands = 0
         self.resets = 0
@@ -241,7 +232,7 @@ class Lms200Twin(Twin):
             return
         self._last_scan = now
         taken_ns = time.monotonic_ns()
-        taken_s = self.clock.now()
+        taken_s = self.clock.robot_time()
         if self.port.send(self.scan_telegram()):
             self.truth.record(taken_ns, taken_s, boot=self.boot)
             self.scans_sent += 1

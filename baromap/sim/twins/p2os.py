@@ -15,7 +15,8 @@ again. The 2 s are wall seconds whatever the clock's speed: they judge the host,
 keepalives come in wall time.
 
 One modelling choice: the route stands for a client driving the robot, so when bare SYNC0s
-come faster than any keepalive needs (two within :data:`RESYNC_GAP_S`), a new client is
+come faster than any keepalive needs (three, each within :data:`RESYNC_GAP_S` of the last), a
+new client is
 re-synchronising over a session whose driver died, and the motors stop at once instead of
 after the watchdog. p2os_driver (CLOSE on the first SIP) is unaffected; ARIA, which closes an
 old session only on a "stopped" SIP, reconnects within a second instead of never.
@@ -25,26 +26,25 @@ from __future__ import annotations
 
 import enum
 import time
-from pathlib import Path
 
 import numpy as np
 
+from baromap.odometry.errors import OdometryErrorModel
 from baromap.protocols import p2os
 from baromap.sim.odometry import (
     SIP_PERIOD_S,
-    OdometryErrors,
     OdometryModel,
     counters,
     sip,
     true_increments,
 )
 from baromap.sim.scenario import STREAM_ODOMETRY
-from baromap.sim.twins.base import SimClock, Twin
-from baromap.sim.twins.truth import TruthSink
+from baromap.sim.twins.base import Twin
 
 WATCHDOG_S = 2.0
-#: Two bare SYNC0s closer than this on an open session are a client re-synchronising.
-RESYNC_GAP_S = 0.3
+#: Three bare SYNC0s, each closer than this to the last, on an open session: a client is
+#: re-synchronising (ARIA retries every 0.1-0.2 s; a keepalive needs one PULSE per 2 s).
+RESYNC_GAP_S = 0.2
 
 
 class Session(enum.Enum):
@@ -58,17 +58,10 @@ class P2osTwin(Twin):
     name = "p3at"
     initial_baud = 9600
 
-    def __init__(
-        self,
-        clock: SimClock,
-        link: str | Path | None = None,
-        *,
-        truth_sink: TruthSink | None = None,
-    ) -> None:
-        super().__init__(clock, link, truth_sink=truth_sink)
+    def setup(self) -> None:
         self.model = self.settings.robot_model
-        rng = clock.scenario.rng(STREAM_ODOMETRY)
-        self.errors = OdometryErrors.random(rng)
+        rng = self.clock.scenario.rng(STREAM_ODOMETRY)
+        self.errors = OdometryErrorModel.random(rng)
         self._rng = rng
         self.sips_sent = 0
         self.watchdog_trips = 0
@@ -85,6 +78,7 @@ class P2osTwin(Twin):
         self._next_sip = time.monotonic()
         self._last_heard = time.monotonic()
         self._last_bare_sync: float | None = None
+        self._quick_syncs = 0
         self.stopped_for_resync = False
         self.clock.resume()
 
@@ -107,14 +101,18 @@ class P2osTwin(Twin):
             self._last_heard = now
             bare_sync = msg.command == p2os.Command.SYNC0 and msg.argument is None
             if self.session == Session.OPEN and bare_sync:
-                if self._last_bare_sync is not None and now - self._last_bare_sync < RESYNC_GAP_S:
-                    if not self.stopped_for_resync:
-                        self.resyncs += 1
+                quick = (
+                    self._last_bare_sync is not None and now - self._last_bare_sync < RESYNC_GAP_S
+                )
+                self._quick_syncs = self._quick_syncs + 1 if quick else 0
+                if self._quick_syncs >= 2 and not self.stopped_for_resync:
+                    self.resyncs += 1
                     self.stopped_for_resync = True
                     self.clock.halt()
                 self._last_bare_sync = now
             elif not bare_sync:
                 self._last_bare_sync = None
+                self._quick_syncs = 0
             if self.clock.halted and not self.stopped_for_resync:
                 self.clock.resume()  # ARCOS revives on the next packet after a watchdog stop
             self._command(msg)
@@ -208,7 +206,7 @@ class P2osTwin(Twin):
         if self._next_sip < now:
             self._next_sip = now + self.clock.real_delay(SIP_PERIOD_S)
         pose_ns = time.monotonic_ns()
-        pose_s = self.clock.now()
+        pose_s = self.clock.robot_time()
         if self.port.send(self.sip_packet()):
             self.truth.record(pose_ns, pose_s, boot=self.boot)
         self.sips_sent += 1

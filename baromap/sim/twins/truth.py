@@ -26,7 +26,6 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from types import TracebackType
 from typing import IO, Final
 
 from baromap.errors import ConfigError
@@ -44,7 +43,8 @@ class FrameTruth:
     ``index`` counts the frames of this kind the twin has sent since it started (0-based,
     across power cycles); ``boot`` counts power-ups before this frame (0 = the first);
     ``seq`` is the frame's own sequence number where the protocol has one (barometer SAMPLE).
-    ``t_sim_s`` is the simulated time of the same instant.
+    ``t_sim_s`` is the simulated time the content belongs to: route time for a SIP's pose and a
+    scan (it stands still while the robot's watchdog holds it), the run's clock for a sample.
     """
 
     device: str
@@ -116,7 +116,10 @@ class TruthLog:
 
 
 class JsonlTruthWriter:
-    """Truth records from any number of twins, one JSON object per line, flushed often."""
+    """Truth records from any number of twins, one JSON object per line, flushed often.
+
+    Close it when the twins stop (``contextlib.closing``).
+    """
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -142,17 +145,6 @@ class JsonlTruthWriter:
         with self._lock:
             if not self._file.closed:
                 self._file.close()
-
-    def __enter__(self) -> JsonlTruthWriter:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def read_truth_log(path: str | Path) -> list[FrameTruth]:

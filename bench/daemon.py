@@ -1,0 +1,185 @@
+"""baromapd against the pty twins for a while: drops, CPU, memory, latency, timestamp error.
+
+The twins run in this process (LMS200 at 500 kbaud, 181 beams at 75 Hz paced at line rate;
+SIPs at 10 Hz; the barometer at 50 Hz); ``baromapd`` runs as its own process, so its CPU time
+and peak RSS are its own (``getrusage`` of the waited child). Latency (a frame's last byte read
+-> its message taken by the recorder thread) is measured inside the daemon and read from its
+last ``/diagnostics``. Timestamp errors compare each recorded stamp with the instant the twin
+says the frame's content was true (its truth log, on the same CLOCK_MONOTONIC, mapped to Unix
+time with the mapping the recording states).
+
+    python bench/daemon.py [--minutes 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import bisect
+import itertools
+import os
+import resource
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from baromap import messages
+from baromap.recording import read_messages, read_metadata, topics
+from baromap.sim.twins import SimDevices
+
+CONFIG = """robot = "bench"
+[recording]
+directory = "{rec}"
+min_free_mb = 0
+[laser]
+port = "{laser}"
+baud = 500000
+[base]
+port = "{base}"
+[barometer]
+port = "{baro}"
+rate_hz = 50
+"""
+
+
+def _hwm_kb(pid: int) -> int:
+    """Peak resident set of a running process (VmHWM; ru_maxrss of a child also counts the
+    parent's pages it shared between fork and exec)."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return 0
+
+
+def _truth(twin: object) -> list[object] | None:
+    log = getattr(twin, "truth", None)
+    return None if log is None else log.records()
+
+
+def _errors_nearest(stamps: list[int], truth_ns: list[int]) -> np.ndarray:
+    """Error of each stamp against the nearest true instant (frames far apart: unambiguous)."""
+    out = []
+    for t in stamps:
+        i = bisect.bisect_left(truth_ns, t)
+        near = [truth_ns[j] for j in (i - 1, i) if 0 <= j < len(truth_ns)]
+        if near:
+            out.append(min((t - n for n in near), key=abs))
+    return np.array(out, dtype=np.float64) / 1e6
+
+
+def _describe(name: str, errors_ms: np.ndarray | None, target_ms: float | None) -> str:
+    if errors_ms is None or not len(errors_ms):
+        return f"  {name:10s} n/a (the twins keep no truth log in this build)"
+    p50, p99 = np.percentile(np.abs(errors_ms), [50, 99])
+    target = f"  (target p99 <= {target_ms:g} ms)" if target_ms else ""
+    return (
+        f"  {name:10s} |error| p50 {p50:.3f} ms, p99 {p99:.3f} ms, mean {errors_ms.mean():+.3f} ms"
+        f" over {len(errors_ms)} frames{target}"
+    )
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--minutes", type=float, default=5.0)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory(prefix="baromapd-bench-") as tmp:
+        work = Path(tmp)
+        with SimDevices(link_dir=work / "links", minutes=args.minutes + 5, seed=11) as sim:
+            paths = sim.paths()
+            config = work / "baromapd.toml"
+            config.write_text(
+                CONFIG.format(
+                    rec=work / "rec", laser=paths["lms200"], base=paths["p3at"], baro=paths["baro"]
+                )
+            )
+            load_before = os.getloadavg()[0]
+            started = time.monotonic()
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "daemon.main", "--config", str(config)],
+                stderr=(work / "daemon.log").open("wb"),
+                env={**os.environ, "BAROMAPD_BENCH": "1"},
+            )
+            peak_kb = 0
+            deadline = started + args.minutes * 60
+            while time.monotonic() < deadline:
+                time.sleep(min(2.0, max(0.0, deadline - time.monotonic())))
+                peak_kb = max(peak_kb, _hwm_kb(proc.pid))
+            proc.send_signal(signal.SIGTERM)
+            code = proc.wait(60)
+            wall_s = time.monotonic() - started
+            usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+            truths = {name: _truth(t) for name, t in (("laser", sim.lms200), ("base", sim.p3at),
+                                                      ("baro", sim.baro))}  # fmt: skip
+            sent = {"scans": sim.lms200.scans_sent, "sips": sim.p3at.sips_sent,
+                    "samples": sim.baro.samples_sent}  # fmt: skip
+        files = sorted((work / "rec").glob("*.mcap"))
+        records = [r for path in files for r in read_messages(path)]
+        header = read_metadata(files[0])[topics.METADATA_NAME]
+    wall0, mono0 = int(header["clock_wall0_ns"]), int(header["clock_mono0_ns"])
+    by_topic: dict[str, list[object]] = {}
+    for record in records:
+        by_topic.setdefault(record.topic, []).append(record.message)
+    health = {
+        h.device: h
+        for h in by_topic.get(topics.DIAGNOSTICS, [])
+        if isinstance(h, messages.DeviceHealth)
+    }
+    rec = health["recorder"].counters
+    dropped = sum(v for k, v in rec.items() if k.startswith("dropped_"))
+    baro = [m for m in by_topic.get(topics.BARO, []) if isinstance(m, messages.PressureSample)]
+    scans = [m for m in by_topic.get(topics.SCAN, []) if isinstance(m, messages.LaserScan)]
+    odom = [m for m in by_topic.get(topics.ODOM, []) if isinstance(m, messages.Odometry)]
+    lost_baro = sum(((b.seq - a.seq - 1) % 65536) for a, b in itertools.pairwise(baro))
+
+    print(f"baromapd on the pty twins for {args.minutes:g} min (exit {code}), {len(files)} file(s)")
+    print(
+        f"  machine: {os.cpu_count()} cores, load average {load_before:.1f} at start, "
+        f"{os.getloadavg()[0]:.1f} at end (latency tails grow with the load of other processes)"
+    )
+    print(
+        f"  recorded: {len(scans)} scans of {sent['scans']} sent, {len(odom)} odometry of "
+        f"{sent['sips']} SIPs, {len(baro)} pressure samples of {sent['samples']} "
+        "(the difference is what was sent before each session was up and after it stopped)"
+    )
+    print(f"  messages dropped by the daemon: {dropped} (queue and disk guard), "
+          f"barometer sequence gaps: {lost_baro}   (must be 0)")  # fmt: skip
+    cpu_s = usage.ru_utime + usage.ru_stime
+    print(f"  daemon CPU: {cpu_s:.1f} s in {wall_s:.0f} s = {100 * cpu_s / wall_s:.2f} % of one "
+          "core (target <= 5 %)")  # fmt: skip
+    print(f"  daemon peak RSS: {peak_kb / 1024:.0f} MB (target <= 150 MB)")
+    for topic in (topics.SCAN, topics.ODOM, topics.BARO):
+        p50 = rec.get(f"latency_p50_us{topic}", 0) / 1000
+        p99 = rec.get(f"latency_p99_us{topic}", 0) / 1000
+        print(f"  latency last byte -> recorder {topic:6s} p50 {p50:.2f} ms, p99 {p99:.2f} ms "
+              "(target p99 <= 5 ms)")  # fmt: skip
+    print("timestamp error against the twins' truth (recorded stamp - true instant):")
+
+    def unix(truth: list[object] | None) -> list[int] | None:
+        if truth is None:
+            return None
+        return sorted(wall0 + int(t.t_mono_ns) - mono0 for t in truth)
+
+    laser_truth = unix(truths["laser"])
+    base_truth = unix(truths["base"])
+    baro_errors = None
+    if truths["baro"] is not None:
+        by_seq = {(t.seq): wall0 + int(t.t_mono_ns) - mono0
+                  for t in truths["baro"]}  # fmt: skip
+        baro_errors = np.array([(m.t_ns - by_seq[m.seq]) / 1e6 for m in baro if m.seq in by_seq])
+    print(_describe("laser", None if laser_truth is None else
+                    _errors_nearest([m.t_ns for m in scans], laser_truth), 1.0))  # fmt: skip
+    print(_describe("barometer", baro_errors, 2.0))
+    print(_describe("odometry", None if base_truth is None else
+                    _errors_nearest([m.t_ns for m in odom], base_truth), None))  # fmt: skip
+    return 0 if code == 0 else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
