@@ -189,6 +189,10 @@ class PioneerSession(DeviceSession):
         self.set_counter("battery_dv", round(sip.battery_v * 10))
         self.publish(self.integrator.update(sip, self.clock.unix_ns(sent_ns)), read_ns)
 
+    def up_detail(self) -> str:
+        info = self.identity
+        return f"streaming; {info.get('model_note', '')} (robot {info.get('name', '?')!r})"
+
     def keepalive(self) -> None:
         if self._session_open and self.since_write_s() >= PULSE_EVERY_S:
             self.write(p2os.pulse())

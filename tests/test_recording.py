@@ -351,6 +351,11 @@ def test_a_mount_stated_in_metadata_becomes_the_static_transform(tmp_path: Path)
     assert static.translation.x == pytest.approx(0.2)
     with pytest.raises(RecordingError):
         RecordingWriter(tmp_path / "bad.mcap", robot="r", metadata={"laser_mount": "{x"})
+    carmen = tmp_path / "carmen.mcap"  # the CARMEN importer's spelling
+    with RecordingWriter(carmen, robot="r", metadata={"laser_offset": "0.1 0.0 0.0"}) as writer:
+        writer.write(m.PressureSample(T0, 1.0))
+    assert LaserMount.from_metadata(read_metadata(carmen)) == LaserMount(0.1)
+    assert len(list(read_messages(carmen, [t.TF_STATIC]))) == 1
 
 
 def test_a_recording_states_one_laser_mount(tmp_path: Path) -> None:

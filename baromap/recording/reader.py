@@ -42,9 +42,6 @@ from baromap.recording.writer import RAW_ODOMETRY_KEYS
 
 log = structlog.get_logger(__name__)
 
-#: What the mcap package raises on a file that stops mid-record.
-TRUNCATION_ERRORS = PARSE_ERRORS
-
 ODOMETRY_SCHEMA = "foxglove.Odometry"
 
 
