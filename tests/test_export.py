@@ -72,9 +72,37 @@ def every_message_type(path: Path) -> Counter[str]:
             ]
             if i % 10 == 0:
                 batch += [
-                    (m.FloorEvent(t_ns, t_ns - 5, t_ns - 1, 0, 1, -40.0, 3.3, 99960.0), None),
                     (
-                        m.FloorState(t_ns, 1, m.FloorPhase.SETTLED, 99960.0, math.nan, 2, t_ns),
+                        m.FloorEvent(
+                            t_ns=t_ns,
+                            event_id=i // 10 + 1,
+                            kind=m.FloorEventKind.TRANSITION,
+                            replaces=None,
+                            t_start_ns=t_ns - 5,
+                            t_end_ns=t_ns - 1,
+                            from_id=0,
+                            to_id=1,
+                            from_name="lobby",
+                            to_name="1",
+                            height_m=3.3,
+                            delta_pa=-40.0,
+                            delta_m=3.3,
+                            level_pa=99960.0,
+                        ),
+                        None,
+                    ),
+                    (
+                        m.FloorState(
+                            t_ns=t_ns,
+                            phase=m.FloorPhase.SETTLED,
+                            floor_id=1,
+                            name="1",
+                            height_m=math.nan,
+                            level_m=3.3,
+                            level_pa=99960.0,
+                            since_ns=t_ns,
+                            floors_known=2,
+                        ),
                         None,
                     ),
                     (
@@ -168,7 +196,7 @@ def test_ros2_bag_reads_with_rosbags(tmp_path: Path) -> None:
     assert (odom.header.frame_id, odom.child_frame_id) == ("odom", "base_link")
     assert odom.twist.twist.linear.x == pytest.approx(0.3)
     state = yaml.safe_load(by_topic[t.FLOOR_STATE][0].data)  # JSON: null, never NaN
-    assert state["elevation_m"] is None and state["floor"] == 1
+    assert state["height_m"] is None and state["floor_id"] == 1
     assert by_topic[t.DIAGNOSTICS][0].status[0].values[0].key == "crc"
     grid = by_topic["/floor_0/map"][0]
     assert (grid.info.width, grid.info.height) == (6, 4)

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from baromap.errors import ConfigError
 from baromap.floors.config import FloorDetectorConfig
 from baromap.floors.height import (
+    AtmosphereError,
     height_difference_m,
     pa_per_m,
     pressure_drop_pa,
@@ -45,9 +46,9 @@ def test_pressure_drop_inverts_height_difference(p: float, h: float, temp: float
 
 
 def test_height_rejects_impossible_inputs() -> None:
-    with pytest.raises(ValueError):
+    with pytest.raises(AtmosphereError):
         height_difference_m(0.0, 1000.0)
-    with pytest.raises(ValueError):
+    with pytest.raises(AtmosphereError):
         scale_height_m(-300.0)
 
 
@@ -91,8 +92,17 @@ def test_config_rejects_nonsense(changes: dict[str, float]) -> None:
         FloorDetectorConfig(**changes)
 
 
-def test_config_defaults_are_physical() -> None:
-    config = FloorDetectorConfig()
-    assert config.min_transition_m == 1.8
+@pytest.mark.parametrize(("alpha", "gamma"), [(0.0, 0.5), (0.5, 1.5), (math.nan, 0.5)])
+def test_smoother_rejects_constants_outside_0_1(alpha: float, gamma: float) -> None:
     with pytest.raises(ConfigError):
-        DoubleExponentialSmoother(0.0, 0.5)
+        DoubleExponentialSmoother(alpha, gamma)
+
+
+def test_floor_heights_from_steps_leave_out_floors_no_step_reaches() -> None:
+    from baromap.floors.elevation import Step, solve_levels
+
+    # 0 -> 1 measured twice (3.1 and 3.3 m), 2 <-> 3 measured but never joined to 0 or 1.
+    steps = [Step(0, 1, -36.0, 3.1), Step(1, 0, 38.0, -3.3), Step(2, 3, -40.0, 3.5)]
+    heights = solve_levels(steps, 4, "height_m")
+    assert heights[1] - heights[0] == pytest.approx(3.2)
+    assert np.isnan(heights[2]) and np.isnan(heights[3])

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from baromap.cli.main import main
+from baromap.errors import InputFormatError
 from baromap.evaluation.floors import (
     SimSettings,
     evaluate,
@@ -51,6 +52,8 @@ def test_waypoint_truth_windows() -> None:
     floors = truth.floor_at(np.array([5, 15, 30, 45, 50, 60]) * S)
     assert np.isnan(floors[0]) and floors[1] == 0 and np.isnan(floors[2])
     assert floors[4] == 1 and np.isnan(floors[5])
+    with pytest.raises(InputFormatError):
+        truth_from_waypoints([])
 
 
 def test_matching_counts_missed_false_direction_and_storeys() -> None:

@@ -98,12 +98,9 @@ def _clock(t_ns: int) -> str:
     return datetime.fromtimestamp(t_ns / NS_PER_S).strftime("%H:%M:%S.%f")[:-3]
 
 
-def _floor(floor: int | None) -> str:
-    return "unknown" if floor is None else str(floor)
-
-
 def _text_line(report: Any, connect: tuple[str, ...]) -> str:
     from baromap.live import watch as w
+    from baromap.messages import FloorEventKind, FloorPhase
 
     now = _clock(time.time_ns())
     match report:
@@ -120,18 +117,28 @@ def _text_line(report: Any, connect: tuple[str, ...]) -> str:
         case w.StateReport(robot=robot, state=s, answered=answered):
             how = "state" if answered else "state published"
             since = f"{s.phase.value} since {_clock(s.since_ns)}"
-            if s.floor is None:
+            if s.floor_id is None:
                 return f"{now} {robot}: {how}: floor not known yet ({since})"
-            return (
-                f"{now} {robot}: {how}: floor {s.floor} ({since}), "
-                f"{s.elevation_m:+.2f} m above the lowest, {s.floors_known} floor(s) known, "
-                f"level {s.level_pa:.1f} Pa"
+            line = (
+                f"{now} {robot}: {how}: floor {s.name} ({since}), {s.height_m:+.2f} m from the "
+                f"start floor, {s.floors_known} floor(s) known"
             )
+            if s.phase is FloorPhase.STOPPED:
+                at = f"floor {s.stop_name}" if s.stop_name is not None else "no known floor"
+                line += f"; stopped in a ride at {at} ({s.level_m:+.2f} m)"
+            elif s.phase is FloorPhase.CHANGING:
+                line += f"; moving, now at {s.level_m:+.2f} m"
+            return line
         case w.EventReport(robot=robot, event=e):
+            what = (
+                f"correction of event {e.replaces}: " if e.kind is FloorEventKind.CORRECTION else ""
+            )
+            end = " (decided as the input ended)" if e.at_end else ""
             return (
-                f"{now} {robot}: floor {e.from_floor} -> {e.to_floor} ({e.delta_m:+.2f} m, "
-                f"{e.delta_pa:+.1f} Pa), moving {_clock(e.t_start_ns)} to {_clock(e.t_end_ns)}, "
-                f"decided {_clock(e.t_ns)}"
+                f"{now} {robot}: {what}floor {e.from_name} -> {e.to_name} ({e.delta_m:+.2f} m, "
+                f"{e.delta_pa:+.1f} Pa; {e.height_m:+.2f} m from the start floor), moving "
+                f"{_clock(e.t_start_ns)} to {_clock(e.t_end_ns)}, decided {_clock(e.t_ns)}{end} "
+                f"[event {e.event_id}]"
             )
         case w.PressureReport(robot=robot, sample=p):
             return f"{now} {robot}: pressure {p.pressure_pa:.2f} Pa at {_clock(p.t_ns)}"

@@ -122,18 +122,14 @@ def sim_case(seed: int, settings: SimSettings | None = None) -> Case:
 def sim_odometry(scenario: Scenario) -> Odometry:
     """The odometry a simulated run's robot reports: its true motion through the robot's own
     error model, one pose per SIP (what ``sim record`` writes on /odom, before the wire)."""
-    from baromap.sim.odometry import (
-        SIP_PERIOD_S,
-        OdometryErrors,
-        OdometryModel,
-        true_increments,
-    )
+    from baromap.odometry.errors import OdometryErrorModel
+    from baromap.sim.odometry import SIP_PERIOD_S, OdometryModel, true_increments
     from baromap.sim.scenario import STREAM_ODOMETRY
 
     t = np.arange(SIP_PERIOD_S / 2, scenario.duration_s, SIP_PERIOD_S)
     truth = scenario.truth(t)
     rng = scenario.rng(STREAM_ODOMETRY)
-    model = OdometryModel(OdometryErrors.random(rng), rng)
+    model = OdometryModel(OdometryErrorModel.random(rng), rng)
     start = scenario.moves.start[0]
     ds, dth = true_increments(
         truth.x, truth.y, truth.theta, (float(start[0]), float(start[1]), float(start[2]))

@@ -89,26 +89,36 @@ class FloorDetectorConfig:
     Invalid values raise :class:`~baromap.errors.ConfigError` naming the field.
     """
 
+    # What is a floor change (m), and when one begins (m, m/s) and ends (m/s over s).
     min_transition_m: float = 1.8
     start_m: float = 0.5
     start_rate_m_s: float = 0.15
     settle_rate_m_s: float = 0.1
     settle_s: float = 1.5
-    level_tau_s: float = 0.5
-    trend_tau_s: float = 1.5
-    drift_tau_s: float = 60.0
+
+    # Time constants (s) of the smoothers.
+    level_tau_s: float = 0.5  # the level (and the Holt level)
+    trend_tau_s: float = 1.5  # the Holt rate that starts a change
+    drift_tau_s: float = 60.0  # the weather, while on a floor
+    reference_tau_s: float = 10.0  # a reference station's pressure
+
+    # Trips, stops and visits (s, m); a gap in the data longer than max_gap_s ends a trip.
     landing_s: float = 15.0
     min_visit_s: float = 15.0
     leave_m: float = 1.0
-    reference_tau_s: float = 10.0
-    default_temperature_c: float = STANDARD_TEMPERATURE_C
     max_gap_s: float = 10.0
-    paper_alpha: float = 0.1
-    paper_gamma: float = 0.1
-    paper_sigmas: float = 2.0
+
+    # Names: of the start floor, and how the others are found.
     start_floor: str = "0"
     storey_m: float = 3.5
     building: BuildingModel | None = None
+
+    # Air temperature when the sensor gives none.
+    default_temperature_c: float = STANDARD_TEMPERATURE_C
+    # The paper's method: its smoothing constants (per sample) and threshold (sigmas).
+    paper_alpha: float = 0.1
+    paper_gamma: float = 0.1
+    paper_sigmas: float = 2.0
 
     def __post_init__(self) -> None:
         for f in fields(self):

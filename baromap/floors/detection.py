@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import bisect
 import dataclasses
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -203,23 +204,45 @@ def detect_floors(
         t, p, temp = t[order], p[order], temp[order]
         keep = np.concatenate(([True], np.diff(t) > 0))
         t, p, temp = t[keep], p[keep], temp[keep]
+    run = _Run(t, p, temp, reference)
     if method == "online":
-        return _online(t, p, temp, reference=reference, config=config, odometry=odometry)
-    return _paper(t, p, temp, reference, config)
+        return _online(run, config, odometry)
+    return _paper(run, config)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class _Run:
+    """A run's clean samples (finite, strictly increasing times) and its reference station."""
+
+    t: npt.NDArray[np.int64]
+    p: npt.NDArray[np.float64]
+    temp: npt.NDArray[np.float64]
+    reference: tuple[npt.ArrayLike, npt.ArrayLike] | None
+
+    def weather_free(self) -> npt.NDArray[np.float64]:
+        """The pressure with the reference station's change since its first reading removed
+        (as it is when there is no station)."""
+        if self.reference is None:
+            return self.p
+        ref_t = np.asarray(self.reference[0], dtype=np.float64)
+        if ref_t.size < 2:
+            return self.p
+        ref_p = np.asarray(self.reference[1], dtype=np.float64)
+        change = np.interp(self.t.astype(np.float64), ref_t, ref_p) - ref_p[0]
+        out: npt.NDArray[np.float64] = self.p - change
+        return out
 
 
 def _online(
-    t: npt.NDArray[np.int64],
-    p: npt.NDArray[np.float64],
-    temp: npt.NDArray[np.float64],
-    *,
-    reference: tuple[npt.ArrayLike, npt.ArrayLike] | None,
+    run: _Run,
     config: FloorDetectorConfig,
     odometry: tuple[npt.ArrayLike, npt.ArrayLike, npt.ArrayLike] | None,
 ) -> FloorDetection:
     from baromap.floors.replay import replay
 
-    detector, smoothed, rate = replay(t, p, temp, config, reference=reference, odometry=odometry)
+    detector, smoothed, rate = replay(
+        run.t, run.p, run.temp, config, reference=run.reference, odometry=odometry
+    )
     registry = detector.registry
     # Stable live ids to dense ids (floors merged into others are gone); the start floor is 0.
     dense = {floor_id: k for k, floor_id in enumerate(registry.ids())}
@@ -235,16 +258,9 @@ def _online(
         )
         for ev in detector.transitions
     ]
-    corrected = p
-    if reference is not None:
-        ref_t = np.asarray(reference[0], dtype=np.int64)
-        if ref_t.size > 1:
-            corrected = p - _reference_change(t, ref_t, np.asarray(reference[1], dtype=np.float64))
     detection = _assemble(
         "online",
-        t,
-        corrected,
-        temp,
+        dataclasses.replace(run, p=run.weather_free()),
         smoothed,
         rate=rate,
         raw=raw,
@@ -255,31 +271,21 @@ def _online(
     return dataclasses.replace(detection, events=tuple(detector.events))
 
 
-def _paper(
-    t: npt.NDArray[np.int64],
-    p: npt.NDArray[np.float64],
-    temp: npt.NDArray[np.float64],
-    reference: tuple[npt.ArrayLike, npt.ArrayLike] | None,
-    config: FloorDetectorConfig,
-) -> FloorDetection:
+def _paper(run: _Run, config: FloorDetectorConfig) -> FloorDetection:
     from baromap.floors.paper import segment_paper
 
-    if reference is not None:
-        ref_t = np.asarray(reference[0], dtype=np.int64)
-        if ref_t.size > 1:
-            p = p - _reference_change(t, ref_t, np.asarray(reference[1], dtype=np.float64))
-    seg = segment_paper(t, p, config)
+    run = dataclasses.replace(run, p=run.weather_free())
+    t = run.t
+    seg = segment_paper(t, run.p, config)
     raw: list[_Raw] = []
-    for before, after in zip(seg.pieces, seg.pieces[1:], strict=False):
+    for before, after in itertools.pairwise(seg.pieces):
         t_start, t_end = int(t[before[1] - 1]), int(t[after[0]])
         delta = seg.floor_means[after[2]] - seg.floor_means[before[2]]
         raw.append(_Raw(t_start, t_end, t_end, before[2], after[2], delta))
     levels = np.asarray(seg.floor_means)
     return _assemble(
         "paper",
-        t,
-        p,
-        temp,
+        run,
         seg.smoothed_pa,
         rate=seg.rate_pa_per_s,
         raw=raw,
@@ -290,21 +296,9 @@ def _paper(
     )
 
 
-def _reference_change(
-    t: npt.NDArray[np.int64], ref_t: npt.NDArray[np.int64], ref_p: npt.NDArray[np.float64]
-) -> npt.NDArray[np.float64]:
-    """Weather at the robot's sample times: the reference's change since its first reading."""
-    change: npt.NDArray[np.float64] = (
-        np.interp(t.astype(np.float64), ref_t.astype(np.float64), ref_p) - ref_p[0]
-    )
-    return change
-
-
 def _assemble(
     method: str,
-    t: npt.NDArray[np.int64],
-    p: npt.NDArray[np.float64],
-    temp: npt.NDArray[np.float64],
+    run: _Run,
     smoothed: npt.NDArray[np.float64],
     *,
     rate: npt.NDArray[np.float64],
@@ -315,6 +309,7 @@ def _assemble(
     threshold_pa_per_s: float | None = None,
     names: Sequence[str] | None = None,
 ) -> FloorDetection:
+    t, p, temp = run.t, run.p, run.temp
     valid_temp = temp[np.isfinite(temp)]
     temperature = float(np.median(valid_temp)) if valid_temp.size else config.default_temperature_c
     # Floor visits: the stretches between transitions.

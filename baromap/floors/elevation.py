@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from baromap.messages import NS_PER_S
 
@@ -39,11 +41,12 @@ MIN_SIDE_SAMPLES = 5
 
 @dataclass(frozen=True, slots=True)
 class Step:
-    """Pressure change across one transition between two floors (by any stable id)."""
+    """Pressure change across one transition between two floors (by any stable id), and the
+    height it stands for (hypsometric, at the temperature measured around it)."""
 
     from_id: int
     to_id: int
-    delta_pa: float
+    delta_pa: float  # after minus before: negative going up
     height_m: float
 
 
@@ -108,13 +111,9 @@ def solve_levels(steps: Sequence[Step], n_floors: int, value: str) -> npt.NDArra
 
 
 def _reachable(steps: Sequence[Step], n_floors: int) -> npt.NDArray[np.bool_]:
-    seen = np.zeros(n_floors, dtype=bool)
-    seen[0] = True
-    changed = True
-    while changed:
-        changed = False
-        for step in steps:
-            if seen[step.from_id] != seen[step.to_id]:
-                seen[step.from_id] = seen[step.to_id] = True
-                changed = True
-    return seen
+    """Floors joined to floor 0 by a chain of steps (the others cannot be placed)."""
+    ends = np.array([(step.from_id, step.to_id) for step in steps], dtype=np.int64).reshape(-1, 2)
+    graph = coo_matrix((np.ones(len(ends)), (ends[:, 0], ends[:, 1])), shape=(n_floors, n_floors))
+    _, labels = connected_components(graph, directed=False)
+    reached: npt.NDArray[np.bool_] = labels == labels[0]
+    return reached

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from baromap.errors import InputFormatError
 from baromap.floors.detection import FloorDetection
 from baromap.messages import NS_PER_S
 
@@ -44,12 +45,14 @@ TOLERANCE_S = 2.0
 
 @dataclass(frozen=True, slots=True)
 class TrueTransition:
-    """``t_settled_ns``: when the air pressure itself came to rest (simulator only)."""
+    """A floor change the truth knows of, somewhere in ``[t_begin_ns, t_end_ns]``."""
 
     t_begin_ns: int
     t_end_ns: int
+    #: True floor numbers (the simulator's, or the IPIN waypoints').
     from_floor: int
     to_floor: int
+    #: When the air pressure itself came to rest afterwards (simulator only).
     t_settled_ns: int | None = None
 
 
@@ -74,7 +77,7 @@ def truth_from_waypoints(waypoints: Sequence[tuple[int, int]]) -> FloorTruth:
     """Truth from ``(t_ns, floor)`` waypoints (IPIN ``POSI`` lines)."""
     points = sorted(waypoints)
     if not points:
-        raise ValueError("no waypoints")
+        raise InputFormatError("no waypoints to take the truth from")
     transitions = []
     times = []
     floors = []

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import math
 
+from baromap.errors import BaromapError
+
 #: Specific gas constant of dry air [J/(kg K)].
 R_DRY_AIR = 287.05
 #: Standard gravity [m/s^2].
@@ -20,11 +22,15 @@ ZERO_CELSIUS_K = 273.15
 STANDARD_TEMPERATURE_C = 15.0
 
 
+class AtmosphereError(BaromapError):
+    """A pressure or temperature no air can have: a caller passed a glitch on unchecked."""
+
+
 def scale_height_m(temperature_c: float = STANDARD_TEMPERATURE_C) -> float:
     """``R_d T / g``: the height over which pressure falls by a factor e (about 8.4 km)."""
     kelvin = temperature_c + ZERO_CELSIUS_K
     if not kelvin > 0.0:
-        raise ValueError(f"temperature {temperature_c} C is below absolute zero")
+        raise AtmosphereError(f"temperature {temperature_c} C is below absolute zero")
     return R_DRY_AIR * kelvin / G0
 
 
@@ -33,7 +39,7 @@ def height_difference_m(
 ) -> float:
     """Height gained going from pressure ``p_from_pa`` to ``p_to_pa`` (positive going up)."""
     if p_from_pa <= 0.0 or p_to_pa <= 0.0:
-        raise ValueError("pressures must be positive")
+        raise AtmosphereError(f"pressures must be positive, not {p_from_pa} and {p_to_pa}")
     return scale_height_m(temperature_c) * math.log(p_from_pa / p_to_pa)
 
 

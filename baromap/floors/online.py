@@ -507,16 +507,9 @@ class OnlineFloorDetector:
             to_id = self._new_floor(relative)
         else:
             registry.revisit(to_id)
-        event = self._publish(
-            t,
-            t_start=self._trip_start if self._trip_start >= 0 else self._change_start,
-            t_end=self._stop_start,
-            from_id=from_id,
-            to_id=to_id,
-            delta_pa=step,
-            level=level,
-            at_end=at_end,
-        )
+        start = self._trip_start if self._trip_start >= 0 else self._change_start
+        span = (start, self._stop_start)
+        event = self._publish(t, span, (from_id, to_id), step, level, at_end=at_end)
         self._visit = _Visit(len(self._current) - 1, self._stop_start, step, new_floor)
         self._floor = to_id
         self._trip_start = -1
@@ -558,15 +551,7 @@ class OnlineFloorDetector:
         else:
             registry.revisit(to_id)
         event = self._publish(
-            t,
-            t_start=old.t_start_ns,
-            t_end=t_end,
-            from_id=old.from_id,
-            to_id=to_id,
-            delta_pa=total,
-            level=settled,
-            at_end=False,
-            replaces=old,
+            t, (old.t_start_ns, t_end), (old.from_id, to_id), total, settled, replaces=old
         )
         self._visit = _Visit(
             visit.position, t_end, visit.direction, visit.new_floor and to_id == old.to_id
@@ -615,17 +600,19 @@ class OnlineFloorDetector:
     def _publish(
         self,
         t: int,
-        *,
-        t_start: int,
-        t_end: int,
-        from_id: int,
-        to_id: int,
+        span: tuple[int, int],
+        floors: tuple[int, int],
         delta_pa: float,
         level: float,
-        at_end: bool,
+        *,
+        at_end: bool = False,
         replaces: FloorEvent | None = None,
     ) -> FloorEvent:
+        """Publish a transition ``floors`` (from, to) over ``span`` (start, end of the trip),
+        or a correction of the event it ``replaces``."""
         registry = self.registry
+        t_start, t_end = span
+        from_id, to_id = floors
         event = FloorEvent(
             t_ns=t,
             event_id=self._next_id,

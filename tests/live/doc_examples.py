@@ -56,7 +56,7 @@ def main() -> None:
         for event in detector.update(sample):
             publisher.offer(event)
         if i % 5 == 0:
-            publisher.offer(detector.state)
+            publisher.offer(detector.state())
         if i % 25 == 0:
             publisher.offer(
                 DeviceHealth(

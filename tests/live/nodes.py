@@ -97,7 +97,7 @@ def run_robot(args: argparse.Namespace) -> int:
         time.sleep(0.02)
     publisher.offer(samples[0])
     detector.update(samples[0])
-    publisher.offer(detector.state)
+    publisher.offer(detector.state())
     say(ready=args.id)
     wait_for("go")
     events = []
@@ -113,19 +113,19 @@ def run_robot(args: argparse.Namespace) -> int:
             publisher.offer(event)
         events.extend(decided)
         if decided or i % STATE_EVERY == 0:
-            publisher.offer(detector.state)
+            publisher.offer(detector.state())
         if i % 25 == 0:
             publisher.offer(DeviceHealth(sample.t_ns, "baro", DeviceState.UP, counters={"n": i}))
     last = detector.finish()
     for event in last:
         publisher.offer(event)
     events.extend(last)
-    publisher.offer(detector.state)
+    publisher.offer(detector.state())
     time.sleep(0.2)  # let the worker drain before the counters are read
     say(
         done=args.id,
         events=[jsonmsg.to_dict(e) for e in events],
-        state=jsonmsg.to_dict(detector.state),
+        state=jsonmsg.to_dict(detector.state()),
         health=dict(publisher.health()),
     )
     wait_for("stop")

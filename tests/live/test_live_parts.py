@@ -19,6 +19,7 @@ from baromap.messages import (
     DeviceHealth,
     DeviceState,
     FloorEvent,
+    FloorEventKind,
     FloorPhase,
     FloorState,
     Odometry,
@@ -33,12 +34,14 @@ def state(
 ) -> FloorState:
     fields: dict[str, object] = {
         "t_ns": t_ns,
-        "floor": floor,
         "phase": FloorPhase.SETTLED,
+        "floor_id": floor,
+        "name": None if floor is None else str(floor),
+        "height_m": 3.5,
+        "level_m": 3.5,
         "level_pa": level,
-        "elevation_m": 3.5,
-        "floors_known": 2,
         "since_ns": 0,
+        "floors_known": 2,
     }
     fields.update(kw)
     return FloorState(**fields)  # type: ignore[arg-type]
@@ -46,10 +49,16 @@ def state(
 
 EVENT = FloorEvent(
     t_ns=10 * S,
+    event_id=1,
+    kind=FloorEventKind.TRANSITION,
+    replaces=None,
     t_start_ns=2 * S,
     t_end_ns=9 * S,
-    from_floor=0,
-    to_floor=1,
+    from_id=0,
+    to_id=1,
+    from_name="0",
+    to_name="1",
+    height_m=3.46,
     delta_pa=-41.5,
     delta_m=3.46,
     level_pa=99_958.5,
@@ -172,7 +181,7 @@ def test_reference_table() -> None:
 
 
 def test_payloads_are_json_with_a_schema_version_and_round_trip() -> None:
-    unknown = state(floor=None, level=math.nan, elevation_m=math.nan, phase=FloorPhase.UNKNOWN)
+    unknown = state(floor=None, level=math.nan, height_m=math.nan, phase=FloorPhase.UNKNOWN)
     health = DeviceHealth(5 * S, "baro", DeviceState.UP, "/dev/ttyACM0", "", {"crc_errors": 2})
     for channel, message in (
         (Channel.EVENT, EVENT),
@@ -187,7 +196,7 @@ def test_payloads_are_json_with_a_schema_version_and_round_trip() -> None:
     payload = encode(unknown)
     assert json.loads(payload, parse_constant=pytest.fail)["level_pa"] is None  # no NaN: JSON
     back = decode(Channel.STATE, payload)
-    assert back.floor is None and math.isnan(back.level_pa) and math.isnan(back.elevation_m)
+    assert back.floor_id is None and math.isnan(back.level_pa) and math.isnan(back.height_m)
 
 
 @pytest.mark.parametrize(

@@ -20,6 +20,7 @@ from baromap.live.watch import EventReport, FloorWatch, RobotGone, RobotUp, Stat
 from baromap.messages import (
     NS_PER_S,
     FloorEvent,
+    FloorEventKind,
     FloorPhase,
     FloorState,
     Odometry,
@@ -33,10 +34,16 @@ S = NS_PER_S
 def event(i: int) -> FloorEvent:
     return FloorEvent(
         t_ns=(i + 1) * S,
+        event_id=i + 1,
+        kind=FloorEventKind.TRANSITION,
+        replaces=None,
         t_start_ns=i * S,
         t_end_ns=i * S + S // 2,
-        from_floor=i % 2,
-        to_floor=(i + 1) % 2,
+        from_id=i % 2,
+        to_id=(i + 1) % 2,
+        from_name=str(i % 2),
+        to_name=str((i + 1) % 2),
+        height_m=3.3 * ((i + 1) % 2),
         delta_pa=-40.0,
         delta_m=3.3,
         level_pa=99_960.0,
@@ -44,7 +51,17 @@ def event(i: int) -> FloorEvent:
 
 
 def state(t_ns: int, floor: int) -> FloorState:
-    return FloorState(t_ns, floor, FloorPhase.SETTLED, 99_960.0, 3.3 * floor, 2, t_ns)
+    return FloorState(
+        t_ns=t_ns,
+        phase=FloorPhase.SETTLED,
+        floor_id=floor,
+        name=str(floor),
+        height_m=3.3 * floor,
+        level_m=3.3 * floor,
+        level_pa=99_960.0,
+        since_ns=t_ns,
+        floors_known=2,
+    )
 
 
 def offer_everything(publisher: LivePublisher, count: int) -> None:

@@ -46,7 +46,8 @@ def test_text_and_json_lines_of_a_robot(capsys: pytest.CaptureFixture[str]) -> N
     publisher.start()
     try:
         deadline = time.monotonic() + 20
-        unknown = FloorState(1, None, FloorPhase.UNKNOWN, float("nan"), float("nan"), 0, 1)
+        nan = float("nan")
+        unknown = FloorState(1, FloorPhase.UNKNOWN, None, None, nan, nan, nan, 1, 0)
         publisher.offer(unknown)
         while publisher.health()["published"] == 0:
             assert time.monotonic() < deadline
