@@ -101,7 +101,7 @@ class Lms200Session(DeviceSession):
             "port": self.path,
         }
         self.streaming = True
-        self._fresh_decoder()
+        self.line.reset()  # the decoder stays: in sync, and the first scan may be half in it
 
     def _fresh_decoder(self) -> None:
         self.decoder = lms200.Decoder(at_boundary=False)

@@ -114,8 +114,7 @@ class PioneerSession(DeviceSession):
                 value = config.get(key)
                 if value is not None:
                     self.identity[key] = str(value)
-        self.line.reset()
-        self.decoder = p2os.Decoder()
+        self.line.reset()  # the decoder stays: in sync, and the next SIP may be half in it
 
     def _sync(self) -> p2os.Sync2Info:
         for _ in range(SYNC_ATTEMPTS):
