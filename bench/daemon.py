@@ -154,6 +154,10 @@ def main() -> int:
     print(f"  messages dropped by the daemon: {dropped} (queue and disk guard), "
           f"barometer sequence gaps: {lost_baro}, laser gaps over two scan periods: "
           f"{scan_gaps}   (must be 0)")  # fmt: skip
+    for device in ("laser", "base", "barometer"):
+        if device in health:
+            bad = {k: v for k, v in health[device].counters.items() if k.startswith("bad_")}
+            print(f"  {device}: frames the decoder discarded on the line: {bad or 'none'}")
     cpu_s = usage.ru_utime + usage.ru_stime
     print(f"  daemon CPU: {cpu_s:.1f} s in {wall_s:.0f} s = {100 * cpu_s / wall_s:.2f} % of one "
           "core (target <= 5 %)")  # fmt: skip
