@@ -236,7 +236,28 @@ class OnlineFloorDetector:
         self.smoothed = average
         phase = self._phase
         if phase == _SETTLED:
-            self._on_floor(t, dt, smoothed, rate)
+            # On a floor (inline: this runs for nearly every sample of a run).
+            anchor = self._anchor + self._drift * dt
+            error = smoothed - anchor
+            start_pa, start_rate = self._start_pa, self._start_rate
+            if error > start_pa or error < -start_pa or rate > start_rate or rate < -start_rate:
+                self._anchor = anchor
+                self._floor_level = anchor - self._offset
+                self._begin_change()
+                return []
+            if -self._settle_rate < rate < self._settle_rate:
+                # Critically damped tracker with time constant drift_tau: weather only.
+                tau = self._drift_tau
+                drift = self._drift + dt / (tau * tau) * error
+                if drift > MAX_WEATHER_RATE_PA_S:
+                    drift = MAX_WEATHER_RATE_PA_S
+                elif drift < -MAX_WEATHER_RATE_PA_S:
+                    drift = -MAX_WEATHER_RATE_PA_S
+                self._drift = drift
+                anchor += 2.0 * dt / tau * error
+                self._calm_ns = t
+            self._anchor = anchor
+            self._floor_level = anchor - self._offset
             return []
         if phase == _STOPPED:
             return self._on_stop(t, dt, smoothed, rate)
@@ -324,20 +345,6 @@ class OnlineFloorDetector:
         )
 
     # -- per sample, by phase ------------------------------------------------------------
-
-    def _on_floor(self, t: int, dt: float, smoothed: float, rate: float) -> None:
-        anchor = self._anchor + self._drift * dt
-        error = smoothed - anchor
-        if self._leaves(error, rate):
-            self._anchor = anchor
-            self._floor_level = anchor - self._offset
-            self._begin_change()
-            return
-        if -self._settle_rate < rate < self._settle_rate:
-            anchor = self._track(anchor, error, dt)
-            self._calm_ns = t
-        self._anchor = anchor
-        self._floor_level = anchor - self._offset
 
     def _on_stop(self, t: int, dt: float, smoothed: float, rate: float) -> list[FloorEvent]:
         """Stopped at a storey's height during a ride: a visit yet?"""
