@@ -22,6 +22,7 @@ import structlog
 from baromap import __version__
 from baromap.discovery import resolve_port
 from baromap.messages import NS_PER_S, DeviceHealth, DeviceState, Message
+from baromap.recording.frames import LaserMount
 from daemon.barometer import BarometerSession
 from daemon.clock import HostClock
 from daemon.config import DaemonConfig
@@ -67,8 +68,16 @@ class Daemon:
         self.fanout = Fanout()
         self._stop = threading.Event()
         self.name = run_name(config.robot, self.clock.now_unix_ns())
+        mount = None
+        if config.laser is not None:
+            m = config.laser.mount
+            mount = LaserMount(m.x_m, m.y_m, m.yaw_rad)
         self.recorder = Recorder(
-            config.recording, robot=config.robot, metadata=self._metadata(), run_name=self.name
+            config.recording,
+            robot=config.robot,
+            metadata=self._metadata(),
+            run_name=self.name,
+            laser_mount=mount,
         )
         self.fanout.subscribe(self.recorder)
         self.floors: FloorTracker | None = None
@@ -113,11 +122,6 @@ class Daemon:
                 }
             ),
         }
-        if c.laser is not None:
-            mount = c.laser.mount
-            data["laser_mount"] = json.dumps(
-                {"x_m": mount.x_m, "y_m": mount.y_m, "yaw_rad": mount.yaw_rad}
-            )
         data.update(self.clock.metadata())
         return data
 

@@ -96,6 +96,13 @@ class BarometerSession(DeviceSession):
         self._last_sample_seq = None
         self._fed = self._consumed = 0
 
+    def up_detail(self) -> str:
+        info = self.identity
+        return (
+            f"streaming at {self.config.rate_hz} Hz, firmware {info.get('firmware_version')}, "
+            f"{info.get('sensor')}"
+        )
+
     def _command(self, build: Callable[[int], bytes], frame_type: baro.FrameType) -> None:
         seq = self._next_seq()
         self.write(build(seq))

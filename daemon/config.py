@@ -25,7 +25,6 @@ from daemon.live import config_problems
 
 Role = Literal["robot", "station"]
 ROLES: Final = ("robot", "station")
-COMPRESSIONS: Final = ("zstd", "lz4", "none")
 LMS_VARIANTS: Final = {(a, r / 100): (a, r) for a, r in lms200.VARIANTS}
 
 
@@ -108,7 +107,6 @@ class RecordingConfig:
     directory: Path = Path("/var/lib/baromapd")
     rotate_size_mb: float = 1024.0
     rotate_minutes: float = 60.0
-    compression: str = "zstd"
     min_free_mb: float = 200.0
     flush_interval_s: float = 1.0
     queue_size: int = 8192
@@ -327,7 +325,6 @@ def _recording(r: _Reader, data: dict[str, Any]) -> RecordingConfig:
     directory = r.take(data, p, "directory", str, "/var/lib/baromapd")
     size = r.take(data, p, "rotate_size_mb", float, 1024.0, _positive)
     minutes = r.take(data, p, "rotate_minutes", float, 60.0, _positive)
-    compression = r.take(data, p, "compression", str, "zstd", _one_of(list(COMPRESSIONS)))
     min_free = r.take(
         data, p, "min_free_mb", float, 200.0, lambda v: None if v >= 0 else "must not be negative"
     )
@@ -344,10 +341,9 @@ def _recording(r: _Reader, data: dict[str, Any]) -> RecordingConfig:
     r.unknown(
         data,
         p,
-        "directory, rotate_size_mb, rotate_minutes, compression, min_free_mb, "
-        "flush_interval_s, queue_size",
+        "directory, rotate_size_mb, rotate_minutes, min_free_mb, flush_interval_s, queue_size",
     )
-    return RecordingConfig(Path(directory), size, minutes, compression, min_free, flush, queue)
+    return RecordingConfig(Path(directory), size, minutes, min_free, flush, queue)
 
 
 def _floors(r: _Reader, data: dict[str, Any]) -> FloorDetectorConfig:

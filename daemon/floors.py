@@ -1,5 +1,7 @@
-"""The online floor detector inside the daemon: pressure and odometry in, floor events and
-state out.
+"""The online floor detector inside the daemon: pressure (and odometry) in, floor events out.
+
+Odometry tells the detector whether the robot drove off at a stop, which makes the stop a
+visit to that floor (``OnlineFloorDetector.update_odometry``).
 
 It runs on its own thread behind a bounded queue like every consumer, so a burst of work in
 the detector can never hold up the barometer's reader. Its events are published back through
@@ -27,8 +29,7 @@ _REFERENCE: Final = -1
 
 
 class FloorTracker(QueueWorker):
-    """Feeds the detector with pressure samples and odometry (a stop at a floor is a visit
-    once the robot drove off); publishes what it decides."""
+    """Feeds the detector with pressure samples; publishes what it decides."""
 
     def __init__(
         self, config: FloorDetectorConfig, publish: Callable[[Message], None], maxsize: int = 4096
@@ -52,7 +53,7 @@ class FloorTracker(QueueWorker):
         self._put((sample, _REFERENCE))
 
     def handle(self, message: Message, received_ns: int | None) -> None:
-        if isinstance(message, Odometry):
+        if isinstance(message, Odometry):  # did the robot drive off at a stop? (a visit)
             self.detector.update_odometry(message)
             return
         assert isinstance(message, PressureSample)
@@ -64,8 +65,9 @@ class FloorTracker(QueueWorker):
             self.events += 1
             log.info(
                 "floor event",
-                kind=event.kind.value,
                 event_id=event.event_id,
+                kind=event.kind.value,
+                replaces=event.replaces,
                 from_floor=event.from_name,
                 to_floor=event.to_name,
                 delta_m=round(event.delta_m, 2),
@@ -81,6 +83,5 @@ class FloorTracker(QueueWorker):
             self.events += 1
             self._publish(event)
 
-    @property
     def state(self) -> FloorState:
         return self.detector.state()

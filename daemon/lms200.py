@@ -197,6 +197,9 @@ class Lms200Session(DeviceSession):
             else:
                 self.good_frame()
 
+    def up_detail(self) -> str:
+        return f"streaming at {self.baud} baud, {self.identity.get('variant', '')}"
+
     def reinitialise_note(self, reason: str) -> str | None:
         """Scans stopped: a power cycle puts the sensor back at 9600 baud, where its power-on
         telegram cannot be read at a higher speed; so search and set it up again in place,

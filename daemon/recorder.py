@@ -29,6 +29,7 @@ import structlog
 from baromap import messages
 from baromap.errors import BaromapError
 from baromap.recording import RecordingWriter
+from baromap.recording.frames import LaserMount
 from baromap.recording.writer import DEFAULT_TOPICS
 from daemon.config import RecordingConfig
 from daemon.fanout import QueueWorker
@@ -79,12 +80,14 @@ class Recorder(QueueWorker):
         robot: str,
         metadata: Mapping[str, str],
         run_name: str,
+        laser_mount: LaserMount | None = None,
     ) -> None:
         super().__init__("recorder", config.queue_size, idle_s=min(0.2, config.flush_interval_s))
         self.config = config
         self.robot = robot
         self.metadata = dict(metadata)
         self.run_name = run_name
+        self.laser_mount = laser_mount
         self.files: list[Path] = []
         self.written: Counter[str] = Counter()
         self.latency: dict[str, LatencyHistogram] = {}
@@ -156,11 +159,14 @@ class Recorder(QueueWorker):
 
     def idle(self) -> None:
         self._write_pending_devices()
+        if self._writer is not None:
+            self._flush_if_due()
         now = time.monotonic_ns()
         if now - self._last_flush_ns >= self.config.flush_interval_s * 1e9:
             self._last_flush_ns = now
-            if self._writer is not None:
-                self._flush()
+            if self._writer is not None and self._syncer is not None:
+                # The writer flushes inside write() too; make whatever it handed over durable.
+                self._syncer.request(self._writer.path)
             self._guard_disk()
 
     def finished(self) -> None:
@@ -178,7 +184,14 @@ class Recorder(QueueWorker):
         header["part"] = str(len(self.files))
         header["run"] = self.run_name
         try:
-            self._writer = RecordingWriter(path, robot=self.robot, metadata=header)
+            self._writer = RecordingWriter(
+                path,
+                robot=self.robot,
+                metadata=header,
+                laser_mount=self.laser_mount,
+                flush_interval_s=self.config.flush_interval_s,
+                fsync=False,  # the Syncer does it, off this thread
+            )
         except (BaromapError, OSError) as exc:
             self._writer = None
             self._pause(f"cannot open {path}: {exc}")
@@ -217,15 +230,12 @@ class Recorder(QueueWorker):
         except OSError:
             return 0
 
-    def _flush(self) -> None:
+    def _flush_if_due(self) -> None:
         assert self._writer is not None
         try:
-            self._writer.flush()
+            self._writer.flush_if_due()
         except (BaromapError, OSError) as exc:
             self._pause(f"flush failed: {exc}")
-            return
-        assert self._syncer is not None
-        self._syncer.request(self._writer.path)
 
     def _write_pending_devices(self) -> None:
         with self._lock:

@@ -232,6 +232,10 @@ class DeviceSession(abc.ABC):
     def handle(self, data: bytes, read_ns: int) -> None:
         """Decode bytes read at ``read_ns``; publish messages; may raise DeviceRestarted."""
 
+    def up_detail(self) -> str:
+        """What health says while the device streams."""
+        return "streaming"
+
     def keepalive(self) -> None:  # noqa: B027 (optional hook, most devices need none)
         """Called after every read: send what the device needs to stay awake."""
 
@@ -303,7 +307,7 @@ class DeviceSession(abc.ABC):
                 self.handshake()
                 self.count("connects")
                 self._publish_identity()
-                self._set_state(DeviceState.UP, "streaming")
+                self._set_state(DeviceState.UP, self.up_detail())
                 self.good_frame()
                 up = True
                 try:

@@ -142,7 +142,11 @@ def make_scan(t_ns: int, n: int = 361, seed: int = 0) -> m.LaserScan:
     )
 
 
-@settings(max_examples=25, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=25,
+    deadline=None,  # file I/O and fsync: a loaded machine takes its time
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+)
 @given(st.lists(json_messages, max_size=12), st.integers(0, 3))
 def test_recording_round_trip(tmp_path: Path, batch: list[m.Message], n_scans: int) -> None:
     path = tmp_path / "run.mcap"
@@ -347,6 +351,11 @@ def test_a_mount_stated_in_metadata_becomes_the_static_transform(tmp_path: Path)
     assert static.translation.x == pytest.approx(0.2)
     with pytest.raises(RecordingError):
         RecordingWriter(tmp_path / "bad.mcap", robot="r", metadata={"laser_mount": "{x"})
+    carmen = tmp_path / "carmen.mcap"  # the CARMEN importer's spelling
+    with RecordingWriter(carmen, robot="r", metadata={"laser_offset": "0.1 0.0 0.0"}) as writer:
+        writer.write(m.PressureSample(T0, 1.0))
+    assert LaserMount.from_metadata(read_metadata(carmen)) == LaserMount(0.1)
+    assert len(list(read_messages(carmen, [t.TF_STATIC]))) == 1
 
 
 def test_a_recording_states_one_laser_mount(tmp_path: Path) -> None:
@@ -522,3 +531,57 @@ def test_info_reads_the_summary_and_flags_a_cut_file(
     out = capsys.readouterr().out
     assert "INCOMPLETE" in out and "not closed cleanly" in out
     assert "/baro" in out
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"compression": "NONE"},
+        {"compression": "LZ4", "chunk_size": 2000},
+        {"compression": "ZSTD", "chunk_size": 2000, "index_types": "NONE"},
+        {"use_chunking": False},
+    ],
+    ids=["uncompressed", "lz4", "no-indexes", "unchunked"],
+)
+def test_files_from_other_writers_read_as_the_mcap_package_reads_them(
+    tmp_path: Path, options: dict[str, object]
+) -> None:
+    """Chunks with and without compression or message indexes, and no chunks at all."""
+    from mcap.writer import CompressionType, IndexType, Writer
+
+    kwargs = dict(options)
+    if "compression" in kwargs:
+        kwargs["compression"] = CompressionType[str(kwargs["compression"])]
+    if "index_types" in kwargs:
+        kwargs["index_types"] = IndexType[str(kwargs["index_types"])]
+    path = tmp_path / "other.mcap"
+    with path.open("wb") as f:
+        writer = Writer(f, **kwargs)  # type: ignore[arg-type]
+        writer.start(profile="", library="test")
+        schema = writer.register_schema("baromap.PressureSample", "jsonschema", b"{}")
+        baro = writer.register_channel(t.BARO, "json", schema)
+        other = writer.register_channel("/other", "json", schema)
+        for i in range(300):
+            sample = jsonmsg.dumps(m.PressureSample(T0 + i, 1000.0 + i))
+            writer.add_message(baro if i % 3 else other, T0 + i, sample, T0 + i)
+        writer.finish()
+    with path.open("rb") as f:
+        expected = [
+            (c.topic, msg.log_time)
+            for _, c, msg in make_reader(f).iter_messages(log_time_order=True)
+        ]
+    got = [(rec.topic, rec.log_time_ns) for rec in read_messages(path)]
+    assert got == expected
+    series = load_pressure(path)
+    assert series.t_ns.tolist() == [T0 + i for i in range(300) if i % 3]
+
+
+def test_detect_calls_a_false_mcap_what_it_is(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from baromap.cli.main import main
+
+    fake = tmp_path / "run.mcap"
+    fake.write_text("time_s,pressure_pa\n0,101325\n")
+    assert main(["detect", str(fake)]) == 1
+    assert "is named .mcap but is not an MCAP" in capsys.readouterr().err

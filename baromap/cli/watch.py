@@ -98,12 +98,9 @@ def _clock(t_ns: int) -> str:
     return datetime.fromtimestamp(t_ns / NS_PER_S).strftime("%H:%M:%S.%f")[:-3]
 
 
-def _floor(floor: int | None) -> str:
-    return "unknown" if floor is None else str(floor)
-
-
 def _text_line(report: Any, connect: tuple[str, ...]) -> str:
     from baromap.live import watch as w
+    from baromap.messages import FloorEventKind, FloorPhase
 
     now = _clock(time.time_ns())
     match report:
@@ -122,21 +119,26 @@ def _text_line(report: Any, connect: tuple[str, ...]) -> str:
             since = f"{s.phase.value} since {_clock(s.since_ns)}"
             if s.floor_id is None:
                 return f"{now} {robot}: {how}: floor not known yet ({since})"
-            stopped = ""
-            if s.stop_name is not None or s.phase.value == "stopped":
-                at = s.stop_name if s.stop_name is not None else f"{s.level_m:+.2f} m"
-                stopped = f", stopped at {at} during a ride"
-            return (
-                f"{now} {robot}: {how}: floor {s.name} ({since}{stopped}), "
-                f"{s.height_m:+.2f} m above the start floor, {s.floors_known} floor(s) known, "
-                f"level {s.level_pa:.1f} Pa"
+            line = (
+                f"{now} {robot}: {how}: floor {s.name} ({since}), {s.height_m:+.2f} m from the "
+                f"start floor, {s.floors_known} floor(s) known"
             )
+            if s.phase is FloorPhase.STOPPED:
+                at = f"floor {s.stop_name}" if s.stop_name is not None else "no known floor"
+                line += f"; stopped in a ride at {at} ({s.level_m:+.2f} m)"
+            elif s.phase is FloorPhase.CHANGING:
+                line += f"; moving, now at {s.level_m:+.2f} m"
+            return line
         case w.EventReport(robot=robot, event=e):
-            corrects = f" (corrects event {e.replaces})" if e.replaces is not None else ""
+            what = (
+                f"correction of event {e.replaces}: " if e.kind is FloorEventKind.CORRECTION else ""
+            )
+            end = " (decided as the input ended)" if e.at_end else ""
             return (
-                f"{now} {robot}: floor {e.from_name} -> {e.to_name}{corrects} "
-                f"({e.delta_m:+.2f} m, {e.delta_pa:+.1f} Pa), moving {_clock(e.t_start_ns)} to "
-                f"{_clock(e.t_end_ns)}, decided {_clock(e.t_ns)}"
+                f"{now} {robot}: {what}floor {e.from_name} -> {e.to_name} ({e.delta_m:+.2f} m, "
+                f"{e.delta_pa:+.1f} Pa; {e.height_m:+.2f} m from the start floor), moving "
+                f"{_clock(e.t_start_ns)} to {_clock(e.t_end_ns)}, decided {_clock(e.t_ns)}{end} "
+                f"[event {e.event_id}]"
             )
         case w.PressureReport(robot=robot, sample=p):
             return f"{now} {robot}: pressure {p.pressure_pa:.2f} Pa at {_clock(p.t_ns)}"

@@ -22,6 +22,8 @@ LASER_FRAME = "laser"
 #: Metadata key (in the ``baromap`` record) holding the mount as JSON, the spelling the
 #: simulator and the daemon's configuration use.
 LASER_MOUNT_KEY = "laser_mount"
+#: The CARMEN importer's spelling: ``"x y theta"``.
+LASER_OFFSET_KEY = "laser_offset"
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,12 +54,27 @@ class LaserMount:
             raise InputFormatError(f"{LASER_MOUNT_KEY} metadata {text!r}: {exc}") from exc
 
     @classmethod
+    def from_record(cls, record: Mapping[str, str]) -> LaserMount | None:
+        """The mount one metadata record states, in either spelling, if it does."""
+        text = record.get(LASER_MOUNT_KEY)
+        if text:
+            return cls.from_json(text)
+        offset = record.get(LASER_OFFSET_KEY)
+        if offset:
+            try:
+                x, y, yaw = (float(v) for v in offset.replace(",", " ").split())
+            except ValueError as exc:
+                raise InputFormatError(f"{LASER_OFFSET_KEY} {offset!r} is not 'x y theta'") from exc
+            return cls(x, y, yaw)
+        return None
+
+    @classmethod
     def from_metadata(cls, metadata: Mapping[str, Mapping[str, str]]) -> LaserMount | None:
         """The mount a recording states in any metadata record, if one does."""
         for record in metadata.values():
-            text = record.get(LASER_MOUNT_KEY)
-            if text:
-                return cls.from_json(text)
+            mount = cls.from_record(record)
+            if mount is not None:
+                return mount
         return None
 
 

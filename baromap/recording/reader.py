@@ -42,9 +42,6 @@ from baromap.recording.writer import RAW_ODOMETRY_KEYS
 
 log = structlog.get_logger(__name__)
 
-#: What the mcap package raises on a file that stops mid-record.
-TRUNCATION_ERRORS = PARSE_ERRORS
-
 ODOMETRY_SCHEMA = "foxglove.Odometry"
 
 
@@ -379,34 +376,39 @@ def _foxglove_odometry_columns(
     raws: list[RawMessage], decoders: dict[int, Decoder], topic: str
 ) -> OdometrySeries:
     """foxglove.Odometry payloads straight into columns (no message object per sample)."""
-    n = len(raws)
-    t = np.empty(n, dtype=np.int64)
-    f = np.empty((n, 8), dtype=np.float64)  # x, y, qx, qy, qz, qw, v, omega
-    counters = np.zeros((n, 3), dtype=np.int64)
-    for i, raw in enumerate(raws):
+    stamps: list[int] = []
+    rows: list[tuple[float, ...]] = []
+    counts: list[tuple[int, int, int]] = []
+    for raw in raws:
         msg = decoders[raw.channel_id](raw.data)
         pose = msg.pose
         position, q = pose.position, pose.orientation
         stamp = msg.timestamp
-        t[i] = stamp.seconds * 1_000_000_000 + stamp.nanos
-        f[i] = (
-            position.x,
-            position.y,
-            q.x,
-            q.y,
-            q.z,
-            q.w,
-            msg.linear_velocity.x,
-            msg.angular_velocity.z,
+        stamps.append(stamp.seconds * 1_000_000_000 + stamp.nanos)
+        rows.append(
+            (
+                position.x,
+                position.y,
+                q.x,
+                q.y,
+                q.z,
+                q.w,
+                msg.linear_velocity.x,
+                msg.angular_velocity.z,
+            )
         )
         meta = msg.metadata
-        if len(meta) == 3 and tuple(kv.key for kv in meta) == RAW_ODOMETRY_KEYS:
+        if len(meta) == 3 and (meta[0].key, meta[1].key, meta[2].key) == RAW_ODOMETRY_KEYS:
             try:
-                counters[i] = (int(meta[0].value), int(meta[1].value), int(meta[2].value))
+                counts.append((int(meta[0].value), int(meta[1].value), int(meta[2].value)))
             except ValueError as exc:
                 raise InputFormatError(f"{topic}: odometry counters are not integers") from exc
-        elif len(meta):
-            counters[i] = _raw_counters(msg, topic)
+        else:
+            counts.append(_raw_counters(msg, topic) if len(meta) else (0, 0, 0))
+    n = len(raws)
+    t = np.array(stamps, dtype=np.int64).reshape(n)
+    f = np.array(rows, dtype=np.float64).reshape(n, 8)  # x, y, qx, qy, qz, qw, v, omega
+    counters = np.array(counts, dtype=np.int64).reshape(n, 3)
     qx, qy, qz, qw = f[:, 2], f[:, 3], f[:, 4], f[:, 5]
     yaw = np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
     return OdometrySeries(

@@ -137,10 +137,11 @@ class RecordingWriter:
         except (OSError, RuntimeError, ValueError) as exc:
             raise RecordingError(f"cannot create recording {self.path}: {exc}") from exc
         self._closed = False
-        if laser_mount is None and metadata and metadata.get(LASER_MOUNT_KEY):
-            # a caller that states the mount in the metadata gets the transform too
+        if laser_mount is None and metadata:
+            # a caller that states the mount in the metadata (the daemon's configuration, the
+            # CARMEN importer's laser_offset) gets the transform too
             try:
-                laser_mount = LaserMount.from_json(metadata[LASER_MOUNT_KEY])
+                laser_mount = LaserMount.from_record(metadata)
             except BaromapError as exc:
                 self.close()
                 raise RecordingError(f"{self.path}: {exc}") from exc

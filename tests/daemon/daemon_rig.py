@@ -83,7 +83,8 @@ def config_text(
             "silence_s = 1.0",
         ],
     }
-    lines = ['robot = "test"']
+    # Live publishing off: parallel test workers would all listen on the default port.
+    lines = ['robot = "test"', "[zenoh]", "enabled = false"]
     for name, body in tables.items():
         if name != "recording" and name not in devices:
             continue
@@ -106,9 +107,15 @@ class RunningDaemon:
     """The daemon on a thread of the test process, as ``baromapd`` runs it."""
 
     def __init__(self, config: DaemonConfig, **kwargs: Any) -> None:
-        self.daemon = Daemon(config, live=False, **kwargs)
+        kwargs.setdefault("live", False)
+        self.daemon = Daemon(config, **kwargs)
         self._thread = threading.Thread(target=self.daemon.run, name="test-baromapd")
         self.history: list[DeviceHealth] = []
+
+    @classmethod
+    def live(cls, config: DaemonConfig, **kwargs: Any) -> RunningDaemon:
+        """With its Zenoh publisher (as configured in ``[zenoh]``)."""
+        return cls(config, live=True, **kwargs)
 
     def __enter__(self) -> RunningDaemon:
         self._thread.start()

@@ -42,6 +42,7 @@ def test_every_problem_is_reported_at_once() -> None:
             '[base]\nport = "/dev/ttyUSB1"\nmodel = "p4at"\n'
             '[barometer]\nport = "/dev/ttyUSB1"\noversampling = 3\n'
             "[floors]\nmin_transition_m = -1\n"
+            '[zenoh]\nmode = "radio"\n'
         )
     keys = {p.key for p in caught.value.problems}
     assert keys >= {
@@ -55,6 +56,7 @@ def test_every_problem_is_reported_at_once() -> None:
         "barometer.port",
         "barometer.oversampling",
         "floors",
+        "zenoh.mode",
     }
 
 
@@ -63,7 +65,8 @@ def test_values_reach_the_configuration() -> None:
         'robot = "r1"\n[laser]\nport = "0403:6001:AB12"\nbaud = 500000\nunits = "cm"\n'
         "resolution_deg = 0.5\nmount = { x_m = 0.16, yaw_deg = 90 }\n"
         '[base]\nport = "/dev/baromap-base"\nmodel = "P3-AT-SH"\n'
-        '[zenoh]\nmode = "peer"\n[reference]\nstation = "roof"\n'
+        '[barometer]\nport = "/dev/baromap-baro"\n'
+        '[zenoh]\nmode = "peer"\nlisten = ["tcp/127.0.0.1:7448"]\n[reference]\nstation = "roof"\n'
     )
     assert config.laser is not None and config.base is not None
     assert (config.laser.baud, config.laser.units, config.laser.resolution_cdeg) == (
@@ -73,8 +76,7 @@ def test_values_reach_the_configuration() -> None:
     )
     assert config.laser.mount.x_m == 0.16
     assert config.laser.mount.yaw_rad == pytest.approx(1.5707963)
-    assert config.barometer is None
-    assert config.zenoh == {"mode": "peer"}  # reserved tables pass through unparsed
+    assert config.zenoh == {"mode": "peer", "listen": ["tcp/127.0.0.1:7448"]}  # for daemon.live
     assert config.reference == {"station": "roof"}
     assert config.role == "robot"
 

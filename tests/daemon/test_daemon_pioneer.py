@@ -113,8 +113,10 @@ def test_a_p3at_sh_driven_10_m_gives_10_m_of_odometry(
         while p3at_sh.sent < p3at_sh.sips and time.monotonic() < deadline:
             time.sleep(0.05)
         time.sleep(0.3)
+        health = session.health(0)
     finally:
         session.stop()
+    assert "p3at-sh" in health.detail  # health names the model and where it came from
     poses = [m for m in odometry if isinstance(m, Odometry)]
     assert p3at_sh.sent >= p3at_sh.sips
     assert session.identity["model"] == "p3at-sh"

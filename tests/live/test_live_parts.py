@@ -34,14 +34,14 @@ def state(
 ) -> FloorState:
     fields: dict[str, object] = {
         "t_ns": t_ns,
+        "phase": FloorPhase.SETTLED,
         "floor_id": floor,
         "name": None if floor is None else str(floor),
-        "phase": FloorPhase.SETTLED,
-        "level_pa": level,
         "height_m": 3.5,
         "level_m": 3.5,
-        "floors_known": 2,
+        "level_pa": level,
         "since_ns": 0,
+        "floors_known": 2,
     }
     fields.update(kw)
     return FloorState(**fields)  # type: ignore[arg-type]
@@ -181,9 +181,7 @@ def test_reference_table() -> None:
 
 
 def test_payloads_are_json_with_a_schema_version_and_round_trip() -> None:
-    unknown = state(
-        floor=None, level=math.nan, height_m=math.nan, level_m=math.nan, phase=FloorPhase.UNKNOWN
-    )
+    unknown = state(floor=None, level=math.nan, height_m=math.nan, phase=FloorPhase.UNKNOWN)
     health = DeviceHealth(5 * S, "baro", DeviceState.UP, "/dev/ttyACM0", "", {"crc_errors": 2})
     for channel, message in (
         (Channel.EVENT, EVENT),
