@@ -23,7 +23,7 @@ import structlog
 from baromap.errors import DeviceError
 from baromap.protocols import lms200
 from baromap.protocols.framing import BadFrame
-from daemon.clock import transmission_ns
+from daemon.clock import LinePosition, transmission_ns
 from daemon.config import LaserConfig
 from daemon.session import DeviceRestarted, DeviceSession, wait_for
 
@@ -60,8 +60,7 @@ class Lms200Session(DeviceSession):
         super().__init__("laser", port=config.port, baud=config.baud, retry=config.retry, **kwargs)
         self.config = config
         self.decoder = lms200.Decoder(at_boundary=False)
-        self._fed = 0
-        self._consumed = 0
+        self.line = LinePosition()
         self.streaming = False
         self._in_place = 0
 
@@ -102,11 +101,11 @@ class Lms200Session(DeviceSession):
             "port": self.path,
         }
         self.streaming = True
-        self._fresh_decoder()
+        self.line.reset()  # the decoder stays: in sync, and the first scan may be half in it
 
     def _fresh_decoder(self) -> None:
         self.decoder = lms200.Decoder(at_boundary=False)
-        self._fed = self._consumed = 0
+        self.line.reset()
 
     def _find_baud(self) -> int:
         order = [self.config.baud] + [b for b in SEARCH_BAUDS if b != self.config.baud]
@@ -177,19 +176,20 @@ class Lms200Session(DeviceSession):
 
     # ---- streaming ----------------------------------------------------------------------------
     def handle(self, data: bytes, read_ns: int) -> None:
-        self._fed += len(data)
+        self.line.chunk(len(data), read_ns)
         for message in self.decoder.feed(data):
-            self._consumed += wire_size(message)
             if isinstance(message, lms200.ScanTelegram):
                 self.good_frame()
                 self._in_place = 0
-                end_ns = self.frame_end_ns(read_ns, min(len(data), self._fed - self._consumed))
-                start_ns = end_ns - transmission_ns(wire_size(message), self.baud)
+                size = wire_size(message)
+                start_ns = self.line.end_ns(size, self.baud) - transmission_ns(size, self.baud)
                 scan = message.to_laser_scan(self.clock.unix_ns(start_ns))
                 self.publish(scan, read_ns)
                 if not message.sensor_status().healthy:
                     self.count("status_not_ok")
-            elif isinstance(message, lms200.Telegram) and message.command == POWER_ON:
+                continue
+            self.line.skip(wire_size(message))
+            if isinstance(message, lms200.Telegram) and message.command == POWER_ON:
                 log.warning("laser power-on telegram: it was power-cycled", port=self.path)
                 raise DeviceRestarted("the sensor sent its power-on telegram (power cycle)")
             elif isinstance(message, BadFrame):

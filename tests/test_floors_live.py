@@ -179,6 +179,19 @@ def test_while_stopped_the_state_says_so() -> None:
     assert moves(detector.transitions) == [(0, 1), (1, 0), (0, 2)]
 
 
+def test_the_doors_of_a_halted_car_are_no_turn_back() -> None:
+    # Halted at a passing floor on the way up, the doors' seal and a draught leave the
+    # pressure 6.5 Pa (0.55 m) higher for the rest of the stop: no leg back, no visit.
+    tr = intermediate_stop(10.0, drive_m=0.0)
+    start, end = tr.stays_s[1]
+    s = tr.seconds()
+    doors = (s > start + 3.0) & (s < end)
+    shifted = Trace(tr.t_ns, tr.pressure_pa + 6.5 * doors, tr.temperature_c, tr.odometry, ())
+    detector = live(shifted, odometry=False)
+    assert moves(detector.events) == [(0, 1)]
+    assert detector.events[0].height_m == pytest.approx(2 * STOREY_M, abs=0.15)
+
+
 def test_a_stop_followed_by_a_turn_back_is_a_visit() -> None:
     # Without odometry: down a storey for 8 s (shorter than min_visit_s) and back up.
     tr = trace([Stay(0.0, 60), Stay(-STOREY_M, 8.0), Stay(0.0, 60)])

@@ -25,8 +25,10 @@ How it decides, and why:
    stood when the pressure came to rest (odometry, :mod:`baromap.floors.motion`); or, with no
    live odometry, when it lasted ``min_visit_s``, or the next leg goes back the other way (the
    stop was where the trip went). A leg on in the same direction continues the same trip,
-   dated from its first leg. With live odometry a stop where the robot stayed put is never a
-   visit: the robot is in the car.
+   dated from its first leg; a change from the stop that settles less than half a minimum
+   storey from it (the car's doors, a spike's tail) is no leg, and the stop goes on as it was.
+   With live odometry a stop where the robot stayed put is never a visit: the robot is in the
+   car.
 7. The level of the new floor is the smoothed pressure when the visit is decided (by then
    the car's doors are open and their transient has faded), matched against the known floors
    by level relative to the floor just left (:mod:`baromap.floors.identity`): a revisit gets
@@ -234,7 +236,28 @@ class OnlineFloorDetector:
         self.smoothed = average
         phase = self._phase
         if phase == _SETTLED:
-            self._on_floor(t, dt, smoothed, rate)
+            # On a floor (inline: this runs for nearly every sample of a run).
+            anchor = self._anchor + self._drift * dt
+            error = smoothed - anchor
+            start_pa, start_rate = self._start_pa, self._start_rate
+            if error > start_pa or error < -start_pa or rate > start_rate or rate < -start_rate:
+                self._anchor = anchor
+                self._floor_level = anchor - self._offset
+                self._begin_change()
+                return []
+            if -self._settle_rate < rate < self._settle_rate:
+                # Critically damped tracker with time constant drift_tau: weather only.
+                tau = self._drift_tau
+                drift = self._drift + dt / (tau * tau) * error
+                if drift > MAX_WEATHER_RATE_PA_S:
+                    drift = MAX_WEATHER_RATE_PA_S
+                elif drift < -MAX_WEATHER_RATE_PA_S:
+                    drift = -MAX_WEATHER_RATE_PA_S
+                self._drift = drift
+                anchor += 2.0 * dt / tau * error
+                self._calm_ns = t
+            self._anchor = anchor
+            self._floor_level = anchor - self._offset
             return []
         if phase == _STOPPED:
             return self._on_stop(t, dt, smoothed, rate)
@@ -322,20 +345,6 @@ class OnlineFloorDetector:
         )
 
     # -- per sample, by phase ------------------------------------------------------------
-
-    def _on_floor(self, t: int, dt: float, smoothed: float, rate: float) -> None:
-        anchor = self._anchor + self._drift * dt
-        error = smoothed - anchor
-        if self._leaves(error, rate):
-            self._anchor = anchor
-            self._floor_level = anchor - self._offset
-            self._begin_change()
-            return
-        if -self._settle_rate < rate < self._settle_rate:
-            anchor = self._track(anchor, error, dt)
-            self._calm_ns = t
-        self._anchor = anchor
-        self._floor_level = anchor - self._offset
 
     def _on_stop(self, t: int, dt: float, smoothed: float, rate: float) -> list[FloorEvent]:
         """Stopped at a storey's height during a ride: a visit yet?"""
@@ -435,17 +444,20 @@ class OnlineFloorDetector:
             self._enter(t, settled, 0.0)
             return []
         min_pa = pressure_drop_pa(self.config.min_transition_m, settled, self._temperature)
+        # A leg of a trip moves at least half a minimum storey; less is the car's doors
+        # (their seal is a few pascals), a spike's tail, a shuffle on a landing.
+        leg_pa = min_pa / 2
         if held is not None:
             back = settled - held.level
-            if -self._start_pa < back < self._start_pa:
-                # A spike or a shuffle: the stop goes on as it was.
+            if -leg_pa < back < leg_pa:
+                # No leg: the stop goes on as it was, from when it began.
                 self._resume(held, settled)
                 return self._due(t, at_end)
             if back * (held.level - self._floor_level) < 0.0 and not self._motion.live(t):
                 # The trip turned back: the stop was where it went, however short.
                 events = self._confirm_at(t, held, at_end=False)
                 return events + self._settled_on_floor(t, settled, t_end, min_pa, at_end)
-        elif self._continues(t, settled):
+        elif self._continues(t, settled, leg_pa):
             return self._continue_trip(t, settled, t_end, min_pa)
         return self._settled_on_floor(t, settled, t_end, min_pa, at_end)
 
@@ -517,13 +529,13 @@ class OnlineFloorDetector:
         self._enter(t, level, 0.0)
         return [event]
 
-    def _continues(self, t: int, settled: float) -> bool:
+    def _continues(self, t: int, settled: float, leg_pa: float) -> bool:
         """Did the leg that just ended carry on the trip of the last transition?"""
         visit = self._visit
         if visit is None or self._trip_start >= 0:
             return False
         step = settled - self._floor_level
-        if step * visit.direction <= 0.0 or -self._start_pa < step < self._start_pa:
+        if step * visit.direction <= 0.0 or -leg_pa < step < leg_pa:
             return False
         if self._change_start - visit.stop_ns >= self._landing_ns:
             return False  # a stop as long as a landing can be was no landing
