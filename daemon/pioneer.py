@@ -86,6 +86,7 @@ class PioneerSession(DeviceSession):
         )
         self.model = model
         self.integrator = OdometryIntegrator(model)
+        self.line.reset()
         self.write(p2os.open_controller())
         self._session_open = True
         self.write(p2os.pulse())
@@ -152,20 +153,21 @@ class PioneerSession(DeviceSession):
         return feed
 
     def _find(self, kind: type) -> Any:
+        """Feed that looks for a ``kind`` packet; SIPs on the way are odometry already."""
+
         def feed(data: bytes, read_ns: int) -> Any:
             found = None
-            for message in self.decoder.feed(data):
-                if isinstance(message, p2os.StandardSip):
-                    self._odometry(message, read_ns, read_ns)
+            for message in self._packets(data, read_ns):
                 if isinstance(message, kind) and found is None:
                     found = message
             return found
 
         return feed
 
-    # ---- streaming ----------------------------------------------------------------------------
-    def handle(self, data: bytes, read_ns: int) -> None:
+    def _packets(self, data: bytes, read_ns: int) -> list[Any]:
+        """Decode, count, and publish the SIPs as odometry stamped when they were sent."""
         self.line.chunk(len(data), read_ns)
+        out = []
         for message in self.decoder.feed(data):
             if isinstance(message, BadFrame):
                 self.line.skip(message.size)
@@ -173,12 +175,18 @@ class PioneerSession(DeviceSession):
                 continue
             size = P2OS_OVERHEAD + _body(message)
             self.good_frame()
+            out.append(message)
             if not isinstance(message, p2os.StandardSip):
                 self.line.skip(size)
                 continue
             # The robot sends its pose as it takes it; at 9600 baud a SIP is ~40 ms of line.
             end = self.line.end_ns(size, self.baud)
             self._odometry(message, end - transmission_ns(size, self.baud), read_ns)
+        return out
+
+    # ---- streaming ----------------------------------------------------------------------------
+    def handle(self, data: bytes, read_ns: int) -> None:
+        self._packets(data, read_ns)
 
     def _odometry(self, sip: p2os.StandardSip, sent_ns: int, read_ns: int) -> None:
         if self.integrator is None:
