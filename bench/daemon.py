@@ -152,8 +152,9 @@ def main() -> int:
         "(the difference is what was sent before each session was up and after it stopped)"
     )
     print(f"  messages dropped by the daemon: {dropped} (queue and disk guard), "
-          f"barometer sequence gaps: {lost_baro}, laser gaps over two scan periods: "
-          f"{scan_gaps}   (must be 0)")  # fmt: skip
+          f"barometer sequence gaps: {lost_baro}   (must be 0)")  # fmt: skip
+    print(f"  laser: {scan_gaps} gaps over two scan periods (with every sent scan recorded, "
+          "these are pauses of the twin itself)")  # fmt: skip
     for device in ("laser", "base", "barometer"):
         if device in health:
             bad = {k: v for k, v in health[device].counters.items() if k.startswith("bad_")}
