@@ -47,8 +47,12 @@ def test_a_run_records_every_stream_with_identities(rig: Rig) -> None:
     assert topics.FLOOR_STATE in by_topic
 
     if sent is not None:  # every frame the twins sent while all were up was recorded
+        lost_on_line = {t.name: t.port.bytes_dropped for t in rig.sim.twins}  # type: ignore[union-attr]
+        health = {h.device: dict(h.counters) for h in run.daemon.health()}
         for topic, n in zip((topics.SCAN, topics.ODOM, topics.BARO), sent, strict=True):
-            assert len(by_topic[topic]) >= n, f"{topic}: {len(by_topic[topic])} of {n}"
+            assert len(by_topic[topic]) >= n, (
+                f"{topic}: {len(by_topic[topic])} of {n}; twins dropped {lost_on_line}; {health}"
+            )
         assert sent[0] >= 10 * up_s  # at 500 kbaud (9600 would carry 2.5 scans a second)
     else:  # real devices: at least half of LMS200 75 Hz, SIP 10 Hz, barometer 50 Hz
         assert len(by_topic[topics.SCAN]) >= 0.5 * 75 * up_s
