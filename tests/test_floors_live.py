@@ -192,6 +192,26 @@ def test_the_doors_of_a_halted_car_are_no_turn_back() -> None:
     assert detector.events[0].height_m == pytest.approx(2 * STOREY_M, abs=0.15)
 
 
+def test_a_visit_on_a_sloping_floor_counts_from_when_the_trip_came_to_rest() -> None:
+    # Without odometry: down a storey, 8 s there, 1.2 m further down a slope on the same
+    # floor, 12 s there, then on down: 20 s at that floor is a visit, though no single rest
+    # lasted min_visit_s.
+    tr = trace(
+        [
+            Stay(0.0, 60),
+            Stay(-STOREY_M, 8.0),
+            Stay(-STOREY_M - 1.2, 12.0),
+            Stay(-2 * STOREY_M - 1.2, 60),
+        ]
+    )
+    detector = live(tr, odometry=False)
+    assert moves(detector.events) == [(0, 1), (1, 2)]
+    first_rest = tr.stays_s[1][0]
+    decided = secs(detector.events[0].t_ns)
+    assert decided - first_rest < FloorDetectorConfig().min_visit_s + 2.0
+    assert detector.events[0].height_m == pytest.approx(-STOREY_M - 1.2, abs=0.15)
+
+
 def test_a_stop_followed_by_a_turn_back_is_a_visit() -> None:
     # Without odometry: down a storey for 8 s (shorter than min_visit_s) and back up.
     tr = trace([Stay(0.0, 60), Stay(-STOREY_M, 8.0), Stay(0.0, 60)])

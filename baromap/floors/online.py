@@ -24,7 +24,9 @@ How it decides, and why:
    the transition event is published, when the robot drives ``leave_m`` away from where it
    stood when the pressure came to rest (odometry, :mod:`baromap.floors.motion`); or, with no
    live odometry, when it lasted ``min_visit_s``, or the next leg goes back the other way (the
-   stop was where the trip went). A leg on in the same direction continues the same trip,
+   stop was where the trip went). Legs that stay within a storey (``min_transition_m``) of
+   where the trip first came to rest do not restart that count: levels that close are one
+   floor. A leg on in the same direction continues the same trip,
    dated from its first leg; a change from the stop that settles less than half a minimum
    storey from it (the car's doors, a spike's tail) is no leg, and the stop goes on as it was.
    With live odometry a stop where the robot stayed put is never a visit: the robot is in the
@@ -94,6 +96,8 @@ class _Held:
     level: float
     start_ns: int
     since_ns: int
+    dwell_ns: int
+    dwell_level: float
 
 
 @dataclass(slots=True)
@@ -169,7 +173,9 @@ class OnlineFloorDetector:
         self._landed_ns = 0  # when the robot stopped at that offset
         # A stop at a storey's height, not yet a visit.
         self._stop_level = math.nan
-        self._stop_start = 0
+        self._stop_start = 0  # when the pressure came to rest at the stop's level
+        self._dwell_start = 0  # when the trip came to rest within a storey of that level
+        self._dwell_level = math.nan
         self._held: _Held | None = None
         self._visit: _Visit | None = None
         # Reference station.
@@ -352,7 +358,7 @@ class OnlineFloorDetector:
         stop = self._stop_level + self._drift * dt
         error = smoothed - stop
         if self._leaves(error, rate):
-            self._held = _Held(stop, self._stop_start, self._since)
+            self._held = self._hold(stop)
             self._stop_level = stop
             self._begin_change()
             return []
@@ -366,7 +372,7 @@ class OnlineFloorDetector:
         if self._motion.live(t):
             if self._motion.moved_m >= self.config.leave_m:
                 return self._confirm(t, at_end=False)
-        elif t - self._stop_start >= self._visit_ns:
+        elif t - self._dwell_start >= self._visit_ns:
             return self._confirm(t, at_end=False)
         return []
 
@@ -419,7 +425,7 @@ class OnlineFloorDetector:
                 self._anchor += self._drift * elapsed
             else:
                 self._stop_level += self._drift * elapsed
-                self._held = _Held(self._stop_level, self._stop_start, self._since)
+                self._held = self._hold(self._stop_level)
             self._calm_ns = previous
             self._begin_change()
         else:
@@ -456,14 +462,24 @@ class OnlineFloorDetector:
             if back * (held.level - self._floor_level) < 0.0 and not self._motion.live(t):
                 # The trip turned back: the stop was where it went, however short.
                 events = self._confirm_at(t, held, at_end=False)
-                return events + self._settled_on_floor(t, settled, t_end, min_pa, at_end)
+                return events + self._settled_on_floor(t, settled, t_end, min_pa, at_end=at_end)
+            return self._settled_on_floor(t, settled, t_end, min_pa, at_end=at_end, held=held)
         elif self._continues(t, settled, leg_pa):
             return self._continue_trip(t, settled, t_end, min_pa)
-        return self._settled_on_floor(t, settled, t_end, min_pa, at_end)
+        return self._settled_on_floor(t, settled, t_end, min_pa, at_end=at_end)
 
     def _settled_on_floor(
-        self, t: int, settled: float, t_end: int, min_pa: float, at_end: bool
+        self,
+        t: int,
+        settled: float,
+        t_end: int,
+        min_pa: float,
+        *,
+        at_end: bool,
+        held: _Held | None = None,
     ) -> list[FloorEvent]:
+        """Settled at ``settled`` on the current floor's trip (``held``: the stop the leg
+        that just ended came from)."""
         step = settled - self._floor_level
         if -min_pa < step < min_pa:
             self._sub_threshold(t, t_end, settled, step)
@@ -481,8 +497,17 @@ class OnlineFloorDetector:
         self._calm_ns = t
         self._anchor = self._stop_level = settled
         self._stop_start = t_end
-        self._motion.watch(t_end)
+        if held is not None and -min_pa < settled - held.dwell_level < min_pa:
+            # Still within a storey of where the trip first came to rest (the end of a
+            # staircase, a floor that slopes): the same stop for the dwell and for odometry.
+            self._dwell_start, self._dwell_level = held.dwell_ns, held.dwell_level
+        else:
+            self._dwell_start, self._dwell_level = t_end, settled
+            self._motion.watch(t_end)
         return self._due(t, at_end)
+
+    def _hold(self, level: float) -> _Held:
+        return _Held(level, self._stop_start, self._since, self._dwell_start, self._dwell_level)
 
     def _resume(self, held: _Held, settled: float) -> None:
         self._phase = _STOPPED
@@ -490,6 +515,7 @@ class OnlineFloorDetector:
         self._calm_ns = self._t
         self._anchor = self._stop_level = settled
         self._stop_start = held.start_ns
+        self._dwell_start, self._dwell_level = held.dwell_ns, held.dwell_level
 
     def _due(self, t: int, at_end: bool) -> list[FloorEvent]:
         """A stop just began or went on: is it a visit already?"""
@@ -522,7 +548,8 @@ class OnlineFloorDetector:
         start = self._trip_start if self._trip_start >= 0 else self._change_start
         span = (start, self._stop_start)
         event = self._publish(t, span, (from_id, to_id), step, level, at_end=at_end)
-        self._visit = _Visit(len(self._current) - 1, self._stop_start, step, new_floor)
+        # a later leg continues this trip only if it leaves within landing_s of the rest
+        self._visit = _Visit(len(self._current) - 1, self._dwell_start, step, new_floor)
         self._floor = to_id
         self._trip_start = -1
         self._departed_ns = -1
