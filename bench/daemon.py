@@ -136,6 +136,9 @@ def main() -> int:
     baro = [m for m in by_topic.get(topics.BARO, []) if isinstance(m, messages.PressureSample)]
     scans = [m for m in by_topic.get(topics.SCAN, []) if isinstance(m, messages.LaserScan)]
     odom = [m for m in by_topic.get(topics.ODOM, []) if isinstance(m, messages.Odometry)]
+    scan_gaps = sum(
+        1 for a, b in itertools.pairwise(scans) if b.t_ns - a.t_ns > 2.5e9 / 75
+    )  # more than two scan periods: a scan missing mid-run
     lost_baro = sum(((b.seq - a.seq - 1) % 65536) for a, b in itertools.pairwise(baro))
 
     print(f"baromapd on the pty twins for {args.minutes:g} min (exit {code}), {len(files)} file(s)")
@@ -149,7 +152,12 @@ def main() -> int:
         "(the difference is what was sent before each session was up and after it stopped)"
     )
     print(f"  messages dropped by the daemon: {dropped} (queue and disk guard), "
-          f"barometer sequence gaps: {lost_baro}   (must be 0)")  # fmt: skip
+          f"barometer sequence gaps: {lost_baro}, laser gaps over two scan periods: "
+          f"{scan_gaps}   (must be 0)")  # fmt: skip
+    for device in ("laser", "base", "barometer"):
+        if device in health:
+            bad = {k: v for k, v in health[device].counters.items() if k.startswith("bad_")}
+            print(f"  {device}: frames the decoder discarded on the line: {bad or 'none'}")
     cpu_s = usage.ru_utime + usage.ru_stime
     print(f"  daemon CPU: {cpu_s:.1f} s in {wall_s:.0f} s = {100 * cpu_s / wall_s:.2f} % of one "
           "core (target <= 5 %)")  # fmt: skip

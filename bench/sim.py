@@ -1,10 +1,13 @@
-"""Simulator bench: how fast the simulated world runs.
+"""Simulator bench: how fast the simulated world runs, and how fast the laser twin streams.
 
-    .venv/bin/python bench/sim.py [--minutes 46] [--floors 6] [--seed 0]
+    .venv/bin/python bench/sim.py [--minutes 46] [--floors 6] [--seed 0] [--twin-seconds 3]
 
 Prints the time to build the building, to make a pressure_run (the barometer part of a run),
 to ray cast every scan of the run, and to write the whole run to MCAP with ``sim record``
-(target: a 46-minute six-floor run in under 60 s on one core), plus the file's size.
+(target: a 46-minute six-floor run in under 60 s on one core), plus the file's size. Then the
+LMS200 twin's scan rate in continuous mode for several variants and line speeds, from its
+truth log, beside the real sensor's limit (the line, or the mirror: 75 Hz, interlaced 2 or 4
+turns at 0.5 or 0.25 deg); a loaded machine can only make it slower.
 """
 
 from __future__ import annotations
@@ -18,10 +21,13 @@ from pathlib import Path
 import numpy as np
 import structlog
 
+from baromap.protocols import lms200
 from baromap.sim.building import make_building
 from baromap.sim.laser import LaserConfig, cast
 from baromap.sim.record import record_run, scan_floors
 from baromap.sim.scenario import make_scenario, pressure_run
+from baromap.sim.twins import Lms200Twin, SimClock
+from baromap.sim.twins.lms200 import INTERLACE, MIRROR_HZ
 
 
 def main() -> int:
@@ -29,6 +35,7 @@ def main() -> int:
     parser.add_argument("--minutes", type=float, default=46.0)
     parser.add_argument("--floors", type=int, default=6)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--twin-seconds", type=float, default=3.0)
     args = parser.parse_args()
     structlog.configure(wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING))
 
@@ -82,7 +89,38 @@ def main() -> int:
         f"({summary.simulated_s / summary.wall_s:.0f}x real time; target < 60 s), "
         f"{total} messages, {size / 1e6:.1f} MB"
     )
+    twin_rates(sc, args.twin_seconds)
     return 0
+
+
+def twin_rates(sc: object, seconds: float) -> None:
+    """The LMS200 twin streaming to a host that reads everything, per variant and baud."""
+    import serial
+
+    print("LMS200 twin, continuous mode (scans/s from its truth log; limit = line or mirror)")
+    for baud, angle, res in (
+        (38400, 180, 100),
+        (500000, 180, 100),
+        (500000, 180, 50),
+        (500000, 100, 25),
+    ):
+        with Lms200Twin(SimClock(sc)) as twin:  # type: ignore[arg-type]
+            twin.variant = (angle, res)
+            twin.port.set_baud(baud)
+            twin.mode = lms200.Mode.CONTINUOUS
+            with serial.serial_for_url(twin.path, baudrate=baud, timeout=0.05) as port:
+                deadline = time.monotonic() + seconds
+                while time.monotonic() < deadline:
+                    port.read(8192)
+            taken = [t.t_mono_ns / 1e9 for t in twin.truth.records()]
+        beams = angle * 100 // res + 1
+        line_hz = baud / 10 / (10 + 2 * beams)
+        mirror_hz = MIRROR_HZ / INTERLACE[res]
+        rate = (len(taken) - 1) / (taken[-1] - taken[0]) if len(taken) > 1 else 0.0
+        print(
+            f"  {baud:>6} baud {angle} deg / {res / 100:.2f} deg: {rate:5.1f} scans/s "
+            f"(limit {min(line_hz, mirror_hz):5.1f}: line {line_hz:.1f}, mirror {mirror_hz:.2f})"
+        )
 
 
 if __name__ == "__main__":

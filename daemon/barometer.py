@@ -18,7 +18,7 @@ import structlog
 from baromap.errors import DeviceError
 from baromap.protocols import baro
 from baromap.protocols.framing import BadFrame
-from daemon.clock import DeviceClockFit, transmission_ns
+from daemon.clock import DeviceClockFit, LinePosition, transmission_ns
 from daemon.config import BarometerConfig
 from daemon.session import DeviceRestarted, DeviceSession, wait_for
 
@@ -47,8 +47,7 @@ class BarometerSession(DeviceSession):
         self.fit = DeviceClockFit()
         self._command_seq = 0
         self._last_sample_seq: int | None = None
-        self._fed = 0
-        self._consumed = 0
+        self.line = LinePosition()
 
     def _next_seq(self) -> int:
         self._command_seq = (self._command_seq + 1) % baro.SEQ_MODULO
@@ -94,7 +93,7 @@ class BarometerSession(DeviceSession):
         }
         self.fit.reset()
         self._last_sample_seq = None
-        self._fed = self._consumed = 0
+        self.line.reset()
 
     def up_detail(self) -> str:
         info = self.identity
@@ -128,17 +127,20 @@ class BarometerSession(DeviceSession):
 
     # ---- streaming ----------------------------------------------------------------------------
     def handle(self, data: bytes, read_ns: int) -> None:
-        self._fed += len(data)
+        self.line.chunk(len(data), read_ns)
         for frame in self.decoder.feed(data):
-            self._consumed += wire_size(frame)
+            size = wire_size(frame)
             if isinstance(frame, BadFrame):
+                self.line.skip(size)
                 self.bad_frame(frame)
                 continue
             self.good_frame()
-            if isinstance(frame, baro.SampleFrame):
-                end = self.frame_end_ns(read_ns, min(len(data), self._fed - self._consumed))
-                self._sample(frame, end - transmission_ns(wire_size(frame), self.baud), read_ns)
-            elif isinstance(frame, baro.StatusFrame):
+            if not isinstance(frame, baro.SampleFrame):
+                self.line.skip(size)
+            else:
+                end = self.line.end_ns(size, self.baud)
+                self._sample(frame, end - transmission_ns(size, self.baud), read_ns)
+            if isinstance(frame, baro.StatusFrame):
                 for key, value in frame.counters().items():
                     self.set_counter(f"board_{key}", value)
                 self.set_counter("board_sensor_state", frame.sensor_state)

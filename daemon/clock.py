@@ -69,6 +69,55 @@ def transmission_ns(byte_count: int, baud: int) -> int:
     return byte_count * 10 * 1_000_000_000 // baud
 
 
+class LinePosition:
+    """When a decoded frame's last byte arrived, from the reads that brought it.
+
+    A read returns at ``read_ns`` with every byte that had arrived by then, so for a frame
+    that ended inside it, ``read_ns`` minus the line time of the bytes after the frame is a
+    time the frame had certainly ended by (an upper bound: the bytes after may have followed a
+    pause). When the frame began before the previous read, the previous read's time plus the
+    line time of the frame's remaining bytes is a second upper bound, and the tighter one when
+    this read came late (a busy machine): within a frame the line does not pause. Positions
+    count bytes fed and bytes the decoder accounted for; a resync (discarded bytes reported
+    late) can only make the bytes-after count too large, which the read's length caps.
+    """
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.fed = 0
+        self.consumed = 0
+        self._before = 0
+        self._read_ns = 0
+        self._chunk = 0
+        self._previous_ns: int | None = None
+
+    def chunk(self, size: int, read_ns: int) -> None:
+        """A read of ``size`` bytes returned at ``read_ns`` (call before decoding it)."""
+        if self._read_ns:
+            self._previous_ns = self._read_ns
+        self.consumed = min(self.consumed, self.fed)
+        self._before = self.fed
+        self.fed += size
+        self._chunk = size
+        self._read_ns = read_ns
+
+    def skip(self, size: int) -> None:
+        """Bytes that were no frame (discarded, a lone ACK)."""
+        self.consumed += size
+
+    def end_ns(self, size: int, baud: int) -> int:
+        """Arrival of the last byte of the next decoded frame, ``size`` bytes on the line."""
+        self.consumed += size
+        after = min(self._chunk, max(0, self.fed - self.consumed))
+        end = self._read_ns - transmission_ns(after, baud)
+        started = self.consumed - size
+        if self._previous_ns is not None and started < self._before < self.consumed:
+            end = min(end, self._previous_ns + transmission_ns(self.consumed - self._before, baud))
+        return end
+
+
 class DeviceClockFit:
     """A device's microsecond clock to host monotonic ns, by a running lower-envelope fit.
 

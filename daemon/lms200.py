@@ -23,7 +23,7 @@ import structlog
 from baromap.errors import DeviceError
 from baromap.protocols import lms200
 from baromap.protocols.framing import BadFrame
-from daemon.clock import transmission_ns
+from daemon.clock import LinePosition, transmission_ns
 from daemon.config import LaserConfig
 from daemon.session import DeviceRestarted, DeviceSession, wait_for
 
@@ -60,8 +60,7 @@ class Lms200Session(DeviceSession):
         super().__init__("laser", port=config.port, baud=config.baud, retry=config.retry, **kwargs)
         self.config = config
         self.decoder = lms200.Decoder(at_boundary=False)
-        self._fed = 0
-        self._consumed = 0
+        self.line = LinePosition()
         self.streaming = False
         self._in_place = 0
 
@@ -102,11 +101,11 @@ class Lms200Session(DeviceSession):
             "port": self.path,
         }
         self.streaming = True
-        self._fresh_decoder()
+        self.line.reset()  # the decoder stays: in sync, and the first scan may be half in it
 
     def _fresh_decoder(self) -> None:
         self.decoder = lms200.Decoder(at_boundary=False)
-        self._fed = self._consumed = 0
+        self.line.reset()
 
     def _find_baud(self) -> int:
         order = [self.config.baud] + [b for b in SEARCH_BAUDS if b != self.config.baud]
@@ -136,7 +135,8 @@ class Lms200Session(DeviceSession):
         self.set_counter("baud", baud)
 
     def _mode(self, mode: int, what: str, data: bytes = b"") -> None:
-        reply = self._request(lms200.set_mode(mode, data), what)
+        starts = mode == lms200.Mode.CONTINUOUS
+        reply = self._request(lms200.set_mode(mode, data), what, then_streaming=starts)
         result = lms200.mode_result(reply)
         if result != lms200.ModeResult.OK:
             raise DeviceError(f"{what}: the sensor answered {result}")
@@ -153,49 +153,73 @@ class Lms200Session(DeviceSession):
         if written is None or not written[0]:
             raise DeviceError("the sensor refused the units setting")
 
-    def _request(self, telegram: bytes, what: str, attempts: int = 3) -> lms200.Telegram:
-        """Send a command; its reply (command + 0x80), resending after a NAK or silence."""
+    def _request(
+        self, telegram: bytes, what: str, attempts: int = 3, *, then_streaming: bool = False
+    ) -> lms200.Telegram:
+        """Send a command; its reply (command + 0x80), resending after a NAK or silence.
+
+        Scans around the reply (the last ones before a stop, the first ones after a start)
+        are recorded like any other while streaming: ``then_streaming`` starts that at once.
+        """
         expected = telegram[lms200.HEADER_BYTES] | 0x80
         wait = REPLY_WAIT_S + 2 * transmission_ns(LONGEST_REPLY, self.baud) / 1e9
+
+        def feed(data: bytes, read_ns: int) -> lms200.Telegram | bool | None:
+            return self._reply(data, read_ns, expected, then_streaming)
+
         for _ in range(attempts):
             self.write(telegram)
-            reply = wait_for(self, lambda data, _ns: self._reply(data, expected), wait)
+            reply = wait_for(self, feed, wait)
             if isinstance(reply, lms200.Telegram):
                 return reply
         raise DeviceError(f"{what}: no reply at {self.baud} baud")
 
-    def _reply(self, data: bytes, expected: int) -> lms200.Telegram | bool | None:
+    def _reply(
+        self, data: bytes, read_ns: int, expected: int, then_streaming: bool
+    ) -> lms200.Telegram | bool | None:
+        self.line.chunk(len(data), read_ns)
+        found: lms200.Telegram | bool | None = None
         for message in self.decoder.feed(data):
+            if isinstance(message, lms200.ScanTelegram) and self.streaming:
+                self._scan(message, read_ns)
+                continue
+            self.line.skip(wire_size(message))
+            if found is not None:
+                continue
             if isinstance(message, lms200.Nak):
-                return False  # resend
-            if isinstance(message, lms200.Telegram) and message.from_sensor:
+                found = False  # resend
+            elif isinstance(message, lms200.Telegram) and message.from_sensor:
                 if message.command == expected:
-                    return message
-                if message.command == lms200.Reply.INVALID_COMMAND:
+                    found = message
+                    self.streaming = self.streaming or then_streaming
+                elif message.command == lms200.Reply.INVALID_COMMAND:
                     raise DeviceError(f"the sensor rejected command 0x{expected & 0x7F:02x}")
-        return None
+        return found
 
     # ---- streaming ----------------------------------------------------------------------------
     def handle(self, data: bytes, read_ns: int) -> None:
-        self._fed += len(data)
+        self.line.chunk(len(data), read_ns)
         for message in self.decoder.feed(data):
-            self._consumed += wire_size(message)
             if isinstance(message, lms200.ScanTelegram):
-                self.good_frame()
-                self._in_place = 0
-                end_ns = self.frame_end_ns(read_ns, min(len(data), self._fed - self._consumed))
-                start_ns = end_ns - transmission_ns(wire_size(message), self.baud)
-                scan = message.to_laser_scan(self.clock.unix_ns(start_ns))
-                self.publish(scan, read_ns)
-                if not message.sensor_status().healthy:
-                    self.count("status_not_ok")
-            elif isinstance(message, lms200.Telegram) and message.command == POWER_ON:
+                self._scan(message, read_ns)
+                continue
+            self.line.skip(wire_size(message))
+            if isinstance(message, lms200.Telegram) and message.command == POWER_ON:
                 log.warning("laser power-on telegram: it was power-cycled", port=self.path)
                 raise DeviceRestarted("the sensor sent its power-on telegram (power cycle)")
             elif isinstance(message, BadFrame):
                 self.bad_frame(message)
             else:
                 self.good_frame()
+
+    def _scan(self, message: lms200.ScanTelegram, read_ns: int) -> None:
+        self.good_frame()
+        self._in_place = 0
+        size = wire_size(message)
+        start_ns = self.line.end_ns(size, self.baud) - transmission_ns(size, self.baud)
+        self.publish(message.to_laser_scan(self.clock.unix_ns(start_ns)), read_ns)
+        if not message.sensor_status().healthy:
+            self.count("status_not_ok")
 
     def up_detail(self) -> str:
         return f"streaming at {self.baud} baud, {self.identity.get('variant', '')}"

@@ -24,7 +24,7 @@ from baromap.odometry.integrator import OdometryIntegrator
 from baromap.protocols import p2os
 from baromap.protocols.framing import BadFrame
 from baromap.protocols.robot_models import RobotModel, find_model, select_model
-from daemon.clock import transmission_ns
+from daemon.clock import LinePosition, transmission_ns
 from daemon.config import BaseConfig
 from daemon.session import DeviceRefused, DeviceSession, wait_for
 
@@ -69,8 +69,7 @@ class PioneerSession(DeviceSession):
         self.decoder = p2os.Decoder()
         self.integrator: OdometryIntegrator | None = None
         self.model: RobotModel | None = None
-        self._fed = 0
-        self._consumed = 0
+        self.line = LinePosition()
         self._session_open = False
         self._sips_seen = 0
 
@@ -87,6 +86,7 @@ class PioneerSession(DeviceSession):
         )
         self.model = model
         self.integrator = OdometryIntegrator(model)
+        self.line.reset()
         self.write(p2os.open_controller())
         self._session_open = True
         self.write(p2os.pulse())
@@ -115,8 +115,7 @@ class PioneerSession(DeviceSession):
                 value = config.get(key)
                 if value is not None:
                     self.identity[key] = str(value)
-        self._fed = self._consumed = 0
-        self.decoder = p2os.Decoder()
+        self.line.reset()  # the decoder stays: in sync, and the next SIP may be half in it
 
     def _sync(self) -> p2os.Sync2Info:
         for _ in range(SYNC_ATTEMPTS):
@@ -154,32 +153,40 @@ class PioneerSession(DeviceSession):
         return feed
 
     def _find(self, kind: type) -> Any:
+        """Feed that looks for a ``kind`` packet; SIPs on the way are odometry already."""
+
         def feed(data: bytes, read_ns: int) -> Any:
             found = None
-            for message in self.decoder.feed(data):
-                if isinstance(message, p2os.StandardSip):
-                    self._odometry(message, read_ns, read_ns)
+            for message in self._packets(data, read_ns):
                 if isinstance(message, kind) and found is None:
                     found = message
             return found
 
         return feed
 
-    # ---- streaming ----------------------------------------------------------------------------
-    def handle(self, data: bytes, read_ns: int) -> None:
-        self._fed += len(data)
+    def _packets(self, data: bytes, read_ns: int) -> list[Any]:
+        """Decode, count, and publish the SIPs as odometry stamped when they were sent."""
+        self.line.chunk(len(data), read_ns)
+        out = []
         for message in self.decoder.feed(data):
             if isinstance(message, BadFrame):
-                self._consumed += message.size
+                self.line.skip(message.size)
                 self.bad_frame(message)
                 continue
             size = P2OS_OVERHEAD + _body(message)
-            self._consumed += size
             self.good_frame()
-            if isinstance(message, p2os.StandardSip):
-                # The robot sends its pose as it takes it; at 9600 baud a SIP is ~40 ms of line.
-                end = self.frame_end_ns(read_ns, min(len(data), self._fed - self._consumed))
-                self._odometry(message, end - transmission_ns(size, self.baud), read_ns)
+            out.append(message)
+            if not isinstance(message, p2os.StandardSip):
+                self.line.skip(size)
+                continue
+            # The robot sends its pose as it takes it; at 9600 baud a SIP is ~40 ms of line.
+            end = self.line.end_ns(size, self.baud)
+            self._odometry(message, end - transmission_ns(size, self.baud), read_ns)
+        return out
+
+    # ---- streaming ----------------------------------------------------------------------------
+    def handle(self, data: bytes, read_ns: int) -> None:
+        self._packets(data, read_ns)
 
     def _odometry(self, sip: p2os.StandardSip, sent_ns: int, read_ns: int) -> None:
         if self.integrator is None:

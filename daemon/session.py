@@ -38,7 +38,7 @@ from baromap.discovery import resolve_port
 from baromap.errors import BaromapError, DeviceError
 from baromap.messages import DeviceHealth, DeviceState, Message
 from baromap.protocols.framing import BadFrame
-from daemon.clock import HostClock, transmission_ns
+from daemon.clock import HostClock
 from daemon.config import Retry
 
 log = structlog.get_logger(__name__)
@@ -200,10 +200,6 @@ class DeviceSession(abc.ABC):
         elif self._stop.wait(seconds):
             raise _Stopping
         self.heartbeat_ns = time.monotonic_ns()
-
-    def frame_end_ns(self, read_ns: int, bytes_after: int) -> int:
-        """When a frame's last byte arrived, given how many bytes followed it in the read."""
-        return read_ns - transmission_ns(max(0, bytes_after), self.baud)
 
     def good_frame(self) -> None:
         self._last_good_ns = time.monotonic_ns()

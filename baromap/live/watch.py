@@ -146,6 +146,7 @@ class FloorWatch:
         self._seen: set[str] = set()
         self._session: zenoh.Session | None = None
         self._first_answered = False
+        self._first_robots: set[str] = set()  # robots that answered the first question
         self.lost = 0
 
     # -- lifetime ------------------------------------------------------------------------
@@ -232,7 +233,8 @@ class FloorWatch:
                 self._seen.add(robot)
                 report = RobotUp(robot, returned=returned)
                 # one that came back, or came up after the first question was answered
-                ask = returned or self._first_answered
+                # without having answered it
+                ask = returned or (self._first_answered and robot not in self._first_robots)
         self._put(report)
         if ask:
             self._ask_state(robot, first=False)
@@ -258,6 +260,7 @@ class FloorWatch:
             if first:
                 with self._lock:
                     self._first_answered = True
+                    self._first_robots.update(answered)
                 self._put(QueryDone(tuple(sorted(set(answered)))))
 
         session.get(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from daemon.clock import DeviceClockFit, HostClock, transmission_ns
+from daemon.clock import DeviceClockFit, HostClock, LinePosition, transmission_ns
 
 
 def test_a_wall_clock_step_after_start_changes_nothing() -> None:
@@ -61,3 +61,23 @@ def test_a_device_reset_restarts_the_fit() -> None:
     ]
     assert fit.resets == 1
     assert abs(after[-1] - true_ns[-1]) < 3_000_000
+
+
+def test_a_late_read_does_not_make_a_frame_late() -> None:
+    """A 372-byte telegram at 500 kbaud (7.44 ms) from t=0: 100 bytes read promptly at 2 ms,
+    the rest read 6 ms late at 13.44 ms together with 50 bytes of the next telegram."""
+    line = LinePosition()
+    line.chunk(100, 2_000_000)
+    line.chunk(272 + 50, 13_440_000)
+    end = line.end_ns(372, 500_000)
+    # read time minus the 50 bytes after it says 12.44 ms; the earlier read bounds it tighter
+    assert end == 2_000_000 + transmission_ns(272, 500_000) == 7_440_000
+
+
+def test_a_frame_within_one_read_ends_before_the_bytes_after_it() -> None:
+    line = LinePosition()
+    line.chunk(30, 5_000_000)
+    line.skip(10)  # a discarded run, then a 20-byte frame
+    assert line.end_ns(20, 115_200) == 5_000_000
+    line.chunk(40, 9_000_000)
+    assert line.end_ns(22, 115_200) == 9_000_000 - transmission_ns(18, 115_200)
