@@ -9,7 +9,9 @@ CLI, the demo, tests and the benchmark produce identical outputs.
 from __future__ import annotations
 
 import math
+import shutil
 import sys
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +24,7 @@ import structlog
 from baromap.errors import ConfigError
 from baromap.mapping import export, figures
 from baromap.mapping.foxglove_maps import write_maps_mcap
+from baromap.mapping.keyframes import motion_spaced
 from baromap.mapping.occupancy import OccupancyGrid, build_grid
 from baromap.mapping.run_data import RunData, load_run
 from baromap.mapping.segmentation import Segmentation, segment_run
@@ -43,6 +46,8 @@ class BuildResult:
 
     @property
     def cross_floor_closures(self) -> int:
+        """Loop closures between keyframes the barometer put on different floors (none by
+        construction: only the elevator car is matched across floors, see car_edges)."""
         kf_floor = self.segmentation.scan_floor[self.slam.keyframes]
         return sum(1 for i, j in self.slam.loop_edges if kf_floor[i] != kf_floor[j])
 
@@ -115,23 +120,11 @@ def grid_scans(
 
     Keyframes alone leave cells far from the path crossed by one or two beams, too little
     evidence to call them free; every scan would repeat the same evidence ten times over a
-    standing robot. Scans between keyframes have poses good to a centimetre (odometry over a
-    few centimetres from a corrected keyframe), so a denser, motion-spaced subset is used.
+    standing robot. Every scan has a corrected pose (matched against the finished map), so a
+    denser, motion-spaced subset is used.
     """
-    chosen: list[int] = []
-    last: FloatArray | None = None
-    for s in np.nonzero(on_floor)[0]:
-        p = poses[s]
-        if last is None:
-            chosen.append(int(s))
-            last = p
-            continue
-        d = math.hypot(p[0] - last[0], p[1] - last[1])
-        turn = abs(math.remainder(p[2] - last[2], math.tau))
-        if d >= min_m or turn >= min_rad:
-            chosen.append(int(s))
-            last = p
-    return np.array(chosen, dtype=np.int64)
+    group = np.where(on_floor, 0, -1)
+    return motion_spaced(poses, group, min_m, min_rad, last_of_group=False)
 
 
 def build_maps(
@@ -144,15 +137,39 @@ def build_maps(
     config: SlamConfig | None = None,
 ) -> BuildResult:
     """Run the whole pipeline and write every output file into ``out_dir``."""
-    import time
-
     if not 0.005 <= resolution <= 1.0:
         raise ConfigError(f"resolution {resolution} m is outside 0.005..1")
     out = Path(out_dir)
+    created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:  # a file of that name, no permission
         raise ConfigError(f"cannot use {out} as the output directory: {exc}") from exc
+    try:
+        return _build(
+            Path(recording),
+            out,
+            resolution=resolution,
+            method=method,
+            progress=progress,
+            config=config,
+        )
+    except BaseException:
+        # a failed build leaves nothing behind where there was nothing before
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
+def _build(
+    recording: Path,
+    out: Path,
+    *,
+    resolution: float,
+    method: str,
+    progress: bool,
+    config: SlamConfig | None,
+) -> BuildResult:
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     run = load_run(recording)
@@ -174,14 +191,14 @@ def build_maps(
     timings["slam_and_grids"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     result = BuildResult(run, segmentation, slam, grids, timings_s=timings)
-    result.files = write_outputs(result, Path(recording), out)
+    result.files = write_outputs(result, recording, out)
     timings["outputs"] = time.perf_counter() - t0
     log.info(
         "maps built",
         floors=len(grids),
         keyframes=len(slam.keyframes),
         loops=len(slam.loop_edges),
-        cross_floor_loops=result.cross_floor_closures,
+        car_closures=len(slam.car_edges),
         **{f"t_{k}": round(v, 2) for k, v in timings.items()},
     )
     return result
@@ -234,8 +251,9 @@ def write_outputs(result: BuildResult, recording: Path, out: Path) -> list[Path]
         "segmentation": seg.source,
         "floors": floor_entries,
         "loop_closures": {
-            "total": len(result.slam.loop_edges),
+            "within_floors": len(result.slam.loop_edges),
             "cross_floor": result.cross_floor_closures,
+            "elevator_car": len(result.slam.car_edges),
         },
         "keyframes": len(result.slam.keyframes),
         "scans": len(result.run.scans),
@@ -258,13 +276,16 @@ def write_outputs(result: BuildResult, recording: Path, out: Path) -> list[Path]
     maps = out / "maps.mcap"
     write_maps_mcap(
         maps,
-        int(result.run.scans.t_ns[-1]),
+        int(result.run.scans.t_ns[0]),
         floors=[f.index for f in order],
         grids=[result.grids[f.index] for f in order],
         elevations_m=[f.elevation_m for f in order],
         scan_poses=result.slam.scan_poses,
         scan_z_m=z,
         scan_floor=np.where(seg.scan_floor == BETWEEN_FLOORS, -1, seg.scan_floor),
+        scan_t_ns=result.run.scans.t_ns,
+        odom=result.run.odom,
+        transform_at=result.slam.keyframes,
     )
     files.append(maps)
     return files
@@ -333,7 +354,8 @@ def summary_lines(result: BuildResult, out: Path) -> list[str]:
     slam = result.slam
     lines.append(
         f"  {len(result.run.scans)} scans, {len(slam.keyframes)} keyframes, "
-        f"{len(slam.loop_edges)} loop closures ({result.cross_floor_closures} across floors)"
+        f"{len(slam.loop_edges)} loop closures within floors, "
+        f"{len(slam.car_edges)} between the elevator car at different rides"
     )
     total = sum(result.timings_s.values())
     lines.append(
