@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -202,10 +203,14 @@ def _score_grid(
     angles: FloatArray,
     offsets: npt.NDArray[np.int64],
 ) -> Float32Array:
-    """Mean field value for every (angle, dy, dx) of the window: shape (A, T, T)."""
+    """Mean field value for every (angle, dy, dx) of the window: shape (A, T, T).
+
+    ``center`` is one (x, y) for all angles, or one per angle (A, 2).
+    """
     c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
-    x = center[0] + c * points[None, :, 0] - s * points[None, :, 1]
-    y = center[1] + s * points[None, :, 0] + c * points[None, :, 1]
+    cx, cy = (center[0], center[1]) if center.ndim == 1 else (center[:, :1], center[:, 1:2])
+    x = cx + c * points[None, :, 0] - s * points[None, :, 1]
+    y = cy + s * points[None, :, 0] + c * points[None, :, 1]
     cols = np.rint((x - field.origin_xy[0]) / field.resolution).astype(np.int64)
     rows = np.rint((y - field.origin_xy[1]) / field.resolution).astype(np.int64)
     h, w = field.data.shape
@@ -236,6 +241,8 @@ LATTICE_POINTS = 120
 #: Gauss-Newton stops when a step moves the pose less than this (far below the field's cell).
 CONVERGED_M = 5e-4
 CONVERGED_RAD = 5e-5
+#: ... or when a step lowers the cost by less than this share of it.
+CONVERGED_COST = 1e-4
 #: How much score a prior-weighted refinement may give up for agreement with odometry.
 PRIOR_SCORE_SLACK = 0.01
 #: Two lattice poses farther apart than this are different answers, not one blurred peak.
@@ -307,21 +314,38 @@ def correlative_search(
     # the prior is subtracted from the upper bound too; a bound stays a bound
     coarse_objective = coarse - _prior_penalty(prior, angles, cx, cy)
     order = np.argsort(coarse_objective.reshape(-1))[::-1]
+    flat_bound = coarse_objective.reshape(-1)
     fine_offsets = np.arange(-(step // 2), step // 2 + 1)
+    half_step = window.angle_step_rad * np.array([-0.5, 0.0, 0.5])
     found: list[tuple[float, float, FloatArray]] = []  # objective, score, pose
-    for flat in order[: keep * 4]:
-        a, iy, ix = np.unravel_index(int(flat), coarse.shape)
-        bound = float(coarse_objective[a, iy, ix])
-        if len(found) >= keep and bound <= max(f[0] for f in found):
-            break  # an upper bound below the best fine objective cannot win
-        center = np.array([cx[ix], cy[iy], angles[a]])
-        fine_angles = angles[a] + window.angle_step_rad * np.array([-0.5, 0.0, 0.5])
-        scores = _score_grid(field, points, center, fine_angles, fine_offsets)
-        fx_all, fy_all = center[0] + fine_offsets * res, center[1] + fine_offsets * res
-        objective = scores - _prior_penalty(prior, fine_angles, fx_all, fy_all)
-        fa, fy, fx = np.unravel_index(int(np.argmax(objective)), objective.shape)
-        pose = np.array([fx_all[fx], fy_all[fy], fine_angles[fa]])
-        found.append((float(objective[fa, fy, fx]), float(scores[fa, fy, fx]), pose))
+    done = 0
+    while done < min(len(order), 4 * keep):
+        # the best coarse cells in one batch: each gets the fine lattice around it
+        batch = order[done : done + keep]
+        done += len(batch)
+        ba, by, bx = np.unravel_index(batch, coarse.shape)
+        fine_angles = (angles[ba][:, None] + half_step[None, :]).ravel()  # (B * 3,)
+        centers = np.repeat(np.stack([cx[bx], cy[by]], axis=1), 3, axis=0)
+        scores = _score_grid(field, points, centers, fine_angles, fine_offsets)
+        dx = centers[:, 0][:, None] + fine_offsets[None, :] * res  # (B * 3, T)
+        dy = centers[:, 1][:, None] + fine_offsets[None, :] * res
+        objective = scores
+        if prior is not None:
+            da = se2.wrap(fine_angles - prior.pose[2]) / prior.sigma_theta
+            ex = (dx - prior.pose[0]) / prior.sigma_xy
+            ey = (dy - prior.pose[1]) / prior.sigma_xy
+            objective = scores - 0.5 * prior.weight * (
+                da[:, None, None] ** 2 + ex[:, None, :] ** 2 + ey[:, :, None] ** 2
+            )
+        for b in range(len(batch)):
+            block = objective[3 * b : 3 * b + 3]
+            fa, fy, fx = np.unravel_index(int(np.argmax(block)), block.shape)
+            row = 3 * b + fa
+            pose = np.array([dx[row, fx], dy[row, fy], fine_angles[row]])
+            found.append((float(block[fa, fy, fx]), float(scores[row, fy, fx]), pose))
+        best = max(f[0] for f in found)
+        if done >= len(order) or flat_bound[order[done]] <= best:
+            break  # every remaining upper bound is below the best fine objective
     if not found:
         return SearchResult(np.asarray(guess, dtype=np.float64).copy(), 0.0, 0.0)
     found.sort(key=lambda f: f[0], reverse=True)
@@ -334,74 +358,102 @@ def correlative_search(
     return SearchResult(best_pose, best_score, max(runner_up, 0.0))
 
 
+@dataclass(slots=True)
+class _Fit:
+    """One evaluation of a pose: total cost and normal equations (scan plus prior), and the
+    scan's own part for the information it reports."""
+
+    cost: float
+    hessian: FloatArray
+    gradient: FloatArray
+    score: float
+    scan_hessian: FloatArray
+    scan_cost: float
+
+
 def refine(
     field: LikelihoodField,
     points: FloatArray,
     pose: FloatArray,
-    iterations: int = 12,
+    *,
+    iterations: int = 10,
     prior: Prior | None = None,
+    start: list[Any] | None = None,
 ) -> tuple[FloatArray, float, FloatArray]:
-    """Gauss-Newton on sum (1 - M(T p))^2; returns pose, score and the fit's information.
+    """Levenberg-Marquardt on sum (1 - M(T p))^2; returns pose, score and the fit's
+    information.
 
     The information is the inverse of the Gauss-Newton covariance: large along directions the
     scan pins down, small along a corridor or for the rotation inside a small symmetric room
-    (an elevator car), which is what a pose-graph edge should know.
+    (an elevator car), which is what a pose-graph edge should know. ``start``, when given,
+    receives the score and information at the starting pose (what the search found).
     """
     current = np.asarray(pose, dtype=np.float64).copy()
-    lam = 1e-3
-
     n = len(points)
+    px, py = points[:, 0], points[:, 1]
+    stiff = np.zeros(3)
     if prior is not None:
-        # the same pull as in the lattice search, as residual rows of the least squares
-        prior_scale = math.sqrt(n * prior.weight) * np.array(
-            [1 / prior.sigma_xy, 1 / prior.sigma_xy, 1 / prior.sigma_theta]
+        # the same pull as in the lattice search, in the normal equations
+        stiff = (n * prior.weight) / np.array(
+            [prior.sigma_xy**2, prior.sigma_xy**2, prior.sigma_theta**2]
         )
 
-    def evaluate(p: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        world = se2.transform_points(p, points)
-        value, gx, gy = field.interpolate(world)
+    def evaluate(p: FloatArray) -> _Fit:
         c, s = math.cos(p[2]), math.sin(p[2])
-        dxdt = -s * points[:, 0] - c * points[:, 1]
-        dydt = c * points[:, 0] - s * points[:, 1]
-        jac = np.stack([gx, gy, gx * dxdt + gy * dydt], axis=1)
+        world = np.empty((n, 2))
+        world[:, 0] = p[0] + c * px - s * py
+        world[:, 1] = p[1] + s * px + c * py
+        value, gx, gy = field.interpolate(world)
+        jac = np.empty((3, n))
+        jac[0], jac[1] = gx, gy
+        jac[2] = gx * (-s * px - c * py) + gy * (c * px - s * py)
         residual = 1.0 - value
+        scan_h = jac @ jac.T
+        scan_cost = float(residual @ residual)
+        h, g, cost = scan_h.copy(), jac @ residual, scan_cost
         if prior is not None:
-            dev = np.array([p[0] - prior.pose[0], p[1] - prior.pose[1], 0.0])
-            dev[2] = float(se2.wrap(p[2] - prior.pose[2]))
-            residual = np.concatenate([residual, -prior_scale * dev])
-            jac = np.vstack([jac, -np.diag(prior_scale)])
-        return residual, jac, value
+            dev = p - prior.pose
+            dev[2] = math.remainder(dev[2], math.tau)
+            h[[0, 1, 2], [0, 1, 2]] += stiff
+            g = g - stiff * dev
+            cost += float(stiff @ dev**2)
+        return _Fit(cost, h, g, float(value.mean()) if n else 0.0, scan_h, scan_cost)
 
-    residual, jac, value = evaluate(current)
-    cost = float(residual @ residual)
+    def information(fit: _Fit) -> FloatArray:
+        # Gauss-Newton covariance sigma_r^2 (J^T J)^-1 of the scan alone (the prior is the
+        # odometry edge's business), as its inverse: the residual variance makes a poor fit
+        # (clutter, partial overlap) count for less
+        sigma2 = max(fit.scan_cost / max(n - 3, 1), 1e-6)
+        out: FloatArray = fit.scan_hessian / sigma2
+        return out
+
+    fit = evaluate(current)
+    if start is not None:
+        start.extend([fit.score, information(fit)])
+    lam = 1e-3
     for _ in range(iterations):
-        hessian = jac.T @ jac
-        grad = jac.T @ residual
+        damped = fit.hessian + lam * np.diag(np.diag(fit.hessian) + 1e-9)
         try:
-            delta = np.linalg.solve(hessian + lam * np.diag(np.diag(hessian) + 1e-9), grad)
+            delta = np.linalg.solve(damped, fit.gradient)
         except np.linalg.LinAlgError:
             break
         candidate = current + delta
-        r2, j2, v2 = evaluate(candidate)
-        c2 = float(r2 @ r2)
-        if c2 < cost:
-            current, residual, jac, value, cost = candidate, r2, j2, v2, c2
+        trial = evaluate(candidate)
+        if trial.cost < fit.cost:
+            converged = (fit.cost - trial.cost) < CONVERGED_COST * fit.cost
+            current, fit = candidate, trial
             lam = max(lam / 10, 1e-7)
-            if np.abs(delta[:2]).max() < CONVERGED_M and abs(delta[2]) < CONVERGED_RAD:
+            if converged or (
+                (abs(delta[0]) < CONVERGED_M and abs(delta[1]) < CONVERGED_M)
+                and abs(delta[2]) < CONVERGED_RAD
+            ):
                 break
         else:
             lam *= 10
             if lam > 1e3:
                 break
-    # Gauss-Newton covariance sigma_r^2 (J^T J)^-1 of the scan alone (the prior is the
-    # odometry edge's business), returned as its inverse: the residual variance makes a
-    # poor fit (clutter, partial overlap) count for less
-    scan_r, scan_j = residual[:n], jac[:n]
-    dof = max(n - 3, 1)
-    sigma2 = max(float(scan_r @ scan_r) / dof, 1e-6)
-    information = (scan_j.T @ scan_j) / sigma2
-    current[2] = float(se2.wrap(current[2]))
-    return current, float(value.mean()) if len(value) else 0.0, information
+    current[2] = math.remainder(current[2], math.tau)
+    return current, fit.score, information(fit)
 
 
 def match(
@@ -425,8 +477,9 @@ def match(
     found = correlative_search(field, sparse, guess, window, coarse_field=coarse_field, prior=prior)
     lattice_pose, runner_up = found.pose, found.runner_up
     # compare like with like: the interpolated score at the lattice pose, not the cell lookup
-    _, lattice_score, lattice_info = refine(field, points, lattice_pose, iterations=0)
-    pose, score, info = refine(field, points, lattice_pose, prior=prior)
+    at_lattice: list[Any] = []
+    pose, score, info = refine(field, points, lattice_pose, prior=prior, start=at_lattice)
+    lattice_score, lattice_info = at_lattice
     moved = np.hypot(*(pose[:2] - lattice_pose[:2]))
     slack = 0.0 if prior is None else PRIOR_SCORE_SLACK
     if score < lattice_score - slack or moved > 2 * field.resolution:

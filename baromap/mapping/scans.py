@@ -56,6 +56,16 @@ class ScanBlock:
             laser_offset=offset,
         )
 
+    def subset(self, indices: npt.NDArray[np.int64]) -> ScanBlock:
+        """The scans ``indices`` only (a copy: small enough to send to another process)."""
+        return ScanBlock(
+            self.t_ns[indices],
+            self.ranges_m[indices],
+            self.angles_rad,
+            self.range_max_m,
+            self.laser_offset,
+        )
+
     def surface(self, index: int, max_range_m: float, spacing: float) -> FloatArray:
         """:func:`surface_points` of one scan in the robot frame."""
         pts = surface_points(self.ranges_m[index], self.angles_rad, max_range_m, spacing)

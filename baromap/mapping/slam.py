@@ -77,9 +77,10 @@ class SlamConfig:
     constants below, with the reasons for their values.
     """
 
-    #: a keyframe every this much travel or turn: well inside what one scan overlaps
-    keyframe_m: float = 0.3
-    keyframe_deg: float = 15.0
+    #: a keyframe every this much travel or turn: well inside what one scan overlaps (the
+    #: scans between keyframes are placed on the finished map at the end)
+    keyframe_m: float = 0.5
+    keyframe_deg: float = 25.0
     #: beams beyond this are ignored: a far return is one grazing point, more noise than shape
     max_range_m: float = 20.0
     #: cell of the likelihood fields and of the scan's voxel filter; also the field's sigma
@@ -88,12 +89,15 @@ class SlamConfig:
     #: and as much again as the older one the front end matches against (see submaps.py):
     #: short enough that the front end's drift inside it is below a cell
     submap_m: float = 5.0
-    #: odometry's random error per step: sigma of position per metre driven, of heading per
-    #: metre driven and per radian turned (a skid-steer base misjudges turns in place by
-    #: several percent, systematically)
-    odometry_sigma_m_per_m: float = 0.1
-    odometry_sigma_deg_per_m: float = 5.0
-    odometry_sigma_per_rad: float = 0.1
+    #: odometry's error per step: sigma of position per metre driven, of heading per metre
+    #: driven and per radian turned. Wheel odometry misjudges distance by a few percent and
+    #: drifts in heading by a degree or two per metre; a skid-steer base misjudges turns in
+    #: place by several percent, systematically. These are worse than a P3-AT (1-2 %, under
+    #: a degree per metre, 1-4 % of a turn) to cover the public logs' error model too (5 %,
+    #: 2 deg/m). The front end searches three sigmas around odometry.
+    odometry_sigma_m_per_m: float = 0.07
+    odometry_sigma_deg_per_m: float = 3.0
+    odometry_sigma_per_rad: float = 0.05
     #: how far the front end (odometry corrected by submap matching) can drift per metre
     #: driven: it bounds the loop-closure search and the largest correction believed
     drift_m_per_m: float = 0.1
