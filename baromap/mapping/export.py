@@ -89,7 +89,15 @@ def write_png(grid: OccupancyGrid, path: Path, title: str | None = None) -> None
     scale = max(w, h) * grid.resolution
     size = min(12.0, max(5.0, scale / 4))
     fig, ax = plt.subplots(figsize=(size, size * h / max(w, 1) + 0.6))
-    ax.imshow(map_image(grid), cmap="gray", vmin=0, vmax=255, extent=extent, origin="upper")
+    ax.imshow(
+        map_image(grid),
+        cmap="gray",
+        vmin=0,
+        vmax=255,
+        extent=extent,
+        origin="upper",
+        interpolation="nearest",  # a map's cells, not a photograph to smooth
+    )
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     if title:
