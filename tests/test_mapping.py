@@ -126,7 +126,7 @@ def test_wide_multiresolution_search_finds_a_far_offset() -> None:
     window = SearchWindow(1.5, math.radians(20), math.radians(1.0), coarse_step_cells=4)
     guess = se2.compose(truth, np.array([0.9, -0.7, math.radians(12)]))
     result = match(
-        field, block([truth]).endpoints(0, 30.0), guess, window, coarse_field=field.max_filtered(4)
+        field, block([truth]).endpoints(0, 30.0), guess, window, coarse_field=field.pooled(4)
     )
     assert np.hypot(*(result.pose[:2] - truth[:2])) < 0.03
     assert abs(se2.wrap(result.pose[2] - truth[2])) < math.radians(0.5)
@@ -275,7 +275,7 @@ def test_relation_errors() -> None:
 
 
 def test_pose_error_does_not_cancel_as_the_robot_turns() -> None:
-    from baromap.evaluation.mapping import mean_pose_error
+    from baromap.evaluation.trajectory import mean_pose_error
 
     # the robot turns round on the spot; its estimate is 8 cm east and 0.5 deg off throughout
     true = np.array([[30.0, 11.4, h] for h in np.linspace(-math.pi, math.pi, 36, endpoint=False)])

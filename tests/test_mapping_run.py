@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -10,10 +9,12 @@ import pytest
 import yaml
 
 from baromap.cli import main as cli
-from baromap.evaluation.mapping import evaluate_recording, intel_relations
+from baromap.evaluation.laser_logs import run_log
+from baromap.evaluation.mapping import evaluate_recording
 from baromap.mapping.build import build_maps
 from baromap.mapping.export import read_pgm
 from baromap.recording import read_messages
+from baromap.sim.building import make_building
 from baromap.sim.record import record_run
 
 
@@ -43,6 +44,8 @@ def test_build_maps_files_and_model(short_run: Path, tmp_path: Path) -> None:
     floors = building["floors"]
     assert [f["index"] for f in floors] == [0, 1, 2]
     assert building["loop_closures"]["cross_floor"] == 0
+    # the car is matched across the rides: that is what joins the floors
+    assert building["loop_closures"]["elevator_car"] > 0
     for f in floors:
         meta = yaml.safe_load((out / f["map"]).read_text())
         image = read_pgm(out / meta["image"])
@@ -50,8 +53,10 @@ def test_build_maps_files_and_model(short_run: Path, tmp_path: Path) -> None:
         assert meta["resolution"] == 0.05
         assert (out / f["png"]).stat().st_size > 0
         assert f["visits"] >= 1 and f["mean_pressure_pa"] > 90_000
-    elevations = [f["elevation_m"] for f in floors]
-    assert elevations == sorted(elevations) and elevations[0] == 0.0
+    # storey heights as the barometer measured them, against the simulated building's
+    true = make_building(3, 3).elevations_m
+    measured = np.diff([f["elevation_m"] for f in floors])
+    np.testing.assert_allclose(measured, np.diff(true), atol=0.3)
     tum = (out / "trajectory.tum").read_text().splitlines()
     assert len(tum) == building["scans"]
     assert len(tum[0].split()) == 8
@@ -94,16 +99,18 @@ def test_relation_metric_reproduces_gmappings_published_score(shared_data: Path)
 
 
 def test_intel_relations_beat_gmapping(shared_data: Path) -> None:
-    report = intel_relations(shared_data / "laser", seed=4)
-    assert report.slam.used == 92
-    assert report.slam.trans_mean <= 0.036
-    assert report.slam.rot_mean <= 0.6
+    """The full Intel log from odometry 5 % too long and drifting 2 deg/m: the relations come
+    out better than GMapping's own 0.036 m / 0.51 deg (the bench holds the 0.025 m bar over
+    five seeds)."""
+    report = run_log(shared_data / "laser", "intel", seed=4)
+    relations, odometry = report.slam_relations, report.odometry_relations
+    assert relations is not None and odometry is not None
+    assert relations.used == 92
+    assert relations.trans_mean <= 0.036
+    assert relations.rot_mean <= 0.51
     # the synthetic odometry really is bad, and SLAM is what fixes it
-    assert report.odometry.trans_mean > 10 * report.slam.trans_mean
-    loops = report.result.loop_edges
-    assert len(loops) > 100
-    assert np.all(np.isfinite(report.result.scan_poses))
-    assert math.isfinite(report.seconds)
+    assert odometry.trans_mean > 10 * relations.trans_mean
+    assert report.odometry_ate.rms_m > 20 * report.slam_ate.rms_m
 
 
 def test_output_path_that_is_a_file_is_one_error_line(

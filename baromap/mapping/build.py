@@ -9,9 +9,14 @@ CLI, the demo, tests and the benchmark produce identical outputs.
 from __future__ import annotations
 
 import math
+import shutil
 import sys
+import threading
+import time
 from collections.abc import Callable
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
+from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -22,8 +27,10 @@ import structlog
 from baromap.errors import ConfigError
 from baromap.mapping import export, figures
 from baromap.mapping.foxglove_maps import write_maps_mcap
+from baromap.mapping.keyframes import motion_spaced
 from baromap.mapping.occupancy import OccupancyGrid, build_grid
 from baromap.mapping.run_data import RunData, load_run
+from baromap.mapping.scans import ScanBlock
 from baromap.mapping.segmentation import Segmentation, segment_run
 from baromap.mapping.slam import BETWEEN_FLOORS, SlamConfig, SlamResult, run_slam
 
@@ -43,6 +50,8 @@ class BuildResult:
 
     @property
     def cross_floor_closures(self) -> int:
+        """Loop closures between keyframes the barometer put on different floors (none by
+        construction: only the elevator car is matched across floors, see car_edges)."""
         kf_floor = self.segmentation.scan_floor[self.slam.keyframes]
         return sum(1 for i, j in self.slam.loop_edges if kf_floor[i] != kf_floor[j])
 
@@ -71,9 +80,21 @@ def map_floors(
     progress: bool = False,
 ) -> tuple[SlamResult, dict[int, OccupancyGrid]]:
     """SLAM over the run and one grid per floor, in one frame."""
+    slam = _slam(run, segmentation, config, progress)
+    grids: dict[int, OccupancyGrid] = {}
+    for info in segmentation.floors:
+        job = _grid_job(run, segmentation, slam, info.index, resolution=resolution, config=config)
+        if job is not None:
+            grids[info.index] = floor_grid(*job)
+    return slam, grids
+
+
+def _slam(
+    run: RunData, segmentation: Segmentation, config: SlamConfig | None, progress: bool
+) -> SlamResult:
     update, bar = _progress_bar(len(run.scans), progress)
     try:
-        slam = run_slam(
+        return run_slam(
             run.scans,
             run.odom,
             segmentation.scan_floor,
@@ -84,20 +105,33 @@ def map_floors(
     finally:
         if bar is not None:
             bar.close()
-    grids: dict[int, OccupancyGrid] = {}
+
+
+def floor_grid(
+    scans: ScanBlock, poses: FloatArray, resolution: float, max_range_m: float
+) -> OccupancyGrid:
+    """The grid of one floor from its scans (all of them) at their corrected poses."""
+    return build_grid(
+        scans, np.arange(len(scans)), poses, resolution=resolution, max_range_m=max_range_m
+    )
+
+
+def _grid_job(
+    run: RunData,
+    segmentation: Segmentation,
+    slam: SlamResult,
+    floor: int,
+    *,
+    resolution: float,
+    config: SlamConfig | None,
+) -> tuple[ScanBlock, FloatArray, float, float] | None:
+    """What :func:`floor_grid` needs for one floor, small enough to hand to another process:
+    only that floor's grid scans."""
+    chosen = grid_scans(slam.scan_poses, segmentation.scan_floor == floor)
+    if len(chosen) == 0:
+        return None
     max_range = (config or SlamConfig()).max_range_m
-    for info in segmentation.floors:
-        scans = grid_scans(slam.scan_poses, segmentation.scan_floor == info.index)
-        if len(scans) == 0:
-            continue
-        grids[info.index] = build_grid(
-            run.scans,
-            scans,
-            slam.scan_poses[scans],
-            resolution=resolution,
-            max_range_m=max_range,
-        )
-    return slam, grids
+    return run.scans.subset(chosen), slam.scan_poses[chosen], resolution, max_range
 
 
 #: Scans inserted into a grid are at least this far apart (in the corrected trajectory).
@@ -115,23 +149,11 @@ def grid_scans(
 
     Keyframes alone leave cells far from the path crossed by one or two beams, too little
     evidence to call them free; every scan would repeat the same evidence ten times over a
-    standing robot. Scans between keyframes have poses good to a centimetre (odometry over a
-    few centimetres from a corrected keyframe), so a denser, motion-spaced subset is used.
+    standing robot. Every scan has a corrected pose (matched against the finished map), so a
+    denser, motion-spaced subset is used.
     """
-    chosen: list[int] = []
-    last: FloatArray | None = None
-    for s in np.nonzero(on_floor)[0]:
-        p = poses[s]
-        if last is None:
-            chosen.append(int(s))
-            last = p
-            continue
-        d = math.hypot(p[0] - last[0], p[1] - last[1])
-        turn = abs(math.remainder(p[2] - last[2], math.tau))
-        if d >= min_m or turn >= min_rad:
-            chosen.append(int(s))
-            last = p
-    return np.array(chosen, dtype=np.int64)
+    group = np.where(on_floor, 0, -1)
+    return motion_spaced(poses, group, min_m, min_rad, last_of_group=False)
 
 
 def build_maps(
@@ -144,47 +166,120 @@ def build_maps(
     config: SlamConfig | None = None,
 ) -> BuildResult:
     """Run the whole pipeline and write every output file into ``out_dir``."""
-    import time
-
     if not 0.005 <= resolution <= 1.0:
         raise ConfigError(f"resolution {resolution} m is outside 0.005..1")
     out = Path(out_dir)
+    created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:  # a file of that name, no permission
         raise ConfigError(f"cannot use {out} as the output directory: {exc}") from exc
+    try:
+        return _build(
+            Path(recording),
+            out,
+            resolution=resolution,
+            method=method,
+            progress=progress,
+            config=config,
+        )
+    except BaseException:
+        # a failed build leaves nothing behind where there was nothing before
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
+def _build(
+    recording: Path,
+    out: Path,
+    *,
+    resolution: float,
+    method: str,
+    progress: bool,
+    config: SlamConfig | None,
+) -> BuildResult:
     timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    run = load_run(recording)
-    timings["load"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    segmentation = segment_run(
-        run.scans.t_ns,
-        run.pressure_t_ns,
-        run.pressure_pa,
-        run.temperature_c,
-        method=method,
-        reference=(run.reference_t_ns, run.reference_pa) if len(run.reference_t_ns) else None,
-    )
-    timings["segmentation"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    slam, grids = map_floors(
-        run, segmentation, config=config, resolution=resolution, progress=progress
-    )
-    timings["slam_and_grids"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    result = BuildResult(run, segmentation, slam, grids, timings_s=timings)
-    result.files = write_outputs(result, Path(recording), out)
-    timings["outputs"] = time.perf_counter() - t0
+    with _Painter() as painter:
+        t0 = time.perf_counter()
+        run = load_run(recording)
+        timings["load"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        segmentation = segment_run(
+            run.scans.t_ns,
+            run.pressure_t_ns,
+            run.pressure_pa,
+            run.temperature_c,
+            method=method,
+            reference=(run.reference_t_ns, run.reference_pa) if len(run.reference_t_ns) else None,
+        )
+        timings["segmentation"] = time.perf_counter() - t0
+        # the pressure figure needs nothing the SLAM makes: drawn while it runs
+        pressure_png = out / "pressure.png"
+        painter.submit(figures.pressure_figure, pressure_png, **_pressure_args(run, segmentation))
+        t0 = time.perf_counter()
+        slam = _slam(run, segmentation, config, progress)
+        timings["slam"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        result = BuildResult(run, segmentation, slam, {}, timings_s=timings)
+        result.files = write_outputs(
+            result, recording, out, painter, resolution=resolution, config=config
+        )
+        result.files.append(pressure_png)
+        painter.wait()
+        timings["grids_and_outputs"] = time.perf_counter() - t0
     log.info(
         "maps built",
-        floors=len(grids),
+        floors=len(result.grids),
         keyframes=len(slam.keyframes),
         loops=len(slam.loop_edges),
-        cross_floor_loops=result.cross_floor_closures,
+        car_closures=len(slam.car_edges),
         **{f"t_{k}": round(v, 2) for k, v in timings.items()},
     )
     return result
+
+
+class _Painter:
+    """A second process for the figures and half the floors' grids, so a build uses both
+    cores of a small robot computer: matplotlib and ray casting run beside the SLAM and the
+    rest of the outputs. Forked at the start, before the recording is read, so matplotlib
+    loads while the recording does. A process that runs other threads (a daemon, a live
+    publisher) is not forked, since a fork copies their locks in whatever state they are:
+    then, and where no process can be started, it paints in this one."""
+
+    def __init__(self) -> None:
+        self._pool: ProcessPoolExecutor | None = None
+        self._jobs: list[Future[Any]] = []
+
+    def __enter__(self) -> _Painter:
+        if threading.active_count() > 1:
+            return self
+        try:
+            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=get_context("fork"))
+            self._jobs.append(self._pool.submit(figures.warm_up))
+        except (OSError, RuntimeError, ValueError) as exc:  # no processes: paint in this one
+            log.warning("outputs drawn in one process", error=str(exc))
+            self._pool = None
+        return self
+
+    def submit(self, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Future[Any]:
+        if self._pool is None:
+            done: Future[Any] = Future()
+            done.set_result(fn(*args, **kwargs))
+            return done
+        job = self._pool.submit(fn, *args, **kwargs)
+        self._jobs.append(job)
+        return job
+
+    def wait(self) -> None:
+        """Every job done; the first failure raised here."""
+        for job in self._jobs:
+            job.result()
+        self._jobs.clear()
+
+    def __exit__(self, *exc: object) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
 
 
 def scan_elevations(result: BuildResult) -> FloatArray:
@@ -200,9 +295,32 @@ def scan_elevations(result: BuildResult) -> FloatArray:
     return out
 
 
-def write_outputs(result: BuildResult, recording: Path, out: Path) -> list[Path]:
+def write_outputs(
+    result: BuildResult,
+    recording: Path,
+    out: Path,
+    painter: _Painter,
+    *,
+    resolution: float,
+    config: SlamConfig | None,
+) -> list[Path]:
+    """Grids and every file but pressure.png; half the floors' grids and all figures in the
+    painter. Fills ``result.grids``."""
     seg = result.segmentation
     files: list[Path] = []
+    jobs = {}
+    for n, info in enumerate(seg.floors):
+        job = _grid_job(
+            result.run, seg, result.slam, info.index, resolution=resolution, config=config
+        )
+        if job is None:
+            continue
+        if n % 2 == 0:
+            jobs[info.index] = painter.submit(floor_grid, *job)
+        else:
+            result.grids[info.index] = floor_grid(*job)
+    for index, future in jobs.items():
+        result.grids[index] = future.result()
     floor_entries = []
     kf_floor = seg.scan_floor[result.slam.keyframes]
     for info in seg.floors:
@@ -217,12 +335,25 @@ def write_outputs(result: BuildResult, recording: Path, out: Path) -> list[Path]
         }
         if grid is not None:
             stem = f"floor_{info.index}"
-            pgm, yml = export.write_map_server(grid, out, stem)
             png = out / f"{stem}.png"
-            export.write_png(grid, png, f"floor {info.index} ({info.elevation_m:+.2f} m)")
+            painter.submit(
+                export.write_png, grid, png, f"floor {info.index} ({info.elevation_m:+.2f} m)"
+            )
+            pgm, yml = export.write_map_server(grid, out, stem)
             files += [pgm, yml, png]
             entry.update({"map": yml.name, "image": pgm.name, "png": png.name})
         floor_entries.append(entry)
+    order = [f for f in seg.floors if f.index in result.grids]
+    building_png = out / "building.png"
+    painter.submit(
+        figures.building_figure,
+        building_png,
+        [result.grids[f.index] for f in order],
+        [f.elevation_m for f in order],
+        [result.slam.scan_poses[seg.scan_floor == f.index, :2] for f in order],
+        [f"floor {f.index}" for f in order],
+    )
+    files.append(building_png)
     z = scan_elevations(result)
     tum = out / "trajectory.tum"
     export.write_tum(tum, result.run.scans.t_ns, result.slam.scan_poses, z)
@@ -230,12 +361,13 @@ def write_outputs(result: BuildResult, recording: Path, out: Path) -> list[Path]
     building = {
         "source": str(recording),
         "frame": "one frame for all floors: the robot's start pose on its first floor",
-        "resolution_m": next(iter(result.grids.values())).resolution if result.grids else None,
+        "resolution_m": resolution,
         "segmentation": seg.source,
         "floors": floor_entries,
         "loop_closures": {
-            "total": len(result.slam.loop_edges),
+            "within_floors": len(result.slam.loop_edges),
             "cross_floor": result.cross_floor_closures,
+            "elevator_car": len(result.slam.car_edges),
         },
         "keyframes": len(result.slam.keyframes),
         "scans": len(result.run.scans),
@@ -243,80 +375,63 @@ def write_outputs(result: BuildResult, recording: Path, out: Path) -> list[Path]
     building_yaml = out / "building.yaml"
     export.write_building_yaml(building_yaml, building)
     files.append(building_yaml)
-    files.append(_write_pressure_png(result, out / "pressure.png"))
-    order = [f for f in seg.floors if f.index in result.grids]
-    paths = [result.slam.scan_poses[seg.scan_floor == f.index, :2] for f in order]
-    building_png = out / "building.png"
-    figures.building_figure(
-        building_png,
-        [result.grids[f.index] for f in order],
-        [f.elevation_m for f in order],
-        paths,
-        [f"floor {f.index}" for f in order],
-    )
-    files.append(building_png)
     maps = out / "maps.mcap"
     write_maps_mcap(
         maps,
-        int(result.run.scans.t_ns[-1]),
+        int(result.run.scans.t_ns[0]),
         floors=[f.index for f in order],
         grids=[result.grids[f.index] for f in order],
         elevations_m=[f.elevation_m for f in order],
         scan_poses=result.slam.scan_poses,
         scan_z_m=z,
         scan_floor=np.where(seg.scan_floor == BETWEEN_FLOORS, -1, seg.scan_floor),
+        scan_t_ns=result.run.scans.t_ns,
+        odom=result.run.odom,
+        transform_at=result.slam.keyframes,
     )
     files.append(maps)
     return files
 
 
-def _write_pressure_png(result: BuildResult, path: Path) -> Path:
-    run = result.run
-    det = result.segmentation.detection
+def _pressure_args(run: RunData, segmentation: Segmentation) -> dict[str, Any]:
+    """What figures.pressure_figure draws for a run (all arrays: cheap to send)."""
+    det = segmentation.detection
     if len(run.pressure_t_ns) == 0:
         t = run.scans.t_ns
-        figures.pressure_figure(
-            path,
-            (t - t[0]) / 1e9,
-            np.full(len(t), np.nan),
-            smoothed_pa=None,
-            rate_pa_per_s=None,
-            transitions=[],
-        )
-        return path
+        return {
+            "t_s": (t - t[0]) / 1e9,
+            "raw_pa": np.full(len(t), np.nan),
+            "smoothed_pa": None,
+            "rate_pa_per_s": None,
+            "transitions": [],
+        }
     t0 = run.pressure_t_ns[0]
-    t_s = (run.pressure_t_ns - t0) / 1e9
-    smoothed = rate = threshold = series_t_s = None
-    transitions: list[figures.Transition] = []
-    if det is not None:
-        smoothed = np.asarray(det.smoothed_pa, dtype=np.float64)
-        rate = np.asarray(det.rate_pa_per_s, dtype=np.float64)
-        series_t_s = (det.t_ns - t0) / 1e9
-        threshold = det.threshold_pa_per_s
-        for tr in det.transitions:
-            transitions.append(
-                figures.Transition(
-                    (tr.t_start_ns - t0) / 1e9,
-                    (tr.t_end_ns - t0) / 1e9,
-                    f"{tr.from_floor}\u2192{tr.to_floor}",
-                )
-            )
-    figures.pressure_figure(
-        path,
-        t_s,
-        run.pressure_pa,
-        smoothed_pa=smoothed,
-        rate_pa_per_s=rate,
-        transitions=transitions,
-        threshold_pa_per_s=threshold,
-        series_t_s=series_t_s,
-        smoothed_label=(
+    args: dict[str, Any] = {
+        "t_s": (run.pressure_t_ns - t0) / 1e9,
+        "raw_pa": run.pressure_pa,
+        "smoothed_pa": None,
+        "rate_pa_per_s": None,
+        "transitions": [],
+        "smoothed_label": (
             "smoothed, weather removed with the reference station"
             if len(run.reference_t_ns)
             else "smoothed"
         ),
-    )
-    return path
+    }
+    if det is not None:
+        args["smoothed_pa"] = np.asarray(det.smoothed_pa, dtype=np.float64)
+        args["rate_pa_per_s"] = np.asarray(det.rate_pa_per_s, dtype=np.float64)
+        args["series_t_s"] = (det.t_ns - t0) / 1e9
+        args["threshold_pa_per_s"] = det.threshold_pa_per_s
+        args["transitions"] = [
+            figures.Transition(
+                (tr.t_start_ns - t0) / 1e9,
+                (tr.t_end_ns - t0) / 1e9,
+                f"{tr.from_floor}\u2192{tr.to_floor}",
+            )
+            for tr in det.transitions
+        ]
+    return args
 
 
 def summary_lines(result: BuildResult, out: Path) -> list[str]:
@@ -333,7 +448,8 @@ def summary_lines(result: BuildResult, out: Path) -> list[str]:
     slam = result.slam
     lines.append(
         f"  {len(result.run.scans)} scans, {len(slam.keyframes)} keyframes, "
-        f"{len(slam.loop_edges)} loop closures ({result.cross_floor_closures} across floors)"
+        f"{len(slam.loop_edges)} loop closures within floors, "
+        f"{len(slam.car_edges)} between the elevator car at different rides"
     )
     total = sum(result.timings_s.values())
     lines.append(

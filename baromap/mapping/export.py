@@ -41,26 +41,17 @@ def write_pgm(path: Path, image: npt.NDArray[np.uint8]) -> None:
 
 
 def read_pgm(path: Path) -> npt.NDArray[np.uint8]:
-    """Read a binary PGM (for tests and tools that check what we wrote)."""
-    data = Path(path).read_bytes()
-    fields: list[bytes] = []
-    pos = 0
-    while len(fields) < 4:
-        while pos < len(data) and data[pos : pos + 1].isspace():
-            pos += 1
-        if data[pos : pos + 1] == b"#":
-            pos = data.index(b"\n", pos) + 1
-            continue
-        end = pos
-        while end < len(data) and not data[end : end + 1].isspace():
-            end += 1
-        fields.append(data[pos:end])
-        pos = end
-    if fields[0] != b"P5" or int(fields[3]) > 255:
-        raise InputFormatError(f"{path}: not an 8-bit binary PGM")
-    w, h = int(fields[1]), int(fields[2])
-    pixels = np.frombuffer(data, dtype=np.uint8, count=w * h, offset=pos + 1)
-    return pixels.reshape(h, w)
+    """Read an 8-bit PGM (for tests and tools that check what we wrote), with Pillow."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            if image.format != "PPM" or image.mode != "L":
+                raise InputFormatError(f"{path}: not an 8-bit greyscale PGM")
+            pixels: npt.NDArray[np.uint8] = np.asarray(image, dtype=np.uint8)
+    except (OSError, UnidentifiedImageError) as exc:
+        raise InputFormatError(f"cannot read {path}: {exc}") from exc
+    return pixels
 
 
 def write_map_server(grid: OccupancyGrid, directory: Path, stem: str) -> tuple[Path, Path]:
@@ -98,7 +89,15 @@ def write_png(grid: OccupancyGrid, path: Path, title: str | None = None) -> None
     scale = max(w, h) * grid.resolution
     size = min(12.0, max(5.0, scale / 4))
     fig, ax = plt.subplots(figsize=(size, size * h / max(w, 1) + 0.6))
-    ax.imshow(map_image(grid), cmap="gray", vmin=0, vmax=255, extent=extent, origin="upper")
+    ax.imshow(
+        map_image(grid),
+        cmap="gray",
+        vmin=0,
+        vmax=255,
+        extent=extent,
+        origin="upper",
+        interpolation="nearest",  # a map's cells, not a photograph to smooth
+    )
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     if title:

@@ -31,6 +31,16 @@ class Transition:
     label: str
 
 
+def warm_up() -> None:
+    """Load matplotlib and its fonts (a second or so, once per process) before a figure is
+    asked for: a process drawing beside the SLAM does it while the SLAM runs."""
+    plt = _pyplot()
+    fig, ax = plt.subplots()
+    ax.set_title("warm-up \u2192")
+    fig.canvas.draw()
+    plt.close(fig)
+
+
 def _pyplot() -> Any:
     import matplotlib
 

@@ -6,6 +6,13 @@ corrected path is a ``PosesInFrame`` on ``/path`` (all floors, z = floor elevati
 floor on ``/path/floor_<k>``. Cell values are occupancy percentages (0-100, 255 unknown), the
 convention of ROS ``OccupancyGrid`` that Foxglove's "map" colour mode expects when the field is
 read as int8 (-1 unknown).
+
+``/tf`` carries ``map -> odom`` over the run (``foxglove.FrameTransform``): the SLAM's
+correction of odometry, ``corrected pose (+) odometry pose^-1``, lifted to the floor's
+elevation. Opened together with the run's recording (``odom -> base_link`` on its ``/tf``,
+``base_link -> laser`` on ``/tf_static``), the scans, the robot and the maps overlay in one
+frame tree: ``laser -> base_link -> odom -> map``. One transform per keyframe (a few per
+second of driving); Foxglove interpolates between them.
 """
 
 from __future__ import annotations
@@ -17,10 +24,12 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from baromap.mapping import se2
 from baromap.mapping.occupancy import OccupancyGrid
+from baromap.recording import topics
 
 FloatArray = npt.NDArray[np.float64]
-FRAME = "map"
+FRAME = topics.MAP_FRAME
 
 
 def occupancy_int8(grid: OccupancyGrid) -> npt.NDArray[np.int8]:
@@ -40,10 +49,16 @@ def write_maps_mcap(
     scan_poses: FloatArray,
     scan_z_m: FloatArray,
     scan_floor: npt.NDArray[np.int64],
+    scan_t_ns: npt.NDArray[np.int64],
+    odom: FloatArray,
+    transform_at: npt.NDArray[np.int64],
 ) -> None:
+    """``t_ns``: when the maps and paths are stamped (the run's start, so a player shows them
+    from the first instant on); ``transform_at``: the scans whose map -> odom is written."""
     import foxglove
-    from foxglove.channels import GridChannel, PosesInFrameChannel
+    from foxglove.channels import FrameTransformChannel, GridChannel, PosesInFrameChannel
     from foxglove.messages import (
+        FrameTransform,
         Grid,
         PackedElementField,
         PackedElementFieldNumericType,
@@ -59,11 +74,11 @@ def write_maps_mcap(
         sec, nsec = divmod(int(t), 1_000_000_000)
         return Timestamp(sec=sec, nsec=nsec)
 
+    def yaw(theta: float) -> Quaternion:
+        return Quaternion(x=0.0, y=0.0, z=math.sin(theta / 2), w=math.cos(theta / 2))
+
     def pose(x: float, y: float, z: float, theta: float) -> Pose:
-        return Pose(
-            position=Vector3(x=x, y=y, z=z),
-            orientation=Quaternion(x=0.0, y=0.0, z=math.sin(theta / 2), w=math.cos(theta / 2)),
-        )
+        return Pose(position=Vector3(x=x, y=y, z=z), orientation=yaw(theta))
 
     context = foxglove.Context()
     writer = foxglove.open_mcap(str(path), allow_overwrite=True, context=context)
@@ -116,6 +131,20 @@ def write_maps_mcap(
                     ],
                 ),
                 log_time=t_ns,
+            )
+        tf = FrameTransformChannel(topics.TF, context=context)
+        correction = se2.compose(scan_poses[transform_at], se2.inverse(odom[transform_at]))
+        for k, (x, y, theta) in zip(transform_at, correction, strict=True):
+            t = int(scan_t_ns[k])
+            tf.log(
+                FrameTransform(
+                    timestamp=stamp(t),
+                    parent_frame_id=topics.MAP_FRAME,
+                    child_frame_id=topics.ODOM_FRAME,
+                    translation=Vector3(x=float(x), y=float(y), z=float(scan_z_m[k])),
+                    rotation=yaw(float(theta)),
+                ),
+                log_time=t,
             )
     finally:
         writer.close()

@@ -1,7 +1,7 @@
 """Occupancy grids: log odds accumulated by casting every beam through the grid.
 
 Casting one beam at a time (Bresenham in Python) is far too slow for a 46-minute run, so the
-free part of every beam is sampled at a fraction of a cell along the ray, all beams of a batch
+free part of every beam is sampled once per cell length along the ray, all beams of a batch
 of scans at once, and the samples are counted per cell with ``np.bincount``; the endpoint cells
 are counted as hits the same way. The counts turn into clamped log odds at the end. A sample
 stops half a cell short of the endpoint so a beam never clears the wall it hit.
@@ -99,7 +99,7 @@ def build_grid(
     h = math.ceil((by1 + margin_m - y0) / resolution)
     hits = np.zeros(h * w, dtype=np.int64)
     misses = np.zeros(h * w, dtype=np.int64)
-    step = 0.5 * resolution
+    step = resolution
     for start in range(0, len(indices), batch):
         idx = indices[start : start + batch]
         laser = se2.compose(poses[start : start + batch], scans.laser_offset[None, :])
@@ -133,7 +133,7 @@ def build_grid(
         ri = np.floor((fy - y0) / resolution).astype(np.int64)
         inside = (ci >= 0) & (ci < w) & (ri >= 0) & (ri < h)
         misses += np.bincount(ri[inside] * w + ci[inside], minlength=h * w)
-    log_odds = np.clip(hits * L_HIT + misses * L_MISS / 2.0, -L_CLAMP, L_CLAMP)
+    log_odds = np.clip(hits * L_HIT + misses * L_MISS, -L_CLAMP, L_CLAMP)
     return OccupancyGrid(
         log_odds=log_odds.reshape(h, w).astype(np.float32),
         origin_xy=(x0, y0),

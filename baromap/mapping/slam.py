@@ -1,41 +1,53 @@
 """Floor-aware graph SLAM over a whole run.
 
-Keyframes: every ``keyframe_m`` metres or ``keyframe_rad`` of odometric motion, plus the first
+Keyframes: every ``keyframe_m`` metres or ``keyframe_deg`` of odometric motion, plus the first
 and last scan of every floor visit (the robot in the elevator car, before and after a ride).
 
-Front end: each keyframe is matched against a local submap of the previous keyframes of the
-same visit, with odometry as a soft prior (so a featureless corridor cannot make it slide).
-Both the odometry and the match enter the pose graph, the match with the information of its
-own fit (weak along a corridor, strong across it).
+Front end: each keyframe is matched against the submap it is driving through (the last 20 to
+40 keyframes of the visit fused into one likelihood field, :mod:`baromap.mapping.submaps`),
+with odometry as a soft prior so a featureless corridor cannot make it slide. The search
+window follows the motion since the last keyframe: what odometry can have got wrong over it,
+so a sparse log's metre-long steps and 80-degree turns get a wide coarse-to-fine search and a
+dense log's centimetre steps a narrow one. A match that a clearly different pose explains
+almost as well (a door further along, the room turned) is ambiguous and refused: odometry
+alone carries that step. Both odometry and the match enter the pose graph, the match with the
+information of its own fit (weak along a corridor, strong across it).
 
-Loop closures: each keyframe looks for keyframes of the *same floor* (the barometer's
-verdict) that are near in the current estimate but outside its submap, and matches against
-the submap around the nearest with a wide multi-resolution search; ambiguous matches and
-corrections larger than the drift the front end can have accumulated are refused, and
-accepted closures carry a Cauchy kernel. Different floors never close against each other:
-stacked floors can look identical, and only the barometer tells them apart.
+Loop closures: each keyframe looks for finished submaps of the *same floor* (the barometer's
+verdict) that it sees from near where they were built, and matches against each with a
+window as wide as the front end can have drifted since it was last tied to the map (the path
+since the submap, or since the last closure, whichever is shorter). Ambiguous matches and
+corrections larger than that drift are refused, and accepted closures carry a Cauchy kernel,
+so the few wrong ones that pass cannot bend the map. Different floors never close against
+each other: stacked floors can look identical, and only the barometer tells them apart.
 
-Floors: the ride joins two floors through odometry, refined by matching the closed car before
-and after the ride (the car travels with the robot, so this is not a closure between floors);
-a visit that starts and ends in the car is closed car-to-car. Together they keep all floors
-in one frame, aligned at the lobby.
+Floors: the elevator car, the one place seen on every floor, joins them. The car travels with
+the robot and stands in the same shaft on every floor, so every pair of car keyframes (the
+closed car, before and after each ride, from any floor) is matched; together these keep all
+floors in one frame. The graph is solved when a closure disagrees with it (a correction that
+moves the map), not after every keyframe.
 
-Scans that are not keyframes get the pose of the nearest keyframe composed with the odometry
-motion between them: within a keyframe spacing odometry is good to a centimetre or two.
+Scans that are not keyframes get the corrected pose of the keyframes around them: odometry
+between the two, with the correction the graph made to that stretch spread along it.
 """
 
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 import numpy.typing as npt
 import structlog
 
+from baromap.errors import ConfigError
 from baromap.mapping import se2
+from baromap.mapping.errors import MappingError
+from baromap.mapping.keyframes import motion_spaced
 from baromap.mapping.pose_graph import Edge, PoseGraph
+from baromap.mapping.refine import Pull, concatenate, refine_batch
 from baromap.mapping.scan_matcher import (
     LikelihoodField,
     MatchResult,
@@ -44,6 +56,7 @@ from baromap.mapping.scan_matcher import (
     match,
 )
 from baromap.mapping.scans import ScanBlock, voxel_filter
+from baromap.mapping.submaps import Submap, SubmapCache
 
 log = structlog.get_logger(__name__)
 
@@ -56,66 +69,145 @@ BETWEEN_FLOORS = -1
 
 @dataclass(frozen=True, slots=True)
 class SlamConfig:
-    keyframe_m: float = 0.3
-    keyframe_rad: float = math.radians(15.0)
+    """What the SLAM assumes about the robot, its sensors and its own drift.
+
+    Every setting is a property of the world (how far apart keyframes are, how good the
+    odometry is, how far the front end drifts per metre) that can be set by reasoning about a
+    robot, not a knob to tune against one log. The matcher's inner constants are module
+    constants below, with the reasons for their values.
+    """
+
+    #: a keyframe every this much travel or turn: well inside what one scan overlaps (the
+    #: scans between keyframes are placed on the finished map at the end)
+    keyframe_m: float = 0.5
+    keyframe_deg: float = 25.0
+    #: beams beyond this are ignored: a far return is one grazing point, more noise than shape
     max_range_m: float = 20.0
-    voxel_m: float = 0.05
+    #: cell of the likelihood fields and of the scan's voxel filter; also the field's sigma
     resolution_m: float = 0.05
-    sigma_m: float = 0.05
-    submap_keyframes: int = 20
-    front_window: SearchWindow = field(
-        default_factory=lambda: SearchWindow(
-            linear_m=0.3, angular_rad=math.radians(6.0), angle_step_rad=math.radians(0.5)
-        )
-    )
-    front_min_score: float = 0.3
-    #: a match's Gauss-Newton covariance is inflated by this factor (scan points are not
-    #: independent) and floored by these sigmas before it becomes an edge
-    match_cov_scale: float = 4.0
-    match_sigma_xy: float = 0.01
-    match_sigma_theta: float = math.radians(0.2)
-    odom_sigma_xy_per_m: float = 0.1
-    odom_sigma_theta_per_m: float = math.radians(5.0)
-    #: wheel odometry of a skid-steer base misjudges turns in place by several percent,
-    #: systematically, so its rotation counts for little against a scan match
-    odom_sigma_theta_per_rad: float = 0.1
-    loop_every: int = 1
+    #: a submap takes keyframes over this much travel, as the newer of the two being built,
+    #: and as much again as the older one the front end matches against (see submaps.py):
+    #: short enough that the front end's drift inside it is below a cell
+    submap_m: float = 5.0
+    #: odometry's error per step: sigma of position per metre driven, of heading per metre
+    #: driven and per radian turned. Wheel odometry misjudges distance by a few percent and
+    #: drifts in heading by a degree or two per metre; a skid-steer base misjudges turns in
+    #: place by several percent, systematically. These are worse than a P3-AT (1-2 %, under
+    #: a degree per metre, 1-4 % of a turn) to cover the public logs' error model too (5 %,
+    #: 2 deg/m). The front end searches three sigmas around odometry.
+    odometry_sigma_m_per_m: float = 0.07
+    odometry_sigma_deg_per_m: float = 3.0
+    odometry_sigma_per_rad: float = 0.05
+    #: how far the front end (odometry corrected by submap matching) can drift per metre
+    #: driven: it bounds the loop-closure search and the largest correction believed
+    drift_m_per_m: float = 0.1
+    drift_deg_per_m: float = 0.5
+    #: a finished submap is a loop-closure candidate when the keyframe is within this of a
+    #: place it was built from (plus the drift bound)
     loop_radius_m: float = 3.0
-    loop_min_separation: int = 30
-    loop_submap_half: int = 10
-    loop_window: SearchWindow = field(
-        default_factory=lambda: SearchWindow(
-            linear_m=1.5,
-            angular_rad=math.radians(20.0),
-            angle_step_rad=math.radians(1.0),
-            coarse_step_cells=4,
-        )
-    )
+    #: least mean likelihood of a match's points to accept it (front end, loop closure)
+    front_min_score: float = 0.3
     loop_min_score: float = 0.55
-    #: a weak pull of closures towards the current estimate: among equally good corridor
-    #: alignments the one nearest the estimate wins
-    loop_prior_sigma_m: float = 0.5
-    loop_prior_sigma_rad: float = math.radians(5.0)
-    #: a closure is ambiguous (a corridor with evenly spaced doors) when a pose at least
-    #: 0.3 m away scores within this ratio of the best
-    loop_max_ambiguity: float = 0.95
-    #: largest plausible correction by a closure: this much plus this much per metre driven
-    #: between the two keyframes (the front end's drift)
-    loop_max_move_m: float = 0.1
-    loop_max_move_per_m: float = 0.03
-    #: weight of the odometry prior in front-end matching (see scan_matcher.Prior)
-    prior_weight: float = 0.01
-    loop_sigma_xy: float = 0.02
-    loop_sigma_theta: float = math.radians(0.5)
-    #: scans whose 90th-percentile range is shorter than this (the robot inside an elevator
-    #: car) are too small and symmetric for a wide search: the box matches itself turned or
-    #: shifted; they close loops with the narrow front-end window around the estimate instead
-    loop_min_extent_m: float = 2.5
-    #: least score of the car-to-car match across an elevator ride for it to join the floors
-    #: (otherwise odometry alone does)
-    ride_min_score: float = 0.6
-    loop_robust_c: float = 3.0
-    optimize_every: int = 10
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ConfigError(f"SlamConfig.{f.name} must be a number, got {value!r}")
+            if not math.isfinite(value) or value <= 0:
+                raise ConfigError(f"SlamConfig.{f.name} must be positive, got {value!r}")
+        for name in ("front_min_score", "loop_min_score"):
+            if getattr(self, name) >= 1.0:
+                raise ConfigError(f"SlamConfig.{name} is a mean likelihood, below 1")
+        if self.keyframe_deg >= 180.0:
+            raise ConfigError("SlamConfig.keyframe_deg must be below 180")
+        if self.resolution_m > 0.5:
+            raise ConfigError(f"SlamConfig.resolution_m {self.resolution_m} m is over 0.5 m")
+
+    @property
+    def keyframe_rad(self) -> float:
+        return math.radians(self.keyframe_deg)
+
+
+# Inner constants of the matcher and the graph, and why they have these values.
+
+#: The search covers odometry's error to this many sigmas.
+WINDOW_SIGMAS = 3.0
+#: ... but never less than a couple of cells and a degree: the lattice must hold the optimum's
+#: neighbours for the refinement to start from, and never more than what a step can hold.
+MIN_WINDOW_M = 0.1
+MIN_WINDOW_RAD = math.radians(2.0)
+MAX_FRONT_WINDOW_M = 1.5
+MAX_FRONT_WINDOW_RAD = math.radians(45.0)
+#: The lattice's angular step moves a typical point by about one cell, within these limits.
+MIN_ANGLE_STEP_RAD = math.radians(0.25)
+MAX_ANGLE_STEP_RAD = math.radians(1.0)
+#: A window wider than this many cells is searched coarse-to-fine (4-cell coarse lattice).
+COARSE_ABOVE_CELLS = 4
+COARSE_STEP_CELLS = 4
+#: Odometry's floor: even a standing robot's pose is known to about this.
+ODOMETRY_SIGMA_M = 0.02
+ODOMETRY_SIGMA_RAD = math.radians(0.5)
+#: A match's Gauss-Newton covariance is inflated by this factor (scan points are not
+#: independent: neighbouring beams see the same wall) and floored by these sigmas before it
+#: becomes an edge.
+MATCH_COV_SCALE = 4.0
+MATCH_SIGMA_M = 0.01
+MATCH_SIGMA_RAD = math.radians(0.2)
+LOOP_SIGMA_M = 0.02
+LOOP_SIGMA_RAD = math.radians(0.5)
+#: Weight of odometry's pull in matching (see scan_matcher.Prior).
+PRIOR_WEIGHT = 0.01
+#: A loop closure's pull towards the current estimate: among equally good corridor alignments
+#: the one nearest the estimate wins.
+LOOP_PRIOR_SIGMA_M = 0.5
+LOOP_PRIOR_SIGMA_RAD = math.radians(5.0)
+#: A match is ambiguous when a clearly different pose scores within this ratio of the best.
+FRONT_MAX_AMBIGUITY = 0.97
+LOOP_MAX_AMBIGUITY = 0.95
+#: The loop window's floor (the front end is never better tied than this) and ceiling.
+LOOP_BASE_M = 0.1
+LOOP_BASE_RAD = math.radians(1.0)
+LOOP_MAX_M = 2.0
+LOOP_MAX_RAD = math.radians(20.0)
+#: Keyframes closer than this along the run are the front end's business, not a loop.
+LOOP_MIN_SEPARATION = 30
+#: A submap is tried again as a loop target after this much travel, and a keyframe tries at
+#: most this many targets: consecutive keyframes see the same thing, and a closure every
+#: half metre ties a pass to the map as well as one per keyframe does.
+LOOP_RETRY_M = 1.0
+LOOP_TARGETS = 2
+#: Cauchy scale of loop closures, in sigmas.
+LOOP_ROBUST_C = 3.0
+#: Solve the graph when a new closure disagrees with it (squared Mahalanobis error over three
+#: sigmas in each of its three dimensions: the correction would move the map), or when this
+#: many closures wait. The estimate is warm, so a couple of iterations settle it.
+SOLVE_ABOVE_CHI2 = 27.0
+SOLVE_AFTER_LOOPS = 20
+SOLVE_ITERATIONS = 2
+FINAL_ITERATIONS = 30
+#: Scans whose 90th-percentile range is shorter than this (the robot inside the elevator car)
+#: are too small and symmetric for a wide search: the box matches itself turned or shifted.
+#: They are matched with each other, car to car, in a fine field.
+CAR_EXTENT_M = 2.5
+CAR_MIN_POINTS = 30
+CAR_MIN_SCORE = 0.6
+#: How far the car at a ride can be from where the rides' chain of car matches puts it.
+CAR_WINDOW_M = 0.3
+CAR_WINDOW_RAD = math.radians(5.0)
+#: A submap also ends after this many keyframes (a robot turning on the spot).
+SUBMAP_MAX_KEYFRAMES = 30
+#: Memory the fields of finished submaps may hold; beyond it the least recently used are
+#: released and stamped again when a loop closure needs them.
+SUBMAP_MEMORY_BYTES = 256 * 2**20
+#: Scans between keyframes are matched against the finished map with this many beams.
+REGISTER_BEAMS = 60
+#: Fewest points a scan must keep to be matched at all.
+MIN_POINTS = 10
+#: Between keyframes a radian of turn counts as this much travel when the correction the
+#: graph made is spread along the stretch (a turn in place is where odometry errs most).
+TURN_AS_M = 0.5
+REFINE_PASSES = 3
 
 
 @dataclass(slots=True)
@@ -125,100 +217,58 @@ class SlamResult:
     scan_poses: FloatArray  # (S, 3), every scan
     graph: PoseGraph
     loop_edges: list[tuple[int, int]] = field(default_factory=list)  # keyframe ids
+    #: closures between the closed elevator car at different rides (any floors)
+    car_edges: list[tuple[int, int]] = field(default_factory=list)
     stats: dict[str, float] = field(default_factory=dict)
 
 
 def select_keyframes(
     odom: FloatArray, visit: IntArray, floor: IntArray, config: SlamConfig
 ) -> IntArray:
-    """Scans where the robot has moved enough since the last keyframe of the same visit.
-
-    The first and the last scan of every visit are keyframes too: they are the robot in the
-    elevator car just before and just after a ride, the two scans that join the floors.
-    """
-    chosen: list[int] = []
-    last = -1
-    for s in range(len(odom)):
-        if floor[s] == BETWEEN_FLOORS:
-            continue
-        if last < 0 or visit[s] != visit[last]:
-            if s > 0 and last >= 0 and last != s - 1 and floor[s - 1] != BETWEEN_FLOORS:
-                chosen.append(s - 1)
-            elif last >= 0:
-                prev = s - 1
-                while prev > last and floor[prev] == BETWEEN_FLOORS:
-                    prev -= 1
-                if prev > last:
-                    chosen.append(prev)
-            chosen.append(s)
-            last = s
-            continue
-        d = se2.between(odom[last], odom[s])
-        if math.hypot(d[0], d[1]) >= config.keyframe_m or abs(d[2]) >= config.keyframe_rad:
-            chosen.append(s)
-            last = s
-    return np.array(chosen, dtype=np.int64)
+    """Scans where the robot has moved enough since the last keyframe of the same visit, and
+    the first and last scan of every visit (the car before and after a ride)."""
+    group = np.where(floor == BETWEEN_FLOORS, -1, visit)
+    return motion_spaced(odom, group, config.keyframe_m, config.keyframe_rad, last_of_group=True)
 
 
 class _Keyframes:
-    """Per-keyframe point clouds, filtered once."""
+    """Per-keyframe point clouds, filtered once, and what is known about each."""
 
     def __init__(
         self, scans: ScanBlock, odom: FloatArray, indices: IntArray, config: SlamConfig
     ) -> None:
         self.points = [
-            voxel_filter(scans.endpoints(int(s), config.max_range_m), config.voxel_m)
+            voxel_filter(scans.endpoints(int(s), config.max_range_m), config.resolution_m)
             for s in indices
+        ]
+        #: what fields are stamped with: the surfaces the scan saw, sampled finely
+        self.surfaces = [
+            scans.surface(int(s), config.max_range_m, config.resolution_m / 2) for s in indices
         ]
         steps = np.hypot(*np.diff(odom[indices, :2], axis=0).T) if len(indices) > 1 else []
         self.distance = np.concatenate([[0.0], np.cumsum(steps)])
-        self.extent = np.array(
-            [
-                float(np.percentile(np.hypot(p[:, 0], p[:, 1]), 90)) if len(p) else 0.0
-                for p in self.points
-            ]
-        )
+        ranges = [np.hypot(p[:, 0], p[:, 1]) for p in self.points]
+        self.extent = np.array([float(np.percentile(r, 90)) if len(r) else 0.0 for r in ranges])
+        self.typical_range = np.array([float(np.median(r)) if len(r) else 1.0 for r in ranges])
 
     def path_m(self, a: int, b: int) -> float:
         """Odometric path length between keyframes a and b."""
         return float(abs(self.distance[b] - self.distance[a]))
 
-    def world_points(self, ids: list[int] | IntArray, poses: FloatArray) -> FloatArray:
-        clouds = [se2.transform_points(poses[k], self.points[k]) for k in ids]
-        return np.concatenate(clouds) if clouds else np.zeros((0, 2))
-
-
-def _field_around(
-    points: FloatArray, center: FloatArray, config: SlamConfig, margin: float, fine: bool = False
-) -> LikelihoodField:
-    """Likelihood field of submap points around where the scan can land.
-
-    ``fine`` halves cell and kernel for a small enclosed scan (the elevator car): its walls
-    are a metre away, where a degree of rotation moves points less than a 5 cm cell.
-    """
-    reach = config.max_range_m + margin
-    bounds = (center[0] - reach, center[1] - reach, center[0] + reach, center[1] + reach)
-    if len(points):
-        lo = np.maximum(points.min(axis=0), [bounds[0], bounds[1]])
-        hi = np.minimum(points.max(axis=0), [bounds[2], bounds[3]])
-        bounds = (lo[0], lo[1], max(hi[0], lo[0]), max(hi[1], lo[1]))
-    scale = 0.5 if fine else 1.0
-    return LikelihoodField.from_points(
-        points, config.resolution_m * scale, config.sigma_m * scale, bounds
-    )
+    def in_car(self, k: int) -> bool:
+        """A small enclosed scan: the robot inside the closed elevator car."""
+        return bool(len(self.points[k]) >= CAR_MIN_POINTS and self.extent[k] < CAR_EXTENT_M)
 
 
 def _info(sigma_xy: float, sigma_theta: float) -> FloatArray:
     return np.diag([1 / sigma_xy**2, 1 / sigma_xy**2, 1 / sigma_theta**2])
 
 
-def _match_info(
-    information: FloatArray, scale: float, sigma_xy: float, sigma_theta: float
-) -> FloatArray:
-    """Edge information from a match: inflated GN covariance plus a floor, inverted (world
-    frame; :func:`_rotate_info` takes it into the frame the edge's error is expressed in)."""
+def _match_info(information: FloatArray, sigma_xy: float, sigma_theta: float) -> FloatArray:
+    """Edge information from a match: inflated GN covariance plus a floor, inverted (in the
+    frame the match was made in; :func:`_rotate_info` takes it into the edge's frame)."""
     try:
-        cov = np.linalg.inv(information) * scale
+        cov = np.linalg.inv(information) * MATCH_COV_SCALE
     except np.linalg.LinAlgError:
         cov = np.diag([1.0, 1.0, 1.0])
     cov = cov + np.diag([sigma_xy**2, sigma_xy**2, sigma_theta**2])
@@ -227,12 +277,515 @@ def _match_info(
 
 
 def _rotate_info(info: FloatArray, theta: float) -> FloatArray:
-    """World-frame information in the frame of the matched pose (heading ``theta``), where the
-    pose graph expresses an edge's translational error."""
+    """Information in the frame of the matched pose (heading ``theta`` in the frame the match
+    was made in), where the pose graph expresses an edge's translational error."""
     c, s = math.cos(theta), math.sin(theta)
     rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     out: FloatArray = rot.T @ info @ rot
     return out
+
+
+def _angle_step(typical_range_m: float, resolution: float) -> float:
+    """Lattice rotation step that moves a typical point of the scan by about one cell."""
+    return min(MAX_ANGLE_STEP_RAD, max(MIN_ANGLE_STEP_RAD, resolution / typical_range_m))
+
+
+def _window(linear: float, angular: float, angle_step: float, resolution: float) -> SearchWindow:
+    coarse = COARSE_STEP_CELLS if linear > COARSE_ABOVE_CELLS * resolution else 1
+    return SearchWindow(linear, angular, angle_step, coarse_step_cells=coarse)
+
+
+class _SubmapIndex:
+    """Finished submaps as arrays, so a keyframe finds its loop candidates without a Python
+    loop over hundreds of them: anchor, bounding circle of keyframe positions (anchor frame),
+    floor, last keyframe, and the path length at the last loop attempt against each."""
+
+    def __init__(self) -> None:
+        self.anchor: IntArray = np.zeros(0, dtype=np.int64)
+        self.center: FloatArray = np.zeros((0, 2))
+        self.radius: FloatArray = np.zeros(0)
+        self.floor: IntArray = np.zeros(0, dtype=np.int64)
+        self.last_keyframe: IntArray = np.zeros(0, dtype=np.int64)
+        self.tried_at: FloatArray = np.zeros(0)
+
+    def add(self, sub: Submap) -> None:
+        origins = sub.origins()
+        center = origins.mean(axis=0)
+        radius = float(np.hypot(*(origins - center).T).max())
+        self.anchor = np.append(self.anchor, sub.anchor)
+        self.center = np.vstack([self.center, center])
+        self.radius = np.append(self.radius, radius)
+        self.floor = np.append(self.floor, sub.floor)
+        self.last_keyframe = np.append(self.last_keyframe, sub.keyframes[-1])
+        self.tried_at = np.append(self.tried_at, -np.inf)
+
+
+class _Slam:
+    """The state of one SLAM run, fed one keyframe at a time."""
+
+    def __init__(
+        self,
+        scans: ScanBlock,
+        odom: FloatArray,
+        kf_scan: IntArray,
+        *,
+        kf_floor: IntArray,
+        kf_visit: IntArray,
+        config: SlamConfig,
+    ) -> None:
+        self.config = config
+        self.odom = odom
+        self.kf_scan = kf_scan
+        self.kf_floor = kf_floor
+        self.kf_visit = kf_visit
+        self.clouds = _Keyframes(scans, odom, kf_scan, config)
+        self.graph = PoseGraph()
+        self.active: list[Submap] = []
+        self.finished: list[Submap] = []
+        self.cache = SubmapCache(SUBMAP_MEMORY_BYTES)
+        self.finished_index = _SubmapIndex()
+        self.loops: list[tuple[int, int]] = []
+        self.stats: Counter[str] = Counter()
+        self.visit_start = 0
+        self.last_closure = 0  # keyframe of the last accepted closure (or visit start)
+        self.unsolved: list[int] = []  # loop edges added since the last solve
+        self.car_edges: list[tuple[int, int]] = []
+
+    # ------------------------------------------------------------------ the run
+
+    def add(self, k: int) -> None:
+        graph = self.graph
+        if k == 0:
+            graph.add_node(self.odom[self.kf_scan[0]])
+            self._insert(k)
+            return
+        new_visit = bool(self.kf_visit[k] != self.kf_visit[k - 1])
+        if new_visit:
+            self._end_visit()
+        step = se2.between(self.odom[self.kf_scan[k - 1]], self.odom[self.kf_scan[k]])
+        guess = se2.compose(graph.poses[k - 1], step)
+        graph.add_node(guess)
+        sigma_xy, sigma_theta = self._odometry_sigmas(step)
+        # odometry always enters the graph: along a featureless corridor it is the only
+        # measurement of the motion, and the match edge's information says so
+        graph.add_edge(Edge(k - 1, k, step, _info(sigma_xy, sigma_theta), "odometry"))
+        if new_visit:
+            self.visit_start = k
+            self.last_closure = k
+            self._ride(k, guess, sigma_xy, sigma_theta)
+        else:
+            self._front_end(k, guess, sigma_xy, sigma_theta)
+        self._insert(k)
+        if not self.clouds.in_car(k) and k - self.visit_start >= 1:
+            self._close_loops(k)
+        self._solve_if_needed()
+
+    def finish(self) -> SlamResult:
+        self._end_visit()
+        self._car_to_car()
+        self.graph.optimize(iterations=FINAL_ITERATIONS)
+        for _ in range(REFINE_PASSES):
+            self._refine()
+        self.stats["keyframes"] = len(self.kf_scan)
+        self.stats["loops"] = len(self.loops)
+        self.stats["submaps"] = len(self.finished)
+        self.stats["submap_releases"] = self.cache.releases
+        poses = self.graph.poses.copy()
+        return SlamResult(
+            self.kf_scan,
+            poses,
+            np.zeros((0, 3)),
+            self.graph,
+            self.loops,
+            self.car_edges,
+            {k: float(v) for k, v in self.stats.items()},
+        )
+
+    def _refine(self) -> None:
+        """Each floor's keyframes against the map of the others (see refine.py), as priors in
+        a graph of odometry and the elevator edges; match and loop edges have had their say."""
+        config = self.config
+        poses = self.graph.poses.copy()
+        nodes: list[IntArray] = []
+        measured: list[FloatArray] = []
+        infos: list[FloatArray] = []
+        for floor in np.unique(self.kf_floor):
+            ids = np.flatnonzero(self.kf_floor == floor)
+            for parity in (0, 1):
+                mine, other = ids[ids % 2 == parity], ids[ids % 2 != parity]
+                if len(mine) == 0 or len(other) == 0:
+                    continue
+                world = np.concatenate(
+                    [se2.transform_points(poses[k], self.clouds.surfaces[k]) for k in other]
+                )
+                # passes through one place repeat its points: one per half cell is enough
+                world = voxel_filter(world, config.resolution_m / 2)
+                fld = LikelihoodField.from_points(world, config.resolution_m, config.resolution_m)
+                points, owner = concatenate([self.clouds.points[k] for k in mine])
+                out = refine_batch(fld, points, owner, poses[mine])
+                info = np.array(
+                    [_match_info(h, MATCH_SIGMA_M, MATCH_SIGMA_RAD) for h in out.information]
+                )
+                nodes.append(mine[out.usable])
+                measured.append(out.poses[out.usable])
+                infos.append(info[out.usable])
+        graph = PoseGraph()
+        for pose in poses:
+            graph.add_node(pose)
+        for edge in self.graph.edges:
+            if edge.kind in ("odometry", "ride", "car"):
+                graph.add_edge(edge)
+        if nodes:
+            graph.set_priors(np.concatenate(nodes), np.concatenate(measured), np.concatenate(infos))
+        graph.optimize(iterations=FINAL_ITERATIONS)
+        self.graph = graph
+        self.stats["refined"] = sum(len(n) for n in nodes)
+
+    def register_scans(self, scans: ScanBlock, floor: IntArray) -> FloatArray:
+        """Every scan's pose: keyframes as the graph has them; the scans between them
+        interpolated (:func:`scan_poses`) and then matched against the finished map of their
+        floor, pulled towards the interpolation as odometry would (a corridor cannot make a
+        scan slide). A scan that finds too little of the map keeps its interpolated pose."""
+        config = self.config
+        kf_poses = self.graph.poses
+        poses = scan_poses(self.odom, self.kf_scan, kf_poses)
+        is_kf = np.zeros(len(poses), dtype=bool)
+        is_kf[self.kf_scan] = True
+        # odometric distance of every scan to the nearer keyframe (how much odometry it holds)
+        travelled = np.concatenate(
+            [[0.0], np.cumsum(np.hypot(*np.diff(self.odom[:, :2], axis=0).T))]
+        )
+        kf_travel = travelled[self.kf_scan]
+        pos = np.clip(np.searchsorted(kf_travel, travelled), 1, max(len(kf_travel) - 1, 1))
+        to_kf = np.minimum(
+            np.abs(travelled - kf_travel[pos - 1]),
+            np.abs(kf_travel[np.minimum(pos, len(kf_travel) - 1)] - travelled),
+        )
+        for f in np.unique(self.kf_floor):
+            todo = np.flatnonzero((floor == f) & ~is_kf)
+            if len(todo) == 0:
+                continue
+            ids = np.flatnonzero(self.kf_floor == f)
+            world = np.concatenate(
+                [se2.transform_points(kf_poses[k], self.clouds.surfaces[k]) for k in ids]
+            )
+            fld = LikelihoodField.from_points(
+                voxel_filter(world, config.resolution_m / 2),
+                config.resolution_m,
+                config.resolution_m,
+            )
+            points, owner = scans.sampled_endpoints(todo, config.max_range_m, REGISTER_BEAMS)
+            d = to_kf[todo]
+            pull = Pull(
+                ODOMETRY_SIGMA_M + config.odometry_sigma_m_per_m * d,
+                ODOMETRY_SIGMA_RAD + math.radians(config.odometry_sigma_deg_per_m) * d,
+                PRIOR_WEIGHT,
+            )
+            out = refine_batch(fld, points, owner, poses[todo], pull)
+            poses[todo[out.usable]] = out.poses[out.usable]
+            self.stats["registered"] += int(out.usable.sum())
+        return poses
+
+    def _odometry_sigmas(self, step: FloatArray) -> tuple[float, float]:
+        config = self.config
+        dist = math.hypot(step[0], step[1])
+        sigma_xy = ODOMETRY_SIGMA_M + config.odometry_sigma_m_per_m * dist
+        sigma_theta = (
+            ODOMETRY_SIGMA_RAD
+            + math.radians(config.odometry_sigma_deg_per_m) * dist
+            + config.odometry_sigma_per_rad * abs(step[2])
+        )
+        return sigma_xy, sigma_theta
+
+    # ------------------------------------------------------------------ submaps
+
+    def _insert(self, k: int) -> None:
+        config = self.config
+        newest = self.active[-1] if self.active else None
+        if (
+            newest is None
+            or self.clouds.path_m(newest.anchor, k) >= config.submap_m
+            or len(newest.keyframes) >= SUBMAP_MAX_KEYFRAMES
+        ):
+            self.active.append(
+                Submap(
+                    k,
+                    int(self.kf_floor[k]),
+                    config.resolution_m,
+                    config.resolution_m,
+                    self.clouds.surfaces,
+                )
+            )
+            if len(self.active) > 2:
+                self._finish_submap(self.active.pop(0))
+        poses = self.graph.poses
+        for sub in self.active:
+            sub.insert(k, se2.between(poses[sub.anchor], poses[k]))
+
+    def _finish_submap(self, sub: Submap) -> None:
+        sub.finish()
+        if len(sub.keyframes) >= 2:
+            self.finished.append(sub)
+            self.finished_index.add(sub)
+            self.cache.use(sub)
+
+    def _end_visit(self) -> None:
+        while self.active:
+            self._finish_submap(self.active.pop(0))
+
+    # ------------------------------------------------------------------ front end
+
+    def _front_end(self, k: int, guess: FloatArray, sigma_xy: float, sigma_theta: float) -> None:
+        points = self.clouds.points[k]
+        if len(points) < MIN_POINTS or not self.active:
+            self.stats["front_skipped"] += 1
+            return
+        config = self.config
+        sub = self.active[0]
+        anchor = self.graph.poses[sub.anchor]
+        local_guess = se2.between(anchor, guess)
+        linear = min(MAX_FRONT_WINDOW_M, max(MIN_WINDOW_M, WINDOW_SIGMAS * sigma_xy))
+        angular = min(MAX_FRONT_WINDOW_RAD, max(MIN_WINDOW_RAD, WINDOW_SIGMAS * sigma_theta))
+        window = _window(
+            linear,
+            angular,
+            _angle_step(self.clouds.typical_range[k], config.resolution_m),
+            config.resolution_m,
+        )
+        prior = Prior(local_guess, sigma_xy, sigma_theta, PRIOR_WEIGHT)
+        if self.clouds.extent[k] < CAR_EXTENT_M:
+            # a small enclosure (the elevator car): its walls are a metre away, where a 5 cm
+            # cell blurs a degree of rotation, so it is matched in a field twice as fine made
+            # of what the submap's keyframes saw of it
+            fld = self._fine_field(sub, local_guess)
+            window = SearchWindow(window.linear_m, window.angular_rad, MIN_ANGLE_STEP_RAD)
+            result = match(fld, points, local_guess, window, prior=prior)
+        else:
+            coarse = sub.coarse(window.coarse_step_cells) if window.coarse_step_cells > 1 else None
+            result = match(sub.field, points, local_guess, window, coarse_field=coarse, prior=prior)
+        if result.score < config.front_min_score:
+            self.stats["front_failures"] += 1
+            return
+        if result.runner_up >= FRONT_MAX_AMBIGUITY * result.score:
+            self.stats["front_ambiguous"] += 1
+            return
+        self.graph.poses[k] = se2.compose(anchor, result.pose)
+        edge = self._match_edge(sub.anchor, k, result, kind="match")
+        # the measurement is expressed from the previous keyframe, whose pose the submap
+        # holds as the graph last had it: a solve that bends the run between the anchor and
+        # the previous keyframe then moves this edge with it
+        edge.i = k - 1
+        edge.z = se2.between(se2.between(anchor, self.graph.poses[k - 1]), result.pose)
+        self.graph.add_edge(edge)
+        self.stats["front_matches"] += 1
+
+    def _fine_field(self, sub: Submap, local_guess: FloatArray) -> LikelihoodField:
+        """Half-cell field of the submap's points within reach of a small enclosure."""
+        reach = CAR_EXTENT_M + MAX_FRONT_WINDOW_M
+        clouds = []
+        for k, pose in zip(sub.keyframes, sub.local_poses, strict=True):
+            pts = se2.transform_points(pose, self.clouds.surfaces[k])
+            near = np.hypot(pts[:, 0] - local_guess[0], pts[:, 1] - local_guess[1]) < reach
+            clouds.append(pts[near])
+        res = self.config.resolution_m / 2
+        return LikelihoodField.from_points(np.concatenate(clouds), res, res)
+
+    def _match_edge(self, anchor: int, k: int, result: MatchResult, *, kind: str) -> Edge:
+        """Edge anchor -> k from a match of keyframe k made in the anchor's frame.
+
+        Front-end and car edges are trusted (plain least squares); loop closures get the
+        robust kernel and their own floor sigmas, and can be outvoted.
+        """
+        loop = kind in ("loop", "car")
+        info = _match_info(
+            result.information,
+            LOOP_SIGMA_M if loop else MATCH_SIGMA_M,
+            LOOP_SIGMA_RAD if loop else MATCH_SIGMA_RAD,
+        )
+        return Edge(
+            anchor,
+            k,
+            result.pose.copy(),
+            _rotate_info(info, result.pose[2]),
+            kind,
+            robust_c=LOOP_ROBUST_C if loop else None,
+        )
+
+    # ------------------------------------------------------------------ the car
+
+    def _car_match(self, a: int, b: int, guess_b: FloatArray, window: SearchWindow) -> MatchResult:
+        """Match car keyframe b against car keyframe a, in a's frame, on a fine field: the car's
+        walls are a metre away, where a degree of rotation moves points less than a 5 cm cell."""
+        res = self.config.resolution_m / 2
+        fld = LikelihoodField.from_points(self.clouds.surfaces[a], res, res)
+        local = se2.between(self.graph.poses[a], guess_b)
+        return match(fld, self.clouds.points[b], local, window)
+
+    def _ride(self, k: int, guess: FloatArray, sigma_xy: float, sigma_theta: float) -> None:
+        """The ride: both keyframes see the closed car, which travels with the robot, so
+        matching them measures how the robot moved in the car while the floors changed."""
+        if not (self.clouds.in_car(k - 1) and self.clouds.in_car(k)):
+            return
+        window = SearchWindow(
+            min(MAX_FRONT_WINDOW_M, max(MIN_WINDOW_M, WINDOW_SIGMAS * sigma_xy)),
+            min(MAX_FRONT_WINDOW_RAD, max(MIN_WINDOW_RAD, WINDOW_SIGMAS * sigma_theta)),
+            MIN_ANGLE_STEP_RAD,
+        )
+        result = self._car_match(k - 1, k, guess, window)
+        if result.score >= CAR_MIN_SCORE and result.runner_up < FRONT_MAX_AMBIGUITY * result.score:
+            self.graph.poses[k] = se2.compose(self.graph.poses[k - 1], result.pose)
+            self.graph.add_edge(self._match_edge(k - 1, k, result, kind="ride"))
+            self.stats["ride_matches"] += 1
+
+    def _car_ends(self) -> list[list[int]]:
+        """Keyframes in the closed car at each ride: the end of the visit before and the start
+        of the visit after, one list per ride."""
+        rides = []
+        count = len(self.kf_scan)
+        for k in np.flatnonzero(np.diff(self.kf_visit) != 0) + 1:
+            group = []
+            j = int(k) - 1
+            while j >= 0 and self.kf_visit[j] == self.kf_visit[k - 1] and self.clouds.in_car(j):
+                group.append(j)
+                j -= 1
+            j = int(k)
+            while j < count and self.kf_visit[j] == self.kf_visit[k] and self.clouds.in_car(j):
+                group.append(j)
+                j += 1
+            if group:
+                rides.append(sorted(group))
+        return rides
+
+    def _car_to_car(self) -> None:
+        """The car at every ride against the car at the first: the same car in the same
+        shaft, on whatever floor, so all floors share one frame through it.
+
+        The car's model is made of the car keyframes of the first ride (the robot turning in
+        it sees it from several sides), in the frame of the first of them.
+        """
+        rides = self._car_ends()
+        if len(rides) < 2:
+            return
+        poses = self.graph.poses
+        model, anchor = rides[0], rides[0][0]
+        res = self.config.resolution_m / 2
+        points = np.concatenate(
+            [
+                se2.transform_points(se2.between(poses[anchor], poses[m]), self.clouds.surfaces[m])
+                for m in model
+            ]
+        )
+        fld = LikelihoodField.from_points(points, res, res)
+        coarse = fld.pooled(COARSE_STEP_CELLS)
+        window = SearchWindow(
+            CAR_WINDOW_M, CAR_WINDOW_RAD, MIN_ANGLE_STEP_RAD, coarse_step_cells=COARSE_STEP_CELLS
+        )
+        for ride in rides[1:]:
+            for b in ride:
+                local = se2.between(poses[anchor], poses[b])
+                result = match(fld, self.clouds.points[b], local, window, coarse_field=coarse)
+                if result.score < CAR_MIN_SCORE:
+                    continue
+                if result.runner_up >= LOOP_MAX_AMBIGUITY * result.score:
+                    continue
+                self.graph.add_edge(self._match_edge(anchor, b, result, kind="car"))
+                self.car_edges.append((anchor, b))
+                self.stats["car_closures"] += 1
+
+    # ------------------------------------------------------------------ loops
+
+    def _close_loops(self, k: int) -> None:
+        points = self.clouds.points[k]
+        if len(points) < CAR_MIN_POINTS or not self.finished:
+            return
+        index = self.finished_index
+        poses = self.graph.poses
+        here = poses[k]
+        travelled = float(self.clouds.distance[k])
+        since_closure = self.clouds.path_m(self.last_closure, k)
+        reach = self.config.loop_radius_m + min(
+            LOOP_MAX_M, self.config.drift_m_per_m * since_closure
+        )
+        # a cheap first cut on each submap's bounding circle of keyframe positions
+        anchors = poses[index.anchor]
+        c, s = np.cos(anchors[:, 2]), np.sin(anchors[:, 2])
+        cx = anchors[:, 0] + c * index.center[:, 0] - s * index.center[:, 1]
+        cy = anchors[:, 1] + s * index.center[:, 0] + c * index.center[:, 1]
+        near = np.hypot(cx - here[0], cy - here[1]) < index.radius + LOOP_MAX_M + reach
+        near &= index.floor == self.kf_floor[k]
+        near &= index.last_keyframe <= k - LOOP_MIN_SEPARATION
+        near &= travelled - index.tried_at >= LOOP_RETRY_M
+        candidates: list[tuple[float, int, int]] = []
+        for m in np.flatnonzero(near):
+            sub = self.finished[m]
+            origins = se2.transform_points(anchors[m], sub.origins())
+            dist = np.hypot(origins[:, 0] - here[0], origins[:, 1] - here[1])
+            nearest = int(np.argmin(dist))
+            drift = min(since_closure, self.clouds.path_m(sub.keyframes[nearest], k))
+            if dist[nearest] < self.config.loop_radius_m + min(
+                LOOP_MAX_M, self.config.drift_m_per_m * drift
+            ):
+                candidates.append((float(dist[nearest]), int(m), sub.keyframes[nearest]))
+        candidates.sort(key=lambda c: c[0])
+        for _, n, nearest_kf in candidates[:LOOP_TARGETS]:
+            index.tried_at[n] = travelled
+            self._try_loop(k, self.finished[n], nearest_kf, since_closure)
+
+    def _try_loop(self, k: int, sub: Submap, nearest_kf: int, since_closure: float) -> None:
+        config = self.config
+        poses = self.graph.poses
+        drift = min(since_closure, self.clouds.path_m(nearest_kf, k))
+        linear = min(LOOP_MAX_M, LOOP_BASE_M + config.drift_m_per_m * drift)
+        angular = min(LOOP_MAX_RAD, LOOP_BASE_RAD + math.radians(config.drift_deg_per_m) * drift)
+        window = _window(
+            max(linear, MIN_WINDOW_M),
+            max(angular, MIN_WINDOW_RAD),
+            _angle_step(self.clouds.typical_range[k], config.resolution_m),
+            config.resolution_m,
+        )
+        anchor = poses[sub.anchor]
+        local_guess = se2.between(anchor, poses[k])
+        self.cache.use(sub)
+        coarse = sub.coarse(window.coarse_step_cells) if window.coarse_step_cells > 1 else None
+        prior = Prior(local_guess, LOOP_PRIOR_SIGMA_M, LOOP_PRIOR_SIGMA_RAD, PRIOR_WEIGHT)
+        self.stats["loop_attempts"] += 1
+        result = match(
+            sub.field, self.clouds.points[k], local_guess, window, coarse_field=coarse, prior=prior
+        )
+        if result.score < config.loop_min_score:
+            return
+        moved = math.hypot(result.pose[0] - local_guess[0], result.pose[1] - local_guess[1])
+        turned = abs(float(se2.wrap(result.pose[2] - local_guess[2])))
+        if moved > linear + config.resolution_m or turned > angular + window.angle_step_rad:
+            # a correction larger than the front end can have drifted is an alias (a similar
+            # room, the next door along), not a loop
+            self.stats["loop_implausible"] += 1
+            return
+        if result.runner_up >= LOOP_MAX_AMBIGUITY * result.score:
+            self.stats["loop_ambiguous"] += 1
+            return
+        index = self.graph.add_edge(self._match_edge(sub.anchor, k, result, kind="loop"))
+        self.unsolved.append(index)
+        self.loops.append((sub.anchor, k))
+        self.last_closure = k
+        log.debug("loop closure", frm=sub.anchor, to=k, score=round(result.score, 3))
+
+    def _solve_if_needed(self) -> None:
+        if not self.unsolved:
+            return
+        _, chi2 = self.graph.edge_errors(edges=np.array(self.unsolved))
+        if chi2.max() > SOLVE_ABOVE_CHI2 or len(self.unsolved) >= SOLVE_AFTER_LOOPS:
+            self.graph.optimize(iterations=SOLVE_ITERATIONS)
+            self.stats["solves"] += 1
+            self.unsolved.clear()
+            self._rebuild_active()
+
+    def _rebuild_active(self) -> None:
+        """The solve moved the keyframes of the submaps being built: build them again from
+        the corrected poses, so the front end matches against the map as it now stands."""
+        poses = self.graph.poses
+        for sub in self.active:
+            sub.relocate([se2.between(poses[sub.anchor], poses[k]) for k in sub.keyframes])
 
 
 def run_slam(
@@ -248,235 +801,47 @@ def run_slam(
     config = config or SlamConfig()
     kf_scan = select_keyframes(odom, visit, floor, config)
     if len(kf_scan) == 0:
-        raise ValueError("no scan is on a floor: nothing to map")
-    clouds = _Keyframes(scans, odom, kf_scan, config)
-    kf_floor = floor[kf_scan]
-    kf_visit = visit[kf_scan]
-    graph = PoseGraph()
-    graph.add_node(odom[kf_scan[0]])
-    loops: list[tuple[int, int]] = []
-    stats: dict[str, float] = {
-        "front_matches": 0,
-        "front_failures": 0,
-        "loop_attempts": 0,
-        "loops": 0,
-    }
-    visit_start = 0
-    pending_loops = 0
-    for k in range(1, len(kf_scan)):
-        if kf_visit[k] != kf_visit[k - 1]:
-            if _close_visit(visit_start, k - 1, graph, clouds, config):
-                loops.append((visit_start, k - 1))
-                graph.optimize(iterations=10)
-                pending_loops = 0
-            visit_start = k
-        step = se2.between(odom[kf_scan[k - 1]], odom[kf_scan[k]])
-        guess = se2.compose(graph.poses[k - 1], step)
-        graph.add_node(guess)
-        dist = math.hypot(step[0], step[1])
-        sigma_xy = 0.02 + config.odom_sigma_xy_per_m * dist
-        sigma_theta = (
-            math.radians(0.5)
-            + config.odom_sigma_theta_per_m * dist
-            + config.odom_sigma_theta_per_rad * abs(step[2])
-        )
-        # odometry always enters the graph: along a featureless corridor it is the only
-        # measurement of the motion, and the match edge's information says so
-        graph.add_edge(Edge(k - 1, k, step, _info(sigma_xy, sigma_theta), "odometry"))
-        if k == visit_start and _in_car(k - 1, k, clouds, config):
-            # the ride: both scans see the closed car, which travels with the robot, so
-            # matching them measures the little the robot turned while the floors changed
-            fld = _field_around(
-                clouds.world_points([k - 1], graph.poses), guess, config, 1.5, fine=True
-            )
-            prior = Prior(guess, sigma_xy, sigma_theta, config.prior_weight)
-            result = match(fld, clouds.points[k], guess, config.front_window, prior=prior)
-            if result.score >= config.ride_min_score:
-                graph.poses[k] = result.pose
-                graph.add_edge(_match_edge(graph, k - 1, k, result, config=config, kind="ride"))
-                stats["ride_matches"] = stats.get("ride_matches", 0) + 1
-        elif k > visit_start and len(clouds.points[k]) >= 10:
-            ids = list(range(max(visit_start, k - config.submap_keyframes), k))
-            ref = clouds.world_points(ids, graph.poses)
-            fld = _field_around(
-                ref,
-                guess,
-                config,
-                config.front_window.linear_m + 1.0,
-                fine=bool(clouds.extent[k] < config.loop_min_extent_m),
-            )
-            prior = Prior(guess, sigma_xy, sigma_theta, config.prior_weight)
-            result = match(fld, clouds.points[k], guess, config.front_window, prior=prior)
-            if result.score >= config.front_min_score:
-                graph.poses[k] = result.pose
-                graph.add_edge(_match_edge(graph, k - 1, k, result, config=config, kind="match"))
-                stats["front_matches"] += 1
-            else:
-                stats["front_failures"] += 1
-        if k % config.loop_every == 0:
-            target = _try_loop(
-                k,
-                graph=graph,
-                clouds=clouds,
-                kf_floor=kf_floor,
-                kf_visit=kf_visit,
-                config=config,
-                stats=stats,
-            )
-            if target is not None:
-                loops.append((target, k))
-                pending_loops += 1
-        if pending_loops and (pending_loops >= 3 or k % config.optimize_every == 0):
-            graph.optimize(iterations=10)
-            pending_loops = 0
+        raise MappingError("no scan is on a floor: nothing to map")
+    slam = _Slam(
+        scans, odom, kf_scan, kf_floor=floor[kf_scan], kf_visit=visit[kf_scan], config=config
+    )
+    for k in range(len(kf_scan)):
+        slam.add(k)
         if progress is not None:
             progress(int(kf_scan[k]))
-    if _close_visit(visit_start, len(kf_scan) - 1, graph, clouds, config):
-        loops.append((visit_start, len(kf_scan) - 1))
-    graph.optimize(iterations=30)
-    stats["keyframes"] = len(kf_scan)
-    stats["loops"] = len(loops)
-    scan_poses = _all_scan_poses(odom, kf_scan, graph.poses, floor)
-    return SlamResult(kf_scan, graph.poses.copy(), scan_poses, graph, loops, stats)
+    result = slam.finish()
+    result.scan_poses = slam.register_scans(scans, floor)
+    log.info("slam done", **{k: int(v) for k, v in result.stats.items()})
+    return result
 
 
-def _match_edge(
-    graph: PoseGraph, i: int, j: int, result: MatchResult, *, config: SlamConfig, kind: str
-) -> Edge:
-    """Edge i -> j from a match of keyframe j (against a map in the frame of the graph).
+def scan_poses(odom: FloatArray, kf_scan: IntArray, kf_poses: FloatArray) -> FloatArray:
+    """Every scan's pose from the keyframes around it.
 
-    Sequential and ride edges are trusted (plain least squares); loop closures get the
-    robust kernel, their floor sigmas, and can be outvoted.
+    Between two keyframes a and b, odometry from a is followed, and the correction the graph
+    made to the stretch (where b is, against where odometry from a puts it) is spread along
+    it in proportion to the motion so far, so the stretch ends exactly on b. Scans before the
+    first keyframe or after the last follow odometry from it.
     """
-    loop = kind == "loop"
-    info = _match_info(
-        result.information,
-        config.match_cov_scale,
-        config.loop_sigma_xy if loop else config.match_sigma_xy,
-        config.loop_sigma_theta if loop else config.match_sigma_theta,
-    )
-    return Edge(
-        i,
-        j,
-        se2.between(graph.poses[i], result.pose),
-        _rotate_info(info, result.pose[2]),
-        kind,
-        robust_c=config.loop_robust_c if loop else None,
-    )
-
-
-def _in_car(a: int, b: int, clouds: _Keyframes, config: SlamConfig) -> bool:
-    """Both keyframes are small enclosed scans (the robot inside a closed elevator car)."""
-    return bool(
-        len(clouds.points[a]) >= 30
-        and len(clouds.points[b]) >= 30
-        and clouds.extent[a] < config.loop_min_extent_m
-        and clouds.extent[b] < config.loop_min_extent_m
-    )
-
-
-def _close_visit(
-    first: int, last: int, graph: PoseGraph, clouds: _Keyframes, config: SlamConfig
-) -> bool:
-    """Close a floor visit that began and ends in the closed elevator car.
-
-    The robot leaves the car, explores, and comes back into the same car: the two car scans
-    are nearly the same scan, so matching them pins the visit's heading to within a tenth
-    of a degree, where the turns inside the car (which wheel odometry misjudges most) would
-    otherwise hand a degree or so of heading error to every floor that follows.
-    """
-    if last - first < config.loop_min_separation or not _in_car(first, last, clouds, config):
-        return False
-    poses = graph.poses
-    fld = _field_around(clouds.world_points([first], poses), poses[last], config, 1.5, fine=True)
-    prior = Prior(
-        poses[last], config.loop_prior_sigma_m, config.loop_prior_sigma_rad, config.prior_weight
-    )
-    result = match(fld, clouds.points[last], poses[last], config.front_window, prior=prior)
-    if result.score < config.ride_min_score:
-        return False
-    graph.add_edge(_match_edge(graph, first, last, result, config=config, kind="loop"))
-    return True
-
-
-def _try_loop(
-    k: int,
-    *,
-    graph: PoseGraph,
-    clouds: _Keyframes,
-    kf_floor: IntArray,
-    kf_visit: IntArray,
-    config: SlamConfig,
-    stats: dict[str, float],
-) -> int | None:
-    """Match keyframe k against the nearest old keyframe of its floor; add the edge if good."""
-    poses = graph.poses
-    old = np.arange(0, k - config.loop_min_separation)
-    if len(old) == 0:
-        return None
-    old = old[(kf_floor[old] == kf_floor[k])]
-    if len(old) == 0:
-        return None
-    dist = np.hypot(poses[old, 0] - poses[k, 0], poses[old, 1] - poses[k, 1])
-    near = dist < config.loop_radius_m
-    if not near.any():
-        return None
-    target = int(old[near][np.argmin(dist[near])])
-    lo = target
-    while lo > 0 and target - lo < config.loop_submap_half and kf_visit[lo - 1] == kf_visit[target]:
-        lo -= 1
-    hi = target
-    while (
-        hi < k - config.loop_min_separation
-        and hi - target < config.loop_submap_half
-        and kf_visit[hi + 1] == kf_visit[target]
-    ):
-        hi += 1
-    ref = clouds.world_points(list(range(lo, hi + 1)), poses)
-    if len(ref) < 50 or len(clouds.points[k]) < 30:
-        return None
-    stats["loop_attempts"] += 1
-    if clouds.extent[k] < config.loop_min_extent_m:
-        window = config.front_window
-        fld = _field_around(ref, poses[k], config, window.linear_m + 1.0, fine=True)
-        result = match(fld, clouds.points[k], poses[k], window)
-    else:
-        window = config.loop_window
-        fld = _field_around(ref, poses[k], config, window.linear_m + 1.0)
-        coarse = fld.max_filtered(window.coarse_step_cells)
-        prior = Prior(
-            poses[k], config.loop_prior_sigma_m, config.loop_prior_sigma_rad, config.prior_weight
-        )
-        result = match(fld, clouds.points[k], poses[k], window, coarse_field=coarse, prior=prior)
-    if result.score < config.loop_min_score:
-        return None
-    moved = math.hypot(result.pose[0] - poses[k, 0], result.pose[1] - poses[k, 1])
-    if moved > config.loop_max_move_m + config.loop_max_move_per_m * clouds.path_m(target, k):
-        # a correction larger than the front end can have drifted since the target is an
-        # alias (a similar room, the next door along), not a loop
-        stats["loop_implausible"] = stats.get("loop_implausible", 0) + 1
-        return None
-    if result.runner_up >= config.loop_max_ambiguity * result.score:
-        stats["loop_ambiguous"] = stats.get("loop_ambiguous", 0) + 1
-        return None
-    graph.add_edge(_match_edge(graph, target, k, result, config=config, kind="loop"))
-    log.debug("loop closure", frm=target, to=k, score=round(result.score, 3))
-
-    return target
-
-
-def _all_scan_poses(
-    odom: FloatArray, kf_scan: IntArray, kf_poses: FloatArray, floor: IntArray
-) -> FloatArray:
-    """Every scan's pose: the nearest keyframe's pose plus odometry from it."""
     s = np.arange(len(odom))
-    pos = np.clip(np.searchsorted(kf_scan, s), 1, len(kf_scan) - 1) if len(kf_scan) > 1 else None
-    if pos is None:
-        nearest = np.zeros(len(odom), dtype=np.int64)
-    else:
-        left, right = kf_scan[pos - 1], kf_scan[pos]
-        nearest = np.where(np.abs(s - left) <= np.abs(right - s), pos - 1, pos)
-    anchor = kf_scan[nearest]
-    rel = se2.between(odom[anchor], odom)
-    poses: FloatArray = se2.compose(kf_poses[nearest], rel)
+    if len(kf_scan) == 1:
+        out: FloatArray = se2.compose(kf_poses[0], se2.between(odom[kf_scan[0]], odom))
+        return out
+    seg = np.clip(np.searchsorted(kf_scan, s, side="right") - 1, 0, len(kf_scan) - 2)
+    a, b = kf_scan[seg], kf_scan[seg + 1]
+    start = np.where(s < kf_scan[0], 0, seg)
+    start = np.where(s > kf_scan[-1], len(kf_scan) - 1, start)
+    rel = se2.between(odom[kf_scan[start]], odom)  # odometry since the keyframe before
+    followed = se2.compose(kf_poses[start], rel)
+    predicted_b = se2.compose(kf_poses[seg], se2.between(odom[a], odom[b]))
+    miss = kf_poses[seg + 1] - predicted_b
+    miss[:, 2] = se2.wrap(miss[:, 2])
+    # how far along the stretch each scan is: by distance, or by turn where it turned in place
+    step = se2.between(odom[a], odom[b])
+    total = np.hypot(step[:, 0], step[:, 1]) + TURN_AS_M * np.abs(step[:, 2])
+    done = np.hypot(rel[:, 0], rel[:, 1]) + TURN_AS_M * np.abs(rel[:, 2])
+    frac = np.clip(done / np.maximum(total, 1e-9), 0.0, 1.0)
+    frac[(s < kf_scan[0]) | (s >= kf_scan[-1])] = 0.0
+    poses: FloatArray = followed + frac[:, None] * miss
+    poses[:, 2] = se2.wrap(poses[:, 2])
     return poses

@@ -1,0 +1,106 @@
+"""SLAM on public CARMEN laser logs, scored against what the logs' publishers measured.
+
+The logs (``../shared/data/laser``, see its README) carry GMapping-corrected poses and no raw
+odometry, so odometry is synthesised from the corrected poses with the seeded error model of
+``baromap import carmen --synth-odometry``; the SLAM then has to undo that error. Two scores:
+
+- the Kuemmerle et al. relations (Intel, Freiburg 079): ground-truth relative motions, the
+  metric the literature reports;
+- the absolute trajectory error against the corrected poses after one rigid 2D alignment (all
+  three logs): how far the map as a whole is from GMapping's, which is itself an estimate, so
+  a few centimetres mean agreement rather than an error of ours.
+
+Odometry alone is scored beside the SLAM, so a reader sees what the SLAM corrected.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from baromap.errors import ConfigError
+from baromap.evaluation.trajectory import TrajectoryError, trajectory_error
+from baromap.mapping.relations import RelationErrors, read_relations, relation_errors
+from baromap.mapping.scans import ScanBlock
+from baromap.mapping.slam import SlamConfig, SlamResult, run_slam
+from baromap.odometry.synthesis import synthesize_odometry
+from baromap.recording.carmen import read_carmen
+from baromap.recording.carmen_import import to_laser_scan
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True)
+class LaserLog:
+    """One public log: its file in the data directory, and its relations file if any."""
+
+    name: str
+    log_file: str
+    relations_file: str | None
+
+
+#: The logs of ``../shared/data/laser``. The ``abstime`` copies hold the same scans and poses
+#: as the originals, with the timestamps the relations refer to.
+LOGS = {
+    "intel": LaserLog("intel", "intel-corrected-abstime.log.gz", "intel.relations"),
+    "fr079": LaserLog("fr079", "freiburg-079-corrected-abstime.log.gz", "fr079.relations"),
+    "acapulco": LaserLog("acapulco", "acapulco-corrected.log.gz", None),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class LogReport:
+    log: str
+    seed: int
+    scans: int
+    slam_ate: TrajectoryError
+    odometry_ate: TrajectoryError
+    slam_relations: RelationErrors | None
+    odometry_relations: RelationErrors | None
+    result: SlamResult
+    seconds: float  # SLAM wall time, for the bench to print
+
+
+def run_log(
+    data_dir: str | Path,
+    name: str,
+    seed: int,
+    *,
+    config: SlamConfig | None = None,
+    scans: slice | None = None,
+) -> LogReport:
+    """SLAM on log ``name`` with odometry synthesised by ``seed``; ``scans`` takes a part."""
+    spec = LOGS.get(name)
+    if spec is None:
+        raise ConfigError(f"unknown laser log {name!r}; known: {', '.join(LOGS)}")
+    directory = Path(data_dir)
+    carmen = read_carmen(directory / spec.log_file)
+    part = scans or slice(None)
+    times = carmen.scan_times_ns()[part]
+    reference = carmen.reference_poses()[part]
+    odom = synthesize_odometry(reference, seed)
+    block = ScanBlock.from_messages([to_laser_scan(s, i) for i, s in enumerate(carmen.scans[part])])
+    zeros = np.zeros(len(times), dtype=np.int64)
+    start = time.perf_counter()
+    result = run_slam(block, odom, zeros, zeros, config=config)
+    seconds = time.perf_counter() - start
+    slam_rel = odom_rel = None
+    if spec.relations_file is not None:
+        relations = read_relations(directory / spec.relations_file)
+        slam_rel = relation_errors(times, result.scan_poses, relations)
+        odom_rel = relation_errors(times, odom, relations)
+    return LogReport(
+        log=name,
+        seed=seed,
+        scans=len(times),
+        slam_ate=trajectory_error(result.scan_poses, reference),
+        odometry_ate=trajectory_error(odom, reference),
+        slam_relations=slam_rel,
+        odometry_relations=odom_rel,
+        result=result,
+        seconds=seconds,
+    )
