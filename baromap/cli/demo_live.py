@@ -20,7 +20,7 @@ import json
 import signal
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -143,22 +143,58 @@ def _size_mb(directory: Path) -> float:
     return sum(p.stat().st_size for p in directory.glob("*.mcap")) / 1e6
 
 
+@dataclass(frozen=True, slots=True)
+class Additions:
+    """What a bench adds to the demo's set-up (the demo itself uses none of it).
+
+    ``config``: daemon tables merged into the generated configuration (rotation, a Zenoh
+    router to connect to); ``twins``: twin settings (``faults``); ``scale_detector=False``
+    leaves the floor detector at its real-time defaults; ``watch_connect``: where the watcher
+    connects (default: the daemon itself); ``every_second``: called about once a second during
+    the mission with the simulated time and the daemon's pid (sampling, restarting a router).
+    """
+
+    config: Mapping[str, Mapping[str, object]] = field(default_factory=dict)
+    twins: Mapping[str, object] = field(default_factory=dict)
+    scale_detector: bool = True
+    watch_connect: str | None = None
+    every_second: Callable[[float, int], None] | None = None
+
+
+def _write_settings(
+    mission: Mission, out: Path, link_dir: Path, endpoint: str, additions: Additions
+) -> tuple[Path, Path]:
+    """baromapd.toml and twins.toml in ``out``."""
+    extra = {table: dict(values) for table, values in additions.config.items()}
+    if additions.scale_detector:
+        extra["floors"] = {**mission.floor_settings(), **extra.get("floors", {})}
+    config = out / "baromapd.toml"
+    text = daemon_config(
+        mission.robot,
+        twin_ports(link_dir),
+        out / "recording",
+        endpoint,
+        base_baud=mission.base_baud,
+        extra=extra,
+    )
+    config.write_text(text, encoding="utf-8")
+    twins = out / "twins.toml"
+    twins.write_text(twin_settings(mission.base_baud, dict(additions.twins)), encoding="utf-8")
+    return config, twins
+
+
 def run_live(
     mission: Mission,
     out: Path,
     show: Callable[[Shown], None],
-    *,
-    config_extra: dict[str, dict[str, object]] | None = None,
-    twins_extra: dict[str, object] | None = None,
-    scale_detector: bool = True,
+    additions: Additions | None = None,
 ) -> LiveRun:
     """Play the mission on the twins with the real daemon recording and a watcher following.
 
     ``out`` receives ``baromapd.toml``, ``twins.toml``, ``recording/``, ``twins-truth.jsonl``
-    and ``logs/``. ``config_extra`` (daemon tables) and ``twins_extra`` (twin settings, e.g.
-    ``faults``) let a bench add rotation or faults to the same set-up; ``scale_detector=False``
-    leaves the floor detector at its real-time defaults (to measure what speed does to it).
+    and ``logs/``.
     """
+    more = additions or Additions()
     recording_dir = out / "recording"
     log_dir = out / "logs"
     for directory in (recording_dir, log_dir):
@@ -166,27 +202,11 @@ def run_live(
     for old in recording_dir.glob("*.mcap"):  # the last demo's run: this one replaces it
         old.unlink()
     truth_log = out / "twins-truth.jsonl"
-    extra = dict(config_extra or {})
-    if scale_detector:
-        extra["floors"] = {**mission.floor_settings(), **extra.get("floors", {})}
     endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
     started = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="baromap-demo-") as links, Children(log_dir) as kids:
         link_dir = Path(links)
-        config = out / "baromapd.toml"
-        config.write_text(
-            daemon_config(
-                mission.robot,
-                twin_ports(link_dir),
-                recording_dir,
-                endpoint,
-                base_baud=mission.base_baud,
-                extra=extra,
-            ),
-            encoding="utf-8",
-        )
-        twins_file = out / "twins.toml"
-        twins_file.write_text(twin_settings(mission.base_baud, twins_extra), encoding="utf-8")
+        config, twins_file = _write_settings(mission, out, link_dir, endpoint, more)
         session = _Session(kids, show)
         daemon = kids.start(
             "baromapd",
@@ -211,33 +231,22 @@ def run_live(
             START_TIMEOUT_S,
             "barometer up in baromapd",
         )
-        watch = kids.start("watch", [*baromap, "watch", "--connect", endpoint])
+        watch_argv = [*baromap, "watch", "--connect", more.watch_connect or endpoint]
+        watch = kids.start("watch", watch_argv)
         session.wait_for(
             lambda: any("state known for" in s for s in session.watch_lines),
             watch,
             START_TIMEOUT_S,
             "floor state answered to baromap watch",
         )
-        end = mission_t0 + mission.wall_s + TAIL_S
-        next_progress = mission_t0 + PROGRESS_EVERY_S
-        while (now := time.monotonic()) < end:
-            for child in (daemon, watch, twins):
-                if not child.running:
-                    raise ChildFailed(
-                        f"{child.name} ended early (exit {child.proc.returncode}); see {child.log}"
-                    )
-            if now >= next_progress:
-                next_progress += PROGRESS_EVERY_S
-                simulated = min((now - mission_t0) * mission.speed, mission.minutes * 60)
-                show(
-                    Shown(
-                        "progress",
-                        f"mission {_clock(simulated)} of {_clock(mission.minutes * 60)} "
-                        f"simulated (x{mission.speed:g}); recording {_size_mb(recording_dir):.1f}"
-                        " MB",
-                    )
-                )
-            session.pump(min(end, next_progress) - now)
+        _follow(
+            mission,
+            session,
+            (daemon, watch, twins),
+            mission_t0=mission_t0,
+            recording_dir=recording_dir,
+            additions=more,
+        )
         daemon_exit = daemon.stop(signal.SIGTERM, timeout=60.0)
         deadline = time.monotonic() + 15.0
         while time.monotonic() < deadline and not any("gone" in s for s in session.watch_lines):
@@ -255,3 +264,40 @@ def run_live(
         watch_lines=session.watch_lines,
         wall_s=time.monotonic() - started,
     )
+
+
+def _follow(
+    mission: Mission,
+    session: _Session,
+    children: tuple[Child, ...],
+    *,
+    mission_t0: float,
+    recording_dir: Path,
+    additions: Additions,
+) -> None:
+    """Until the mission's end: show what comes, a progress line now and then."""
+    end = mission_t0 + mission.wall_s + TAIL_S
+    next_progress = mission_t0 + PROGRESS_EVERY_S
+    next_tick = mission_t0 + 1.0
+    daemon = children[0]
+    while (now := time.monotonic()) < end:
+        for child in children:
+            if not child.running:
+                raise ChildFailed(
+                    f"{child.name} ended early (exit {child.proc.returncode}); see {child.log}"
+                )
+        simulated = min((now - mission_t0) * mission.speed, mission.minutes * 60)
+        if now >= next_tick:
+            next_tick += 1.0
+            if additions.every_second is not None:
+                additions.every_second(simulated, daemon.proc.pid)
+        if now >= next_progress:
+            next_progress += PROGRESS_EVERY_S
+            session.show(
+                Shown(
+                    "progress",
+                    f"mission {_clock(simulated)} of {_clock(mission.minutes * 60)} simulated "
+                    f"(x{mission.speed:g}); recording {_size_mb(recording_dir):.1f} MB",
+                )
+            )
+        session.pump(max(0.0, min(end, next_progress, next_tick) - time.monotonic()))

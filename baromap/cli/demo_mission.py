@@ -27,6 +27,7 @@ from baromap.errors import ConfigError
 #: barometer's 115200 baud some 570 samples a second (11x its 50 Hz).
 MAX_SPEED = 8.0
 DEFAULT_SPEED = 6.0
+DEFAULT_MINUTES = 10.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,7 +35,7 @@ class Mission:
     seed: int = 0
     floors: int = 3
     route: tuple[int, ...] = (1, 2, 0, 1)
-    minutes: float = 10.0
+    minutes: float = DEFAULT_MINUTES
     speed: float = DEFAULT_SPEED
     robot: str = "demo"
     #: The robot's host port speed (ARCOS HostBaud), so SIPs keep up with the speed.
