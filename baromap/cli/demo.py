@@ -1,128 +1,187 @@
-"""``baromap demo``: the main job on the embedded default (no hardware).
+"""``baromap demo``: the product's real path on simulated hardware, start to finish.
 
-The finished demo will run the simulated devices on pseudo-terminals, the real daemon
-recording them, and live floor events over Zenoh. The daemon and the Zenoh publisher are not
-built yet, so today the demo runs every stage that exists, on the same code paths the product
-uses, and names the ones it stands in for:
+1. live: the three device twins on pseudo-terminals play a short mission; the real
+   ``baromapd`` (a separate process, with a generated configuration) records them and decides
+   floor changes as they happen; ``baromap watch`` (another process) prints the floor events it
+   receives over Zenoh, shown here as they come;
+2. the daemon is stopped as systemd stops it (SIGTERM): it closes the recording;
+3. ``build-maps`` turns the recording into one aligned map per floor and a building model;
+4. a summary: floors with heights and names, transitions, files, how to open them.
 
-1. the simulator writes a run straight to MCAP through the real device codecs (the daemon
-   will record the same topics from the device twins);
-2. the online floor detector is replayed over the recorded pressure one sample at a time,
-   causally, and each floor event is printed when the detector decides it, beside the
-   simulator's truth (Zenoh will carry these events live);
-3. ``build-maps`` turns the run into one aligned map per floor and a building model.
+The orchestration is in ``demo_live`` (children, order, progress), the daemon's configuration
+in ``demo_config``, the mission in ``demo_mission``, the closing words in ``demo_summary``.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
+import signal
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-NOT_YET = (
-    "baromapd (recording the device twins on pseudo-terminals) and live Zenoh floor state "
-    "are not built yet; this demo records with the simulator and replays the online detector"
-)
+from baromap.cli.demo_mission import DEFAULT_SPEED, MAX_SPEED, Mission
+
+#: Width of the source column in front of live lines.
+_SOURCE_WIDTH = 8
 
 
 def register(subparsers: Any) -> None:
-    parser = subparsers.add_parser("demo", help="run the main job on simulated hardware")
+    parser = subparsers.add_parser(
+        "demo",
+        help="the whole job on simulated hardware: daemon, live floors, maps",
+        description="Simulated laser, base and barometer on pseudo-terminals; the real baromapd "
+        "records them while `baromap watch` prints live floor events; then build-maps.",
+    )
     parser.add_argument("--out", default="out/demo", help="output directory (default out/demo)")
-    parser.add_argument("--minutes", type=float, default=46.0, help="length of the run")
-    parser.add_argument("--floors", type=int, default=6, help="floors in the building")
-    parser.add_argument("--seed", type=int, default=0, help="building and run seed")
+    parser.add_argument(
+        "--speed",
+        type=float,
+        default=DEFAULT_SPEED,
+        help=f"how much faster than real time the twins play the mission (default "
+        f"{DEFAULT_SPEED:g}, at most {MAX_SPEED:g})",
+    )
     parser.set_defaults(run=run)
 
 
-def _clock(t_ns: int, t0_ns: int) -> str:
-    seconds = (t_ns - t0_ns) / 1e9
-    return f"{int(seconds // 60):02d}:{seconds % 60:04.1f}"
+def _say(text: str = "") -> None:
+    print(text, flush=True)
 
 
-def replay_floor_events(recording: Path) -> tuple[int, int]:
-    """Feed the recorded pressure to the online detector in time order; print its events.
+def _show(item: Any) -> None:
+    _say(f"  {item.source:>{_SOURCE_WIDTH}s} | {item.text}")
 
-    Returns (events, true transitions) so the caller can say whether they agree.
-    """
-    from baromap import messages
-    from baromap.floors import OnlineFloorDetector
-    from baromap.recording import read_messages, topics
 
-    detector = OnlineFloorDetector()
-    truth_floor: int | None = None
-    truth_changes = 0
-    last_settled: int | None = None
-    t0: int | None = None
-    events = 0
-    for rec in read_messages(recording, [topics.BARO, topics.ODOM, topics.TRUTH_FLOOR]):
-        msg = rec.message
-        if isinstance(msg, messages.Odometry):
-            detector.update_odometry(msg)
-            continue
-        if isinstance(msg, messages.TruthFloor):
-            if msg.floor is not None:
-                if last_settled is not None and msg.floor != last_settled:
-                    truth_changes += 1
-                last_settled = msg.floor
-            truth_floor = msg.floor
-            continue
-        if not isinstance(msg, messages.PressureSample):
-            continue
-        t0 = msg.t_ns if t0 is None else t0
-        for event in detector.update(msg):
-            events += 1
-            truth = "riding" if truth_floor is None else f"true floor {truth_floor}"
-            print(
-                f"  [{_clock(event.t_ns, t0)}] floor {event.from_name} -> {event.to_name} "
-                f"({event.delta_m:+.2f} m, change {_clock(event.t_start_ns, t0)}.."
-                f"{_clock(event.t_end_ns, t0)}; {truth})"
-            )
-    for event in detector.finish():
-        events += 1
-        print(f"  [end] floor {event.from_name} -> {event.to_name} ({event.delta_m:+.2f} m)")
-    return events, truth_changes
+def describe(mission: Mission) -> str:
+    floors = " -> ".join(str(f) for f in mission.route)
+    revisits = len(mission.route) - len(set(mission.route))
+    return (
+        f"{mission.minutes:g} simulated minutes in a {mission.floors}-floor building: floors "
+        f"{floors} ({len(mission.route) - 1} elevator rides, {revisits} revisit), played "
+        f"{mission.speed:g}x faster than real time ({mission.wall_s:.0f} s; the daemon's "
+        f"floor detector is set for that: durations / {mission.speed:g})"
+    )
+
+
+@contextlib.contextmanager
+def _sigterm_unwinds() -> Iterator[None]:
+    """SIGTERM (a CI timeout, a service manager) unwinds like Ctrl-C, so the children are
+    stopped in order instead of being left running."""
+
+    def stop(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def run(args: argparse.Namespace) -> int:
-    from baromap.mapping.build import build_maps, summary_lines
-    from baromap.sim.record import record_run
+    with _sigterm_unwinds():
+        return run_demo(Mission(speed=args.speed), Path(args.out))
 
-    out = Path(args.out)
+
+def run_demo(mission: Mission, out: Path) -> int:
+    from baromap.cli.demo_live import run_live
+
+    out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
-    recording = out / "run.mcap"
-    started = time.perf_counter()
-    print(f"baromap demo: {NOT_YET}.")
+    started = time.monotonic()
+    _say("baromap demo: the acquisition daemon on simulated devices, live floors, then maps")
+    _say(f"mission: {describe(mission)}")
+    _say(f"outputs: {out}")
+    (out / "mission.json").write_text(json.dumps(mission_record(mission)), encoding="utf-8")
 
-    print(f"\n1/3 simulating a {args.minutes:g}-minute run in a {args.floors}-floor building")
-    summary = record_run(
-        recording,
-        seed=args.seed,
-        floors=args.floors,
-        minutes=args.minutes,
-        overwrite=True,
+    _say("\n1/3 baromapd records the twins; baromap watch follows it over Zenoh")
+    live = run_live(mission, out, _show)
+    _say(
+        f"\n2/3 baromapd stopped by SIGTERM (exit {live.daemon_exit}) after "
+        f"{live.wall_s:.0f} s; configuration {live.config}"
     )
-    print(
-        f"  {recording}: {sum(summary.counts.values())} messages, "
-        f"{summary.simulated_s / 60:.1f} simulated minutes in {summary.wall_s:.1f} s"
-    )
+    if live.daemon_exit != 0 or len(live.recordings) != 1:
+        _say(f"  expected one recording and exit 0; the daemon's log: {live.logs['baromapd']}")
+        return 1
+    recording = live.recordings[0]
+    _say(f"  recording {recording} ({recording.stat().st_size / 1e6:.1f} MB)")
 
-    print("\n2/3 online floor detection, replayed sample by sample (times are run time)")
-    print(
-        "  detector floors are named from the start floor (called 0) in storeys; "
-        "true floors are the simulator's, 0 = ground"
-    )
-    events, truth_changes = replay_floor_events(recording)
-    print(f"  {events} floor events; the simulator's truth has {truth_changes} floor changes")
-
-    print("\n3/3 building per-floor maps")
-    maps_dir = out / "maps"
-    result = build_maps(recording, maps_dir, progress=True)
-    for line in summary_lines(result, maps_dir):
-        print(f"  {line}")
-
-    print(f"\ndone in {time.perf_counter() - started:.0f} s. Outputs:")
-    print(f"  recording      {recording}   (open in Foxglove, or: baromap info {recording})")
-    for path in sorted(result.files):
-        print(f"  {path.name:14s} {path}")
+    _say("\n3/3 build-maps on the recording")
+    lines = build_and_summarise(mission, recording, out / "maps", live.truth_log)
+    _say(f"\ndone in {time.monotonic() - started:.0f} s")
+    for line in lines:
+        _say(line)
     return 0
+
+
+def mission_record(mission: Mission) -> dict[str, Any]:
+    """What was played, so tests and benches can rebuild the scenario (``mission.json``)."""
+    return {
+        "seed": mission.seed,
+        "floors": mission.floors,
+        "route": list(mission.route),
+        "minutes": mission.minutes,
+        "speed": mission.speed,
+        "robot": mission.robot,
+    }
+
+
+def build_and_summarise(
+    mission: Mission, recording: Path, maps_dir: Path, truth_log: Path
+) -> list[str]:
+    import yaml
+
+    from baromap.cli.demo_summary import TrueRun, summary_lines
+    from baromap.evaluation.map_files import score_outputs
+    from baromap.evaluation.twin_truth import HostClock, sim_timeline, truth_series
+    from baromap.floors import apply_corrections
+    from baromap.mapping.build import build_maps
+    from baromap.mapping.build import summary_lines as build_lines
+    from baromap.messages import FloorEvent
+    from baromap.recording import read_messages, topics
+    from baromap.sim.scenario import make_scenario
+    from baromap.sim.twins.truth import read_truth_log
+
+    result = build_maps(recording, maps_dir, progress=True)
+    for line in build_lines(result, maps_dir):
+        _say(f"  {line}")
+    building = yaml.safe_load((maps_dir / "building.yaml").read_text(encoding="utf-8"))
+    events = apply_corrections(
+        r.message
+        for r in read_messages(recording, [topics.FLOOR_EVENT])
+        if isinstance(r.message, FloorEvent)
+    )
+    detection = result.segmentation.detection
+    start_floor = detection.segments[0].floor if detection and detection.segments else None
+    scenario = make_scenario(
+        mission.seed, floors=mission.floors, minutes=mission.minutes, route=mission.route
+    )
+    visited = sorted(set(mission.route))
+    z = [float(scenario.building.elevations_m[f]) for f in visited]
+    timeline = sim_timeline(read_truth_log(truth_log), HostClock.of_recording(recording))
+    series = truth_series(scenario, timeline)
+    truth = TrueRun(
+        elevations_m=tuple(v - z[0] for v in z),
+        rides=tuple((t.from_floor, t.to_floor) for t in scenario.transitions()),
+        maps=tuple(
+            score_outputs(maps_dir, scenario.building, series.t_ns, series.xyt, series.floor)
+        ),
+    )
+    return summary_lines(
+        out=maps_dir,
+        recording=recording,
+        building=building,
+        events=events,
+        t0_ns=int(result.run.scans.t_ns[0]) if len(result.run.scans) else 0,
+        start_floor=start_floor,
+        post_run_transitions=len(detection.transitions) if detection else 0,
+        truth=truth,
+        files=result.files,
+    )

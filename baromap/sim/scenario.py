@@ -22,6 +22,7 @@ import numpy.typing as npt
 from baromap.errors import ConfigError
 from baromap.messages import NS_PER_S
 from baromap.protocols.baro import MAX_RATE_HZ, Q24_8
+from baromap.protocols.p2os import HOST_BAUD_CODES
 from baromap.protocols.robot_models import DEFAULT_MODEL, RobotModel, robot_model
 from baromap.sim.atmosphere import AirTemperature, Ventilation, Weather, hydrostatic_pa
 from baromap.sim.bmp280 import Bmp280
@@ -340,11 +341,14 @@ class TwinSettings:
     The robot reports ``robot_subclass`` in its SYNC2 echo and counts positions with that
     model's DistConvFactor (default the ARCOS P3-AT, ``p3at-sh``; ``p3at`` gives the old
     P2OS generation). The laser needs ``laser_boot_s`` simulated seconds from power-on (or a
-    reset) to its power-on telegram; real drivers wait up to a minute for it.
+    reset) to its power-on telegram; real drivers wait up to a minute for it. ``robot_baud``
+    is the robot's host port speed (ARCOS' ``HostBaud`` in its FLASH configuration; 9600 from
+    the factory): a twin sped up past 2.6x needs a faster line for its 10 Hz SIPs.
     """
 
     robot_subclass: str = DEFAULT_MODEL.name
     robot_name: str = "baromap-sim"
+    robot_baud: int = 9600
     laser_boot_s: float = 2.0
     laser_type: str = "LMS200;30106"
     baro_rate_hz: int = 25
@@ -352,6 +356,8 @@ class TwinSettings:
 
     def __post_init__(self) -> None:
         robot_model(self.robot_subclass)  # ConfigError for a subclass without parameter set
+        if self.robot_baud not in HOST_BAUD_CODES:
+            raise ConfigError(f"robot_baud must be one of {sorted(HOST_BAUD_CODES)}")
         if not 0 < self.laser_boot_s <= 120:
             raise ConfigError(f"laser_boot_s must be in (0, 120], not {self.laser_boot_s}")
         if not 1 <= self.baro_rate_hz <= MAX_RATE_HZ:

@@ -68,7 +68,7 @@ class P2osTwin(Twin):
         self.resyncs = 0
 
     def power_on(self) -> None:
-        self.port.set_baud(9600)
+        self.port.set_baud(self.settings.robot_baud)
         self.decoder = p2os.Decoder(source="host")
         self.session = Session.CLOSED
         self.sync_step = 0
@@ -184,6 +184,7 @@ class P2osTwin(Twin):
             front_bumps=5,
             rear_bumps=5,
             sonar_cycle=40,
+            host_baud=p2os.HOST_BAUD_CODES[self.settings.robot_baud],
             reset_baud=2,
             ticks_mm=round(1.0 / model.dist_conv_factor),
             shutdown_voltage=105,

@@ -1,0 +1,403 @@
+"""A soak of the whole live path: 30 simulated minutes of faults, then loss, memory, rotation.
+
+The demo's set-up (device twins on ptys, the real baromapd as its own process, baromap watch
+following over Zenoh) on a longer mission played faster than real time, with what a robot's
+day brings, at random simulated times from a seeded generator: each device unplugged (and
+plugged back on a new pty), bursts of garbage on every line, stalls, one laser power cycle,
+and the Zenoh router between the daemon and the watcher stopped and started again. The daemon
+rotates its files by size and by age.
+
+Printed, each against what it must be:
+- lost messages on healthy streams: every frame a twin sent (its truth log) while its session
+  was up and no fault was under way is in the recording; barometer samples by sequence number,
+  scans and SIPs (which carry none) by count over each healthy stretch, where a stamp near a
+  stretch's end can put one frame on either side;
+- memory: the daemon's RSS sampled every second, the slope of a line fitted after warm-up;
+- rotation: files, sizes and spans against the configured limits, nothing lost or repeated at a
+  split (barometer sequence continuous across files);
+- live: floor events the watcher printed against those recorded, apart from those decided
+  while the router was down (Zenoh keeps no history for a subscriber that cannot be reached).
+
+    python bench/soak.py [--minutes 30] [--speed 6] [--seed 1]
+    python bench/soak.py router ENDPOINT      (the Zenoh router it starts and restarts)
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import os
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from baromap import logs
+from baromap.cli.demo_config import free_loopback_port
+from baromap.cli.demo_live import Additions, LiveRun, Shown, run_live
+from baromap.cli.demo_mission import Mission
+from baromap.evaluation.twin_truth import HostClock, SimTimeline, sim_timeline
+from baromap.messages import DeviceHealth, DeviceState, PressureSample
+from baromap.recording import read_messages, topics
+from baromap.sim.route import default_route
+from baromap.sim.twins.truth import FrameTruth, read_truth_log
+
+#: Daemon device name -> twin name.
+DEVICES = {"laser": "lms200", "base": "p3at", "barometer": "baro"}
+ROTATE_SIZE_MB = 4.0
+ROTATE_MINUTES = 1.0
+#: Simulated seconds around a fault during which its device's stream is not "healthy".
+FAULT_MARGIN_S = 2.0
+#: Recording seconds cut off each end of a healthy stretch before counting frames.
+EDGE_S = 0.2
+#: Router down, as a fraction of the mission, and for how many simulated seconds.
+ROUTER_DOWN_AT = 0.45
+ROUTER_DOWN_S = 30.0
+
+
+def run_router(endpoint: str) -> int:
+    import threading
+
+    import zenoh
+
+    config = zenoh.Config()
+    config.insert_json5("mode", '"router"')
+    config.insert_json5("listen/endpoints", f'["{endpoint}"]')
+    config.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(config)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    print("ready", flush=True)
+    stop.wait()
+    session.close()
+    return 0
+
+
+def faults(mission: Mission, rng: np.random.Generator) -> list[dict[str, Any]]:
+    """Each device: an unplug, two bursts of garbage, a stall; the laser: a power cycle.
+
+    Spread over the mission so that one device's faults do not overlap."""
+    duration = mission.minutes * 60
+    out: list[dict[str, Any]] = []
+    for twin in DEVICES.values():
+        kinds = ["unplug", "garbage", "garbage", "stall"] + (
+            ["power_cycle"] if twin == "lms200" else []
+        )
+        slots = np.linspace(0.08, 0.92, len(kinds) + 1)
+        order = rng.permutation(len(kinds))
+        for k, kind in zip(order, kinds, strict=True):
+            at = float(rng.uniform(slots[k], slots[k + 1] - 0.03)) * duration
+            fault: dict[str, Any] = {"device": twin, "at_s": round(at, 1), "kind": kind}
+            if kind == "unplug":
+                fault["duration_s"] = round(float(rng.uniform(5, 20)), 1)
+            elif kind == "stall":
+                fault["duration_s"] = round(float(rng.uniform(3, 15)), 1)
+            elif kind == "power_cycle":
+                fault["duration_s"] = 2.0
+            else:
+                fault["size"] = int(rng.integers(200, 4000))
+            out.append(fault)
+    return sorted(out, key=lambda f: f["at_s"])
+
+
+@dataclass
+class RouterRestart:
+    """Stops the Zenoh router at one simulated time and starts it again at another."""
+
+    endpoint: str
+    down_at_s: float
+    up_at_s: float
+    proc: subprocess.Popen[bytes] | None = None
+    down_wall: float | None = None
+    up_wall: float | None = None
+
+    def start(self) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, __file__, "router", self.endpoint],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+        )
+        assert self.proc.stdout is not None
+        self.proc.stdout.readline()  # "ready"
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(15)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+            if self.proc.stdout is not None:
+                self.proc.stdout.close()
+
+    def tick(self, sim_s: float) -> None:
+        if self.down_wall is None and sim_s >= self.down_at_s:
+            self.stop()
+            self.down_wall = time.time()
+        elif self.down_wall is not None and self.up_wall is None and sim_s >= self.up_at_s:
+            self.start()
+            self.up_wall = time.time()
+
+
+@dataclass
+class Memory:
+    """The daemon's resident set, sampled: (wall s, MB)."""
+
+    samples: list[tuple[float, float]] = field(default_factory=list)
+
+    def sample(self, pid: int) -> None:
+        try:
+            for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    self.samples.append((time.monotonic(), int(line.split()[1]) / 1024))
+        except OSError:
+            pass
+
+
+def healthy_stretches(
+    health: list[DeviceHealth], fault_windows: list[tuple[int, int]]
+) -> list[tuple[int, int]]:
+    """Recording-time spans where the device was UP in consecutive health reports and no
+    fault window touches them."""
+    spans = []
+    ordered = sorted(health, key=lambda h: h.t_ns)
+    for a, b in itertools.pairwise(ordered):
+        if a.state is DeviceState.UP and b.state is DeviceState.UP:
+            spans.append((a.t_ns, b.t_ns))
+    merged: list[list[int]] = []
+    for lo, hi in spans:
+        if merged and lo <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], hi)
+        else:
+            merged.append([lo, hi])
+    out = []
+    for lo, hi in merged:
+        cuts = sorted((a, b) for a, b in fault_windows if b > lo and a < hi)
+        start = lo
+        for a, b in cuts:
+            if a > start:
+                out.append((start, a))
+            start = max(start, b)
+        if hi > start:
+            out.append((start, hi))
+    return out
+
+
+def fault_windows(
+    scheduled: list[dict[str, Any]], twin: str, clock_timeline: SimTimeline
+) -> list[tuple[int, int]]:
+    out = []
+    for f in scheduled:
+        if f["device"] != twin:
+            continue
+        lo = f["at_s"] - FAULT_MARGIN_S
+        hi = f["at_s"] + f.get("duration_s", 0.0) + FAULT_MARGIN_S
+        a, b = clock_timeline.unix_ns_at([lo, hi])
+        out.append((int(a), int(b)))
+    return out
+
+
+def report(
+    live: LiveRun,
+    mission: Mission,
+    scheduled: list[dict[str, Any]],
+    router: RouterRestart,
+    memory: Memory,
+) -> int:
+    files = live.recordings
+    records: list[FrameTruth] = read_truth_log(live.truth_log)
+    clock = HostClock.of_recording(files[0])
+    clock_timeline = sim_timeline(records, clock, devices=("baro",))
+    by_topic: dict[str, list[Any]] = defaultdict(list)
+    file_spans = []
+    for path in files:
+        stamps = []
+        for r in read_messages(path):
+            by_topic[r.topic].append(r.message)
+            stamps.append(r.log_time_ns)
+        file_spans.append((path, path.stat().st_size / 1e6, (max(stamps) - min(stamps)) / 1e9))
+    health: dict[str, list[DeviceHealth]] = defaultdict(list)
+    for h in by_topic[topics.DIAGNOSTICS]:
+        if isinstance(h, DeviceHealth):
+            health[h.device].append(h)
+    failures = 0
+    print(f"\nsoak: {mission.minutes:g} simulated minutes at x{mission.speed:g} "
+          f"({live.wall_s:.0f} s), {len(scheduled)} scheduled faults, router restarted; "
+          f"daemon exit {live.daemon_exit} (must be 0)")  # fmt: skip
+    failures += live.daemon_exit != 0
+    print("lost messages on healthy streams (must be 0):")
+    for device, twin in DEVICES.items():
+        windows = fault_windows(scheduled, twin, clock_timeline)
+        stretches = healthy_stretches(health[device], windows)
+        sent = [r for r in records if r.device == twin]
+        sent_unix = clock.unix_ns([r.t_mono_ns for r in sent])
+        if device == "barometer":
+            # seq restarts when the board powers up again: a sample is found by its seq and
+            # a stamp within half a second of when it was sent
+            got: dict[int, list[int]] = defaultdict(list)
+            for m in by_topic[topics.BARO]:
+                if isinstance(m, PressureSample) and m.seq is not None:
+                    got[m.seq].append(m.t_ns)
+            inside = [
+                (r, t) for r, t in zip(sent, sent_unix, strict=True)
+                if any(lo <= t <= hi for lo, hi in stretches)
+            ]  # fmt: skip
+            lost = [
+                r.seq for r, t in inside
+                if not any(abs(int(t) - g) < 500_000_000 for g in got.get(r.seq or 0, ()))
+            ]  # fmt: skip
+            healthy_s = sum(hi - lo for lo, hi in stretches) / 1e9
+            print(f"  barometer: {len(inside)} samples sent in {len(stretches)} healthy "
+                  f"stretches ({healthy_s:.0f} s), {len(lost)} not recorded")  # fmt: skip
+            failures += bool(lost)
+            continue
+        topic = topics.SCAN if device == "laser" else topics.ODOM
+        stamps = np.array(sorted(m.t_ns for m in by_topic[topic]))
+        sent_sorted = np.sort(sent_unix)
+        worst = 0
+        total_sent = total_got = 0
+        edge = int(EDGE_S * 1e9)
+        for lo, hi in stretches:
+            if hi - lo <= 2 * edge:
+                continue
+            a, b = lo + edge, hi - edge
+            n_sent = int(np.count_nonzero((sent_sorted >= a) & (sent_sorted <= b)))
+            n_got = int(np.count_nonzero((stamps >= a) & (stamps <= b)))
+            total_sent += n_sent
+            total_got += n_got
+            worst = max(worst, n_sent - n_got)
+        print(f"  {device}: {total_sent} frames sent in {len(stretches)} healthy stretches, "
+              f"{total_got} recorded; worst stretch short by {worst} (a stretch's two ends "
+              "may each shift one frame: more than 2 is a loss)")  # fmt: skip
+        failures += worst > 2
+    seqs = [m.seq for m in by_topic[topics.BARO] if isinstance(m, PressureSample)]
+    print("rotation (every", ROTATE_SIZE_MB, "MB or", ROTATE_MINUTES, "min):")
+    for path, size, span in file_spans:
+        print(f"  {path.name}: {size:.1f} MB, {span:.0f} s of messages")
+    too_big = [p for p, size, span in file_spans if size > ROTATE_SIZE_MB * 1.25]
+    too_long = [p for p, size, span in file_spans if span > ROTATE_MINUTES * 60 + 5]
+    boundary_gaps = 0
+    previous_last = None
+    for path in files:
+        file_seqs = [
+            r.message.seq for r in read_messages(path, [topics.BARO])
+            if isinstance(r.message, PressureSample)
+        ]  # fmt: skip
+        if previous_last is not None and file_seqs:
+            boundary_gaps += (file_seqs[0] - previous_last) % 65536 != 1
+        if file_seqs:
+            previous_last = file_seqs[-1]
+    print(f"  {len(files)} files; over the size limit: {len(too_big)}, over the age limit: "
+          f"{len(too_long)}, barometer sequence broken at a split: {boundary_gaps} (all 0); "
+          f"{len(seqs)} samples in all, {len(seqs) - len(set(seqs))} repeated seq numbers "
+          "(the board's counter wraps at 65536 and restarts after a power-up)")  # fmt: skip
+    failures += bool(too_big or too_long or boundary_gaps)
+    samples = memory.samples
+    t = np.array([s[0] for s in samples]) - samples[0][0]
+    rss = np.array([s[1] for s in samples])
+    warm = t >= t[-1] * 0.2
+    slope = float(np.polyfit(t[warm] / 60, rss[warm], 1)[0])
+    print(f"memory: daemon RSS {rss[0]:.0f} MB at start, {rss[warm][0]:.0f} MB after warm-up, "
+          f"{rss[-1]:.0f} MB at the end, peak {rss.max():.0f} MB; {len(rss)} samples; slope "
+          f"after warm-up {slope:+.2f} MB per wall minute = {slope * 60 / mission.speed:+.1f} MB "
+          f"per simulated hour")  # fmt: skip
+    events = [m for m in by_topic[topics.FLOOR_EVENT]]
+    printed = [
+        int(m.group(1)) for line in live.watch_lines if (m := re.search(r"\[event (\d+)\]", line))
+    ]
+    assert router.down_wall is not None and router.up_wall is not None
+    reconnect_s = 15.0
+    while_down = [
+        e.event_id for e in events
+        if router.down_wall * 1e9 <= e.t_ns <= (router.up_wall + reconnect_s) * 1e9
+    ]  # fmt: skip
+    missing = [e.event_id for e in events if e.event_id not in printed]
+    unexplained = [k for k in missing if k not in while_down]
+    print(f"live: {len(events)} floor events recorded, {len(printed)} printed by the watcher "
+          f"through the router; {len(while_down)} decided while it was down or reconnecting, "
+          f"{len(unexplained)} missing otherwise (must be 0)")  # fmt: skip
+    back = [line for line in live.watch_lines if "back online" in line]
+    print(f"  the watcher saw the robot back after the restart: {'yes' if back else 'no'}")
+    failures += bool(unexplained) + (not back)
+    print(f"verdict: {'PASS' if failures == 0 else f'FAIL ({failures})'}")
+    return 0 if failures == 0 else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    args_in = sys.argv[1:] if argv is None else argv
+    if args_in[:1] == ["router"]:
+        return run_router(args_in[1])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--minutes", type=float, default=30.0)
+    parser.add_argument("--speed", type=float, default=6.0)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--floors", type=int, default=4)
+    parser.add_argument("--keep", help="keep the outputs in this directory")
+    args = parser.parse_args(args_in)
+    logs.configure("console", "WARNING")
+    mission = Mission(
+        seed=args.seed,
+        floors=args.floors,
+        route=default_route(args.floors),
+        minutes=args.minutes,
+        speed=args.speed,
+        robot="soak",
+    )
+    scheduled = faults(mission, np.random.default_rng(args.seed))
+    router = RouterRestart(
+        f"tcp/127.0.0.1:{free_loopback_port()}",
+        ROUTER_DOWN_AT * mission.minutes * 60,
+        ROUTER_DOWN_AT * mission.minutes * 60 + ROUTER_DOWN_S,
+    )
+    memory = Memory()
+
+    def every_second(sim_s: float, pid: int) -> None:
+        memory.sample(pid)
+        router.tick(sim_s)
+
+    def show(item: Shown) -> None:
+        if item.source != "progress" or "0 of" in item.text:
+            print(f"  {item.source:>8s} | {item.text}", flush=True)
+
+    load = os.getloadavg()[0]
+    print(f"faults: {scheduled}")
+    with tempfile.TemporaryDirectory(prefix="baromap-soak-") as tmp:
+        out = Path(args.keep) if args.keep else Path(tmp)
+        router.start()
+        try:
+            live = run_live(
+                mission,
+                out,
+                show,
+                Additions(
+                    config={
+                        "recording": {
+                            "rotate_size_mb": ROTATE_SIZE_MB,
+                            "rotate_minutes": ROTATE_MINUTES,
+                        },
+                        "zenoh": {"connect": [router.endpoint]},
+                    },
+                    twins={"faults": scheduled},
+                    watch_connect=router.endpoint,
+                    every_second=every_second,
+                ),
+            )
+        finally:
+            router.stop()
+        code = report(live, mission, scheduled, router, memory)
+    print(f"machine: {os.cpu_count()} cores, load average {load:.1f} at start, "
+          f"{os.getloadavg()[0]:.1f} at end")  # fmt: skip
+    return code
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
