@@ -119,6 +119,8 @@ def main() -> int:
                                                       ("baro", sim.baro))}  # fmt: skip
             sent = {"scans": sim.lms200.scans_sent, "sips": sim.p3at.sips_sent,
                     "samples": sim.baro.samples_sent}  # fmt: skip
+            lines = {twin.name: (np.array(twin.port.lateness) * 1e3, twin.port.bytes_unread)
+                     for twin in sim.twins}  # fmt: skip
         files = sorted((work / "rec").glob("*.mcap"))
         records = [r for path in files for r in read_messages(path)]
         header = read_metadata(files[0])[topics.METADATA_NAME]
@@ -168,6 +170,13 @@ def main() -> int:
         p99 = rec.get(f"latency_p99_us{topic}", 0) / 1000
         print(f"  latency last byte -> recorder {topic:6s} p50 {p50:.2f} ms, p99 {p99:.2f} ms "
               "(target p99 <= 5 ms)")  # fmt: skip
+    print("the twins' own delivery (in the errors below): a message's last byte written to the "
+          "pty - when a line would have delivered it (their threads' scheduling):")  # fmt: skip
+    for name, (late_ms, unread) in lines.items():
+        if len(late_ms):
+            p50, p99 = np.percentile(late_ms, [50, 99])
+            print(f"  {name:7s} p50 {p50:.3f} ms, p99 {p99:.3f} ms, max {late_ms.max():.1f} ms; "
+                  f"bytes lost to a full pty (the daemon did not read): {unread}")  # fmt: skip
     print("timestamp error against the twins' truth (recorded stamp - true instant):")
 
     def unix(truth: list[object] | None) -> list[int] | None:

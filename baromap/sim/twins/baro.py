@@ -20,6 +20,7 @@ from baromap.protocols.framing import BadFrame
 from baromap.sim.bmp280 import Bmp280
 from baromap.sim.scenario import STREAM_ROBOT_BARO
 from baromap.sim.twins.base import Twin
+from baromap.sim.twins.uart import line_seconds
 
 BAUD = 115200
 FIRMWARE = (1, 0, 0)
@@ -53,11 +54,18 @@ class BaroTwin(Twin):
         self._boot = time.monotonic()
         self._next_sample = self._boot + self.clock.real_delay(1.0 / self.rate_hz)
         self._next_status = self._boot + self.clock.real_delay(1.0)
-        self.port.send(b"\x00")
-        self._send(self._hello())
+        greeting = b"\x00" + baro.encode(self._hello())
+        self.counters["frames_sent"] += 1
+        # At the twin's start the board has been up a moment already (a host opens the port of
+        # a running twin): its greeting is on the line by now, not still going out while the
+        # host sets its speed. After a replug or a power cycle it goes out from now.
+        at = None if self.boot else time.monotonic() - line_seconds(len(greeting), BAUD)
+        self.port.send(greeting, at=at)
 
-    def _time_us(self) -> int:
-        return round((time.monotonic() - self._boot) * self.clock.speed * 1e6) % baro.TIME_MODULO
+    def _time_us(self, at: float | None = None) -> int:
+        """The board's micros() at monotonic instant ``at`` (default now)."""
+        t = time.monotonic() if at is None else at
+        return round((t - self._boot) * self.clock.speed * 1e6) % baro.TIME_MODULO
 
     def _next_seq(self, frame_type: baro.FrameType) -> int:
         seq = self.seq[frame_type]
@@ -164,11 +172,15 @@ class BaroTwin(Twin):
             missed = int((now - self._next_sample) / self.clock.real_delay(1.0 / self.rate_hz))
             self.counters["samples_missed"] += missed
             self._next_sample = now + self.clock.real_delay(1.0 / self.rate_hz)
+        # Like the firmware: time_us is the instant the sensor's registers are read, and the
+        # frame goes out once the reading is computed (the twin's computing stands for the
+        # board's I2C read and compensation). The truth is that same instant.
         measured_ns = time.monotonic_ns()
         measured_s = self.clock.now()
+        time_us = self._time_us(measured_ns / 1e9)
         pressure, temperature = self.reading()
         seq = self._next_seq(baro.FrameType.SAMPLE)
-        if self._send(baro.SampleFrame.from_values(seq, self._time_us(), pressure, temperature)):
+        if self._send(baro.SampleFrame.from_values(seq, time_us, pressure, temperature)):
             self.truth.record(measured_ns, measured_s, boot=self.boot, seq=seq)
         self.samples_sent += 1
 

@@ -214,8 +214,11 @@ class Twin:
             if fd is None:
                 self._stop.wait(0.01)
                 continue
+            # Wake at the next tick, or when a message's last byte is due (the line's end).
+            due = self.port.next_due()
+            timeout = TICK_S if due is None else min(TICK_S, max(0.0, due - time.monotonic()))
             try:
-                ready, _, _ = select.select([fd], [], [], TICK_S)
+                ready, _, _ = select.select([fd], [], [], timeout)
             except (OSError, ValueError):  # unplugged or replugged meanwhile
                 continue
             try:

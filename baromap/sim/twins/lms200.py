@@ -231,9 +231,12 @@ class Lms200Twin(Twin):
         if now - self._last_scan < self.clock.real_delay(self.scan_period_s):
             return
         self._last_scan = now
+        # The scan is taken now and starts on the line now: the sensor sends a telegram as
+        # soon as it has it. The twin's own time to compute it (about a millisecond) delays
+        # only when its bytes are written, never when they count as sent.
         taken_ns = time.monotonic_ns()
         taken_s = self.clock.robot_time()
-        if self.port.send(self.scan_telegram()):
+        if self.port.send(self.scan_telegram(taken_s), at=taken_ns / 1e9):
             self.truth.record(taken_ns, taken_s, boot=self.boot)
             self.scans_sent += 1
 
@@ -247,10 +250,11 @@ class Lms200Twin(Twin):
         bits = lms200.range_bits(self.config.measuring_mode)
         return LaserConfig(self.variant[0], self.variant[1], self.units, self.port.baud, bits)
 
-    def _words(self, samples: int) -> npt.NDArray[np.uint16]:
-        """Range words of the scan at the robot's pose now; the mean of ``samples`` scans."""
+    def _words(self, samples: int, robot_s: float | None = None) -> npt.NDArray[np.uint16]:
+        """Range words of the scan at the robot's pose at route time ``robot_s`` (default now);
+        the mean of ``samples`` scans."""
         sc = self.clock.scenario
-        t = np.array([self.clock.robot_time()])
+        t = np.array([self.clock.robot_time() if robot_s is None else robot_s])
         truth = sc.truth(t)
         floor = int(scan_floors(truth, sc)[0])
         walls = sc.building.floors[floor].walls_m
@@ -267,10 +271,11 @@ class Lms200Twin(Twin):
         scans = self.model.words(np.repeat(true, samples, 0), np.repeat(cosines, samples, 0))
         return _mean_words(scans, cfg.range_bits)
 
-    def scan_telegram(self) -> bytes:
-        """The telegram of the current streaming mode, for what the sensor sees now."""
+    def scan_telegram(self, robot_s: float | None = None) -> bytes:
+        """The telegram of the current streaming mode, for what the sensor sees at route time
+        ``robot_s`` (default now)."""
         mean = self.mode in (lms200.Mode.MEAN, lms200.Mode.MEAN_SUBRANGE)
-        words = self._words(self.mean_samples if mean else 1)
+        words = self._words(self.mean_samples if mean else 1, robot_s)
         subrange = self.subrange
         if subrange is not None:
             words = words[subrange[0] - 1 : subrange[1]]

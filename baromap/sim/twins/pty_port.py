@@ -1,7 +1,14 @@
 """A serial port made of a pseudo-terminal, paced like a real line, with faults on demand.
 
-A pty carries bytes instantly and ignores the baud rate, so the twin paces its own output: it
-never sends more than baud/10 bytes per second (8N1: ten bit times per byte). On Linux the
+A pty carries bytes instantly and ignores the baud rate, so the twin paces its own output like
+a UART: a message starts on the line when the device has it (or when the line is free), its
+bytes follow at baud/10 per second (8N1: ten bit times per byte), and the host never gets a
+byte before the instant its stop bit would have arrived. The port writes what is due at least
+every few milliseconds (the twin's tick, like a USB adapter's packets) and the last byte of each
+message at the instant it is complete (:meth:`PtyPort.next_due`), so the host reads a message's
+end when a real line would deliver it; how late the twin's thread managed that is measured
+(:attr:`PtyPort.lateness`), so a host's timestamp error can be told apart from the twin's own
+scheduling. On Linux the
 master reads back the termios speed the host set on the slave (TCGETS2, custom rates too);
 when it differs from the device's speed, both directions pass through
 :func:`~baromap.sim.twins.uart.misread`, so a host at the wrong speed reads garbage and a baud
@@ -16,6 +23,7 @@ and replug (a new pty behind the same symlink, as udev would do).
 from __future__ import annotations
 
 import array
+import collections
 import contextlib
 import errno
 import fcntl
@@ -41,6 +49,11 @@ WRITE_CHUNK = 1024
 #: baud rate allows). A lone message longer than that (a scan at 9600 baud) still goes out.
 QUEUE_S = 0.5
 
+#: Fraction of a byte time by which a byte counts as complete early (float rounding of "now").
+_BYTE_EPSILON: Final = 1e-3
+#: Message-end delivery delays kept for :attr:`PtyPort.lateness` (the newest).
+LATENESS_KEPT: Final = 65536
+
 #: termios speed codes -> baud; BOTHER (a custom rate) is read with TCGETS2.
 _SPEED_CODES: Final = {
     getattr(termios, f"B{baud}"): baud
@@ -64,13 +77,22 @@ class PtyPort:
         self._out = bytearray()
         self._drop = 0
         self._stall_until = 0.0
+        #: When the next byte of the queue starts on the line (monotonic s); while the queue is
+        #: empty, the earliest a new message may start (the end of the last one).
         self._budget_t = time.monotonic()
+        #: (queue position just past a message's last byte, instant that byte is complete).
+        self._ends: collections.deque[tuple[int, float]] = collections.deque()
+        self._queued = 0  # bytes ever queued
+        self._done = 0  # bytes ever written or discarded from the queue
+        self.lateness: collections.deque[float] = collections.deque(maxlen=LATENESS_KEPT)
         self.master: int | None = None
         self._slave: int | None = None
         self.slave_path = ""
         self.bytes_sent = 0
         self.bytes_dropped = 0
         self.bytes_misread = 0
+        #: Bytes the line carried while the host's buffer was full (a host that did not read).
+        self.bytes_unread = 0
         self._open()
 
     # ---- lifetime ---------------------------------------------------------------------------
@@ -110,7 +132,7 @@ class PtyPort:
                     with contextlib.suppress(OSError):
                         os.close(fd)
             self.master = self._slave = None
-            self._out.clear()
+            self._forget()
             if self.link is not None:
                 with contextlib.suppress(FileNotFoundError):
                     if self.link.is_symlink():
@@ -132,7 +154,7 @@ class PtyPort:
 
     def inject_garbage(self, data: bytes) -> None:
         with self._lock:
-            self._out += data
+            self._queue(data, None)
 
     def drop_next(self, count: int) -> None:
         """Lose the next ``count`` output bytes (a frame arrives cut short)."""
@@ -143,7 +165,7 @@ class PtyPort:
         """Send nothing for ``seconds``; what the device produces meanwhile is lost."""
         with self._lock:
             self._stall_until = time.monotonic() + seconds
-            self._out.clear()
+            self._forget()
 
     @property
     def stalled(self) -> bool:
@@ -181,9 +203,11 @@ class PtyPort:
         self.bytes_misread += len(data)
         return misread(data, tx_baud, rx_baud)
 
-    def send(self, data: bytes) -> bool:
-        """Queue bytes for output (paced by :meth:`pump`); dropped whole if the queue is full.
+    def send(self, data: bytes, at: float | None = None) -> bool:
+        """Queue a message for output (paced by :meth:`pump`); dropped whole if the queue is full.
 
+        The message starts on the line at ``at`` (``time.monotonic()`` seconds: when the device
+        had it; default now) or when the line is free, whichever is later: never before.
         True if the bytes went into the queue (possibly cut short by :meth:`drop_next`).
         """
         if not data or self.stalled:
@@ -197,27 +221,54 @@ class PtyPort:
                 self._drop -= cut
                 self.bytes_dropped += cut
                 data = data[cut:]
-            self._out += data
+            if data:
+                self._queue(data, time.monotonic() if at is None else at)
             return True
+
+    def _queue(self, data: bytes, at: float | None) -> None:
+        """Append to the queue; a message (``at`` given) has its end's instant noted."""
+        byte_s = 10.0 / self.baud
+        if not self._out:
+            self._budget_t = max(self._budget_t, time.monotonic() if at is None else at)
+        self._out += data
+        self._queued += len(data)
+        if at is not None:
+            self._ends.append((self._queued, self._budget_t + len(self._out) * byte_s))
+
+    def _forget(self) -> None:
+        """Drop the queue (under the lock)."""
+        self._done += len(self._out)
+        self._out.clear()
+        self._ends.clear()
 
     def clear(self) -> None:
         """Forget output not yet on the line (the device lost power)."""
         with self._lock:
-            self._out.clear()
+            self._forget()
 
     @property
     def pending(self) -> int:
         return len(self._out)
 
+    def next_due(self) -> float | None:
+        """When the next queued message is complete on the line (monotonic s), or None.
+
+        The twin's loop wakes then, so the message's last byte reaches the host when a real
+        line would have delivered it, not at the next tick.
+        """
+        with self._lock:
+            return self._ends[0][1] if self._ends and self.master is not None else None
+
     def pump(self) -> None:
-        """Write what the line could have carried by now."""
+        """Write every byte whose line time is over by now (never one before)."""
         with self._lock:
             if self.master is None or not self._out:
-                self._budget_t = max(self._budget_t, time.monotonic())
                 return
             now = time.monotonic()
+            # A twin thread held up for long delivers the backlog, but the line's idle
+            # credit never exceeds 50 ms.
             self._budget_t = max(self._budget_t, now - 0.05)
-            allowed = int((now - self._budget_t) * self.baud / 10.0)
+            allowed = int((now - self._budget_t) * self.baud / 10.0 + _BYTE_EPSILON)
             if allowed <= 0:
                 return
             chunk = bytes(self._out[: min(allowed, WRITE_CHUNK)])
@@ -225,7 +276,8 @@ class PtyPort:
             try:
                 written = os.write(self.master, line)
             except BlockingIOError:
-                written = len(line)  # nobody reads: the bytes are lost on the line
+                written = len(line)  # the host's buffer is full: the bytes are lost
+                self.bytes_unread += len(chunk)
             except OSError as exc:
                 if exc.errno != errno.EIO:
                     raise
@@ -234,7 +286,10 @@ class PtyPort:
                 written = len(chunk)  # garbled bytes are not resent: they were on the line
             del self._out[:written]
             self._budget_t += written * 10.0 / self.baud
+            self._done += written
             self.bytes_sent += written
+            while self._ends and self._ends[0][0] <= self._done:
+                self.lateness.append(now - self._ends.popleft()[1])
 
     def read(self) -> bytes:
         """Whatever the host wrote (non-blocking)."""
