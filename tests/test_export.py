@@ -261,8 +261,8 @@ def test_run_and_maps_transform_tree_joins_laser_to_map(sim_out: tuple[Path, Pat
     assert connects(run_edges, "laser", "odom")
     assert LaserMount.from_metadata(read_metadata(run)) is not None
     map_edges = frame_edges(out / "maps.mcap")
-    if not connects(run_edges | map_edges, "laser", "map"):
-        pytest.xfail("maps.mcap carries no map -> odom yet (the mapping session writes it)")
+    assert ("map", "odom") in map_edges
+    assert connects(run_edges | map_edges, "laser", "map")
 
 
 # -- Open-RMF ------------------------------------------------------------------------------
