@@ -46,6 +46,16 @@ def test_build_maps_files_and_model(short_run: Path, tmp_path: Path) -> None:
     assert building["loop_closures"]["cross_floor"] == 0
     # the car is matched across the rides: that is what joins the floors
     assert building["loop_closures"]["elevator_car"] > 0
+    # every ride between two floors of the model, in time order, inside the recording
+    rides = building["rides"]
+    assert rides and all(r["from_floor"] != r["to_floor"] for r in rides)
+    assert {r["from_floor"] for r in rides} | {r["to_floor"] for r in rides} == {0, 1, 2}
+    starts = [r["t_start_ns"] for r in rides]
+    assert starts == sorted(starts) and all(r["t_start_ns"] < r["t_end_ns"] for r in rides)
+    scan_t = [r.log_time_ns for r in read_messages(short_run, ["/scan"])]
+    assert scan_t[0] < starts[0] and rides[-1]["t_end_ns"] < scan_t[-1]
+    # floor names are the live detector's and tell the floors apart
+    assert len({str(f["name"]) for f in floors}) == 3
     for f in floors:
         meta = yaml.safe_load((out / f["map"]).read_text())
         image = read_pgm(out / meta["image"])
