@@ -10,7 +10,6 @@ systemd instead of recording nothing while claiming to be fine.
 from __future__ import annotations
 
 import datetime as dt
-import importlib
 import json
 import threading
 import time
@@ -28,6 +27,7 @@ from daemon.clock import HostClock
 from daemon.config import DaemonConfig
 from daemon.fanout import Consumer, Fanout
 from daemon.floors import FloorTracker
+from daemon.live import create_publisher
 from daemon.lms200 import Lms200Session
 from daemon.notify import Notifier
 from daemon.pioneer import PioneerSession
@@ -41,8 +41,6 @@ HEALTH_EVERY_NS: Final = NS_PER_S
 #: A part whose heartbeat is older than this is stuck (reads time out every 50 ms, the
 #: recorder wakes every 200 ms; a handshake write may block for its 1 s timeout).
 STUCK_NS: Final = 10 * NS_PER_S
-#: Module the live session provides: ``create_publisher(config, reference=...) -> Consumer``.
-LIVE_MODULE: Final = "daemon.live"
 
 
 def run_name(robot: str, wall_ns: int) -> str:
@@ -126,16 +124,9 @@ class Daemon:
         return data
 
     def _live_publisher(self) -> Consumer | None:
-        try:
-            module = importlib.import_module(LIVE_MODULE)
-        except ModuleNotFoundError as exc:
-            if exc.name != LIVE_MODULE:
-                raise
-            log.info("live publishing is not available in this build")
-            return None
+        """The Zenoh publisher, started (None when ``[zenoh] enabled = false``)."""
         reference = self.floors.offer_reference if self.floors is not None else None
-        publisher: Consumer | None = module.create_publisher(self.config, reference=reference)
-        return publisher
+        return create_publisher(self.config, reference=reference)
 
     # ---- lifetime -------------------------------------------------------------------------------
     def request_stop(self) -> None:
