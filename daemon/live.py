@@ -83,6 +83,9 @@ class LivePublisher:
     :meth:`follow_reference` before :meth:`start` for a robot that has a station.
     """
 
+    #: What the daemon's fanout offers it: scans and odometry never reach :meth:`offer`.
+    accepts = PublishSchedule.ACCEPTED
+
     def __init__(self, settings: LiveSettings, robot_id: str, *, station: bool = False) -> None:
         self.settings = settings
         self.keys = NodeKeys.reference(robot_id) if station else NodeKeys.robot(robot_id)

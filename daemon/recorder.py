@@ -38,6 +38,8 @@ log = structlog.get_logger(__name__)
 
 MB: Final = 1_000_000
 RESUME_HEADROOM: Final = 1.2
+#: How often (at most) the current file's size is checked for rotation.
+SIZE_CHECK_NS: Final = 250_000_000
 #: Latency histogram: 20 us bins up to 200 ms, then one overflow bin.
 LATENCY_BIN_NS: Final = 20_000
 LATENCY_BINS: Final = 10_000
@@ -93,6 +95,8 @@ class Recorder(QueueWorker):
         self.latency: dict[str, LatencyHistogram] = {}
         self._writer: RecordingWriter | None = None
         self._opened_ns = 0
+        self._size_checked_ns = 0
+        self._size_check_ns = min(SIZE_CHECK_NS, round(config.flush_interval_s * 1e9))
         self._last_flush_ns = 0
         self._devices: dict[str, dict[str, str]] = {}
         self._pending_devices: dict[str, dict[str, str]] = {}
@@ -158,7 +162,8 @@ class Recorder(QueueWorker):
             self._pause(f"write failed: {exc}")
 
     def idle(self) -> None:
-        self._write_pending_devices()
+        if self._pending_devices:
+            self._write_pending_devices()
         if self._writer is not None:
             self._flush_if_due()
         now = time.monotonic_ns()
@@ -222,6 +227,11 @@ class Recorder(QueueWorker):
     def _rotation_due(self, now_ns: int) -> bool:
         if now_ns - self._opened_ns >= self.config.rotate_minutes * 60e9:
             return True
+        # The file grows by the flushed chunks: its size is looked at (a stat) about once a
+        # flush, not for every message.
+        if now_ns - self._size_checked_ns < self._size_check_ns:
+            return False
+        self._size_checked_ns = now_ns
         return bool(self.files) and self._size() >= self.config.rotate_size_mb * MB
 
     def _size(self) -> int:

@@ -45,6 +45,7 @@ log = structlog.get_logger(__name__)
 
 #: Longest a read blocks: bounds how late a keepalive or a stop request is noticed.
 READ_TIMEOUT_S: Final = 0.05
+READ_TIMEOUT_MS: Final = round(READ_TIMEOUT_S * 1000)
 #: Most bytes taken in one read (a second of the fastest line is 50 kB).
 READ_CHUNK: Final = 65536
 #: A bad frame this recent makes an UP device DEGRADED.
@@ -95,6 +96,11 @@ class DeviceSession(abc.ABC):
         self.detail = "not started"
         self.path = ""
         self.counters: Counter[str] = Counter()
+        # The two counters of every read and every message are plain integers of this thread
+        # (health() reads them; an int is read whole), not a locked Counter update each time.
+        self._bytes_in = 0
+        self._messages = 0
+        self._poll: select.poll | None = None
         self.identity: dict[str, str] = {}
         self.heartbeat_ns = time.monotonic_ns()
         self._last_good_ns = 0
@@ -128,6 +134,10 @@ class DeviceSession(abc.ABC):
         with self._lock:
             state, detail = self.state, self.detail
             counters = dict(self.counters)
+        if self._bytes_in:
+            counters["bytes_in"] = self._bytes_in
+        if self._messages:
+            counters["messages"] = self._messages
         if state is DeviceState.UP and time.monotonic_ns() - self._last_bad_ns < DEGRADED_HOLD_NS:
             bad = sum(v for k, v in counters.items() if k.startswith("bad_"))
             state, detail = DeviceState.DEGRADED, f"{bad} bad frames so far, one in the last 5 s"
@@ -158,13 +168,17 @@ class DeviceSession(abc.ABC):
     def read(self) -> tuple[bytes, int]:
         """What arrived within the read timeout, and the monotonic ns when the read returned.
 
-        A port with a file descriptor is read with one ``select`` and one ``read``: at
+        A port with a file descriptor is read with one ``poll`` and one ``read``: at
         500 kbaud the bytes come in hundreds of small chunks a second, and pyserial's
         ``read(1)`` + ``in_waiting`` + ``read(n)`` costs three times the system calls.
         """
         fd = self._fd
         if fd is not None:
-            ready, _, _ = select.select([fd], [], [], READ_TIMEOUT_S)
+            poll = self._poll
+            if poll is None:
+                poll = self._poll = select.poll()
+                poll.register(fd, select.POLLIN)
+            ready = poll.poll(READ_TIMEOUT_MS)
             data = os.read(fd, READ_CHUNK) if ready else b""
             if ready and not data:
                 raise serial.SerialException("the port reported data but returned none")
@@ -178,7 +192,7 @@ class DeviceSession(abc.ABC):
         now = time.monotonic_ns()
         self.heartbeat_ns = now
         if data:
-            self.count("bytes_in", len(data))
+            self._bytes_in += len(data)
             self._bytes_since_good += len(data)
         return data, now
 
@@ -210,7 +224,7 @@ class DeviceSession(abc.ABC):
         self._last_bad_ns = time.monotonic_ns()
 
     def publish(self, message: Message, read_ns: int) -> None:
-        self.count("messages")
+        self._messages += 1
         self._publish(message, read_ns)
 
     def since_write_s(self) -> float:
@@ -256,6 +270,7 @@ class DeviceSession(abc.ABC):
             )
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DeviceError(f"cannot open {self.path}: {exc}") from exc
+        self._poll = None
         try:
             self._fd = self._serial.fileno()
         except (AttributeError, NotImplementedError, serial.SerialException):
@@ -264,6 +279,7 @@ class DeviceSession(abc.ABC):
     def _close(self) -> None:
         port, self._serial = self._serial, None
         self._fd = None
+        self._poll = None
         if port is not None:
             try:
                 port.close()
