@@ -20,7 +20,7 @@ import structlog
 
 from baromap import __version__
 from baromap.discovery import resolve_port
-from baromap.messages import NS_PER_S, DeviceHealth, DeviceState, Message
+from baromap.messages import NS_PER_S, DeviceHealth, DeviceState, Message, PressureSample
 from baromap.recording.frames import LaserMount
 from daemon.barometer import BarometerSession
 from daemon.clock import HostClock
@@ -125,8 +125,14 @@ class Daemon:
 
     def _live_publisher(self) -> Consumer | None:
         """The Zenoh publisher, started (None when ``[zenoh] enabled = false``)."""
-        reference = self.floors.offer_reference if self.floors is not None else None
+        reference = self._reference if self.floors is not None else None
         return create_publisher(self.config, reference=reference)
+
+    def _reference(self, sample: PressureSample) -> None:
+        """A reference station's sample (on a Zenoh thread): to the detector, and recorded."""
+        self.recorder.offer_reference(sample)
+        if self.floors is not None:
+            self.floors.offer_reference(sample)
 
     # ---- lifetime -------------------------------------------------------------------------------
     def request_stop(self) -> None:

@@ -28,7 +28,7 @@ import structlog
 
 from baromap import messages
 from baromap.errors import BaromapError
-from baromap.recording import RecordingWriter
+from baromap.recording import RecordingWriter, topics
 from baromap.recording.frames import LaserMount
 from baromap.recording.writer import DEFAULT_TOPICS
 from daemon.config import RecordingConfig
@@ -38,6 +38,8 @@ log = structlog.get_logger(__name__)
 
 MB: Final = 1_000_000
 RESUME_HEADROOM: Final = 1.2
+#: Marks a queued sample as a reference station's (no real receive time is negative).
+_REFERENCE: Final = -1
 #: How often (at most) the current file's size is checked for rotation.
 SIZE_CHECK_NS: Final = 250_000_000
 #: Latency histogram: 20 us bins up to 200 ms, then one overflow bin.
@@ -111,6 +113,11 @@ class Recorder(QueueWorker):
         with self._lock:
             self._pending_devices[device] = dict(data)
 
+    def offer_reference(self, sample: messages.PressureSample) -> None:
+        """A reference station's sample (from a Zenoh thread), recorded on
+        ``/reference/pressure`` so post-run detection can correct with the station too."""
+        self._put((sample, _REFERENCE))
+
     def health(self, t_ns: int) -> messages.DeviceHealth:
         counters: dict[str, int] = {
             "messages": sum(self.written.values()),
@@ -142,7 +149,10 @@ class Recorder(QueueWorker):
 
     def handle(self, message: messages.Message, received_ns: int | None) -> None:
         now = time.monotonic_ns()
-        topic = _topic(message)
+        if received_ns == _REFERENCE:
+            topic, received_ns = topics.REFERENCE_PRESSURE, None
+        else:
+            topic = _topic(message)
         if received_ns is not None:
             hist = self.latency.get(topic)
             if hist is None:
@@ -155,7 +165,7 @@ class Recorder(QueueWorker):
             self._rotate("rotation")
         try:
             assert self._writer is not None
-            self._writer.write(message)
+            self._writer.write(message, topic)
             self.written[topic] += 1
         except (BaromapError, OSError) as exc:
             self.lost[type(message).__name__] += 1
