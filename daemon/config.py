@@ -21,6 +21,7 @@ from baromap.errors import BaromapError, ConfigError
 from baromap.floors import FloorDetectorConfig, load_building_model
 from baromap.protocols import baro, lms200
 from baromap.protocols.robot_models import MODELS, find_model
+from baromap.recording.writer import COMPRESSIONS
 from daemon.live import config_problems
 
 Role = Literal["robot", "station"]
@@ -107,6 +108,7 @@ class RecordingConfig:
     directory: Path = Path("/var/lib/baromapd")
     rotate_size_mb: float = 1024.0
     rotate_minutes: float = 60.0
+    compression: str = "zstd"
     min_free_mb: float = 200.0
     flush_interval_s: float = 1.0
     queue_size: int = 8192
@@ -325,6 +327,15 @@ def _recording(r: _Reader, data: dict[str, Any]) -> RecordingConfig:
     directory = r.take(data, p, "directory", str, "/var/lib/baromapd")
     size = r.take(data, p, "rotate_size_mb", float, 1024.0, _positive)
     minutes = r.take(data, p, "rotate_minutes", float, 60.0, _positive)
+    compression = r.take(
+        data,
+        p,
+        "compression",
+        str,
+        "zstd",
+        _one_of(list(COMPRESSIONS)),
+        "zstd is smallest; lz4 costs the CPU less; none leaves chunks as written",
+    )
     min_free = r.take(
         data, p, "min_free_mb", float, 200.0, lambda v: None if v >= 0 else "must not be negative"
     )
@@ -341,9 +352,10 @@ def _recording(r: _Reader, data: dict[str, Any]) -> RecordingConfig:
     r.unknown(
         data,
         p,
-        "directory, rotate_size_mb, rotate_minutes, min_free_mb, flush_interval_s, queue_size",
+        "directory, rotate_size_mb, rotate_minutes, compression, min_free_mb, "
+        "flush_interval_s, queue_size",
     )
-    return RecordingConfig(Path(directory), size, minutes, min_free, flush, queue)
+    return RecordingConfig(Path(directory), size, minutes, compression, min_free, flush, queue)
 
 
 #: Settings of the detector that are not numbers (the rest are floats).

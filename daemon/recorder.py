@@ -206,6 +206,7 @@ class Recorder(QueueWorker):
                 laser_mount=self.laser_mount,
                 flush_interval_s=self.config.flush_interval_s,
                 fsync=False,  # the Syncer does it, off this thread
+                compression=self.config.compression,
             )
         except (BaromapError, OSError) as exc:
             self._writer = None

@@ -32,7 +32,7 @@ from types import TracebackType
 import foxglove
 import structlog
 from foxglove.channels import FrameTransformChannel, LaserScanChannel, OdometryChannel
-from foxglove.mcap import MCAPWriteOptions
+from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 from foxglove.messages import (
     FrameTransform,
     KeyValuePair,
@@ -64,6 +64,14 @@ DEFAULT_TOPICS: dict[type, str] = {
 
 #: Keys of the P2OS counters in a ``foxglove.Odometry`` message's metadata.
 RAW_ODOMETRY_KEYS = ("raw_x", "raw_y", "raw_theta")
+
+#: Chunk compressions a recording may use (what the MCAP SDK writes and the reader reads):
+#: zstd is smaller (the default), lz4 is cheaper on the CPU, none is for debugging a file.
+COMPRESSIONS: dict[str, MCAPCompression | None] = {
+    "zstd": MCAPCompression.Zstd,
+    "lz4": MCAPCompression.Lz4,
+    "none": None,
+}
 
 #: How often (recording time) the static transform is repeated.
 STATIC_PERIOD_NS = 1_000_000_000
@@ -105,8 +113,14 @@ class RecordingWriter:
         flush_interval_s: float = 1.0,
         fsync: bool = True,
         allow_overwrite: bool = False,
+        compression: str = "zstd",
     ) -> None:
+        if compression not in COMPRESSIONS:
+            raise RecordingError(
+                f"compression must be one of {', '.join(COMPRESSIONS)}, not {compression!r}"
+            )
         self.path = Path(path)
+        self.compression = compression
         self.context = foxglove.Context()
         self._flush_interval_s = flush_interval_s
         self._fsync = fsync
@@ -128,7 +142,9 @@ class RecordingWriter:
                 str(self.path),
                 allow_overwrite=allow_overwrite,
                 context=self.context,
-                writer_options=MCAPWriteOptions(profile="baromap"),
+                writer_options=MCAPWriteOptions(
+                    profile="baromap", compression=COMPRESSIONS[compression]
+                ),
             )
             # fsync works on the file, whichever descriptor wrote it: the SDK keeps its own.
             self._sync_fd = os.open(self.path, os.O_RDONLY) if fsync else -1
