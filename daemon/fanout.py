@@ -26,6 +26,7 @@ from typing import Any, Protocol, runtime_checkable
 import structlog
 
 from baromap.messages import Message
+from daemon.osthread import name_os_thread
 
 log = structlog.get_logger(__name__)
 
@@ -145,6 +146,7 @@ class QueueWorker:
         return self._queue.qsize()
 
     def _run(self) -> None:
+        name_os_thread()
         try:
             self.started()
             while True:

@@ -38,6 +38,7 @@ from baromap.messages import (
     FloorState,
     PressureSample,
 )
+from daemon.osthread import name_os_thread
 
 if TYPE_CHECKING:
     import zenoh
@@ -200,6 +201,7 @@ class LivePublisher:
     # -- the worker ----------------------------------------------------------------------
 
     def _run(self) -> None:
+        name_os_thread()
         session = None
         try:
             session = self._open()

@@ -33,6 +33,7 @@ from baromap.recording.frames import LaserMount
 from baromap.recording.writer import DEFAULT_TOPICS
 from daemon.config import RecordingConfig
 from daemon.fanout import QueueWorker
+from daemon.osthread import name_os_thread
 
 log = structlog.get_logger(__name__)
 
@@ -321,6 +322,7 @@ class Syncer:
         self._thread.join()
 
     def _run(self) -> None:
+        name_os_thread()
         while True:
             with self._cond:
                 while self._wanted is None and not self._stopped:

@@ -40,6 +40,7 @@ from baromap.messages import DeviceHealth, DeviceState, Message
 from baromap.protocols.framing import BadFrame
 from daemon.clock import HostClock
 from daemon.config import Retry
+from daemon.osthread import name_os_thread
 
 log = structlog.get_logger(__name__)
 
@@ -287,6 +288,7 @@ class DeviceSession(abc.ABC):
                 log.debug("close failed", device=self.name, error=str(exc))
 
     def _run(self) -> None:
+        name_os_thread()
         delay = self.retry.initial_s
         log.info("device session started", device=self.name, port=self.port_spec)
         try:
