@@ -274,8 +274,11 @@ def main() -> int:
           "these are pauses of the twin itself)")  # fmt: skip
     for device in ("laser", "base", "barometer"):
         if device in health:
-            bad = {k: v for k, v in health[device].counters.items() if k.startswith("bad_")}
-            print(f"  {device}: frames the decoder discarded on the line: {bad or 'none'}")
+            counters = health[device].counters
+            bad = {k: v for k, v in counters.items() if k.startswith("bad_")}
+            reads = counters.get("reads", 0) / max(1, counters.get("messages", 0))
+            print(f"  {device}: frames the decoder discarded on the line: {bad or 'none'}; "
+                  f"{reads:.1f} reads with data per message")  # fmt: skip
     cpu_s = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
     print(f"  daemon CPU: {cpu_s:.1f} s in {wall_s:.0f} s = {100 * cpu_s / wall_s:.2f} % of one "
           "core, start-up and shutdown included (target <= 5 %)")  # fmt: skip

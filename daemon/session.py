@@ -107,6 +107,7 @@ class DeviceSession(abc.ABC):
         # The two counters of every read and every message are plain integers of this thread
         # (health() reads them; an int is read whole), not a locked Counter update each time.
         self._bytes_in = 0
+        self._reads = 0  # reads that returned bytes: the reader's wake-ups for data
         self._messages = 0
         self._poll: select.poll | None = None
         self.identity: dict[str, str] = {}
@@ -146,6 +147,8 @@ class DeviceSession(abc.ABC):
             counters["bytes_in"] = self._bytes_in
         if self._messages:
             counters["messages"] = self._messages
+        if self._reads:
+            counters["reads"] = self._reads
         if state is DeviceState.UP and time.monotonic_ns() - self._last_bad_ns < DEGRADED_HOLD_NS:
             bad = sum(v for k, v in counters.items() if k.startswith("bad_"))
             state, detail = DeviceState.DEGRADED, f"{bad} bad frames so far, one in the last 5 s"
@@ -200,6 +203,7 @@ class DeviceSession(abc.ABC):
         now = time.monotonic_ns()
         self.heartbeat_ns = now
         if data:
+            self._reads += 1
             self._bytes_in += len(data)
             self._bytes_since_good += len(data)
         return data, now
