@@ -38,6 +38,7 @@ from baromap.messages import (
     FloorState,
     PressureSample,
 )
+from daemon.osthread import name_os_thread
 
 if TYPE_CHECKING:
     import zenoh
@@ -82,6 +83,9 @@ class LivePublisher:
     station (pressure and health only, under ``baromap/reference/<id>/``). Call
     :meth:`follow_reference` before :meth:`start` for a robot that has a station.
     """
+
+    #: What the daemon's fanout offers it: scans and odometry never reach :meth:`offer`.
+    accepts = PublishSchedule.ACCEPTED
 
     def __init__(self, settings: LiveSettings, robot_id: str, *, station: bool = False) -> None:
         self.settings = settings
@@ -197,6 +201,7 @@ class LivePublisher:
     # -- the worker ----------------------------------------------------------------------
 
     def _run(self) -> None:
+        name_os_thread()
         session = None
         try:
             session = self._open()
