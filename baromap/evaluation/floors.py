@@ -82,17 +82,13 @@ def real_cases(directory: str | Path) -> list[Case]:
 
 
 def sim_case(seed: int, settings: SimSettings | None = None) -> Case:
-    from baromap.sim.scenario import make_scenario, pressure_run
+    from baromap.sim.scenario import make_scenario, scenario_pressure_run
 
     s = settings or SimSettings()
-    shape: dict[str, Any] = {
-        "minutes": s.minutes,
-        "drift_hpa_per_h": s.drift_hpa_per_h,
-        "stops": s.stops,
-        "route": s.route,
-    }
-    run = pressure_run(seed, **shape)
-    scenario = make_scenario(seed, **shape)
+    scenario = make_scenario(
+        seed, minutes=s.minutes, drift_hpa_per_h=s.drift_hpa_per_h, stops=s.stops, route=s.route
+    )
+    run = scenario_pressure_run(scenario)
     floor = np.where(np.asarray(run.truth_floor) < 0, np.nan, np.asarray(run.truth_floor))
     truth = truth_from_series(run.t_ns, floor)
     truth = FloorTruth(

@@ -55,7 +55,7 @@ from baromap.sim.scenario import (
     STREAM_ODOMETRY,
     Scenario,
     make_scenario,
-    pressure_run,
+    scenario_pressure_run,
 )
 
 log = structlog.get_logger(__name__)
@@ -180,15 +180,7 @@ class RunGenerator:
             route=route,
             start_ns=start_ns,
         )
-        self.run = pressure_run(
-            seed,
-            floors=floors,
-            minutes=minutes,
-            drift_hpa_per_h=drift_hpa_per_h,
-            rate_hz=rate_hz,
-            route=route,
-            start_ns=start_ns,
-        )
+        self.run = scenario_pressure_run(self.sc, rate_hz)
         self.laser = laser
         self.rate_hz = rate_hz
         self.lms = Lms200Model(laser, self.sc.rng(STREAM_LASER))
