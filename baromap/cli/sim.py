@@ -76,6 +76,12 @@ def register(subparsers: Any) -> None:
     )
     rec.add_argument("--laser-units", choices=("mm", "cm"), default="mm")
     rec.add_argument("--laser-baud", type=int, default=38400, choices=(9600, 19200, 38400, 500000))
+    rec.add_argument(
+        "--robot-model",
+        default=None,
+        metavar="SUBCLASS",
+        help="the base's subclass, which sets its odometry factors (default p3at-sh, ARCOS P3-AT)",
+    )
     rec.add_argument("--force", action="store_true", help="overwrite an existing file")
     rec.set_defaults(run=run_record)
 
@@ -90,6 +96,7 @@ def parse_route(text: str | None) -> list[int] | None:
 
 
 def run_record(args: argparse.Namespace) -> int:
+    from baromap.protocols.robot_models import DEFAULT_MODEL, robot_model
     from baromap.sim.laser import LaserConfig
     from baromap.sim.record import record_run
 
@@ -108,6 +115,7 @@ def run_record(args: argparse.Namespace) -> int:
         route=parse_route(args.route),
         laser=laser,
         rate_hz=args.rate,
+        model=robot_model(args.robot_model) if args.robot_model else DEFAULT_MODEL,
         overwrite=args.force,
     )
     total = sum(summary.counts.values())
