@@ -26,6 +26,8 @@ from baromap.floors.detection import FloorDetection, detect_floors
 from baromap.floors.evaluation import (
     FloorTruth,
     Score,
+    precision_of,
+    recall_of,
     score,
     truth_from_series,
     with_settle_times,
@@ -199,12 +201,11 @@ class Totals:
 
     @property
     def recall(self) -> float:
-        return self.found / self.true if self.true else 1.0
+        return recall_of(self.found, self.true)
 
     @property
     def precision(self) -> float:
-        detected = self.found + self.false
-        return self.found / detected if detected else 1.0
+        return precision_of(self.found, self.false)
 
     @property
     def mean_accuracy(self) -> float:

@@ -117,6 +117,17 @@ def truth_from_series(
     return FloorTruth(tuple(transitions), t, f, heights)
 
 
+def recall_of(found: int, true: int) -> float:
+    """Share of the true transitions found; 1 where there was none to find."""
+    return found / true if true else 1.0
+
+
+def precision_of(found: int, false: int) -> float:
+    """Share of the detections that were true; 1 where nothing was detected."""
+    detected = found + false
+    return found / detected if detected else 1.0
+
+
 @dataclass(frozen=True, slots=True)
 class Score:
     true: int
@@ -134,12 +145,11 @@ class Score:
 
     @property
     def recall(self) -> float:
-        return self.found / self.true if self.true else 1.0
+        return recall_of(self.found, self.true)
 
     @property
     def precision(self) -> float:
-        detected = self.found + self.false
-        return self.found / detected if detected else 1.0
+        return precision_of(self.found, self.false)
 
     @property
     def median_delay_s(self) -> float:
