@@ -22,6 +22,9 @@ def _common(parser: argparse.ArgumentParser) -> None:
         help="largest weather drift rate (default 1.5 hPa/h)",
     )
     parser.add_argument(
+        "--minutes", type=float, default=46.0, help="length of the simulated run (default 46)"
+    )
+    parser.add_argument(
         "--route",
         default=None,
         help="floors to visit, 0-based, comma separated (default: the paper's 4,5,3,2,1,0,2)",
@@ -36,7 +39,6 @@ def register(subparsers: Any) -> None:
         "runs until Ctrl-C. `baromap sim record` writes a simulated run to MCAP instead.",
     )
     _common(sim)
-    sim.add_argument("--minutes", type=float, default=46.0, help="length of the route")
     sim.add_argument("--speed", type=float, default=1.0, help="time factor (default 1x)")
     sim.add_argument(
         "--link-dir",
@@ -65,7 +67,6 @@ def register(subparsers: Any) -> None:
     )
     rec.add_argument("-o", "--output", required=True, help="MCAP file to write")
     _common(rec)
-    rec.add_argument("--minutes", type=float, default=46.0, help="run length (default 46)")
     rec.add_argument("--rate", type=float, default=25.0, help="barometer rate in Hz (default 25)")
     rec.add_argument(
         "--laser-resolution",
