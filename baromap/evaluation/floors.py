@@ -24,10 +24,9 @@ from baromap.evaluation.floor_live import LiveScore, live_score
 from baromap.floors.config import FloorDetectorConfig
 from baromap.floors.detection import FloorDetection, detect_floors
 from baromap.floors.evaluation import (
+    DetectionRates,
     FloorTruth,
     Score,
-    precision_of,
-    recall_of,
     score,
     truth_from_series,
     with_settle_times,
@@ -170,7 +169,7 @@ def evaluate_case(case: Case, method: str, config: FloorDetectorConfig | None = 
 
 
 @dataclass
-class Totals:
+class Totals(DetectionRates):
     """Scores summed over cases (one method, one kind of figure)."""
 
     true: int = 0
@@ -198,14 +197,6 @@ class Totals:
         if s.height_error_m is not None:
             self.heights += 1
             self.height_max = max(self.height_max, s.height_error_m)
-
-    @property
-    def recall(self) -> float:
-        return recall_of(self.found, self.true)
-
-    @property
-    def precision(self) -> float:
-        return precision_of(self.found, self.false)
 
     @property
     def mean_accuracy(self) -> float:
