@@ -103,6 +103,11 @@ class LinePosition:
         self._chunk = size
         self._read_ns = read_ns
 
+    @property
+    def pending(self) -> int:
+        """Bytes read that no decoded frame has accounted for yet (a frame in progress)."""
+        return max(0, self.fed - self.consumed)
+
     def skip(self, size: int) -> None:
         """Bytes that were no frame (discarded, a lone ACK)."""
         self.consumed += size

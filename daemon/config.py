@@ -17,10 +17,11 @@ from pathlib import Path
 from typing import Any, Final, Literal
 
 from baromap.discovery import USB_IDENTITY
-from baromap.errors import ConfigError
-from baromap.floors import FloorDetectorConfig
+from baromap.errors import BaromapError, ConfigError
+from baromap.floors import FloorDetectorConfig, load_building_model
 from baromap.protocols import baro, lms200
 from baromap.protocols.robot_models import MODELS, find_model
+from baromap.recording.writer import COMPRESSIONS
 from daemon.live import config_problems
 
 Role = Literal["robot", "station"]
@@ -107,6 +108,7 @@ class RecordingConfig:
     directory: Path = Path("/var/lib/baromapd")
     rotate_size_mb: float = 1024.0
     rotate_minutes: float = 60.0
+    compression: str = "zstd"
     min_free_mb: float = 200.0
     flush_interval_s: float = 1.0
     queue_size: int = 8192
@@ -325,6 +327,15 @@ def _recording(r: _Reader, data: dict[str, Any]) -> RecordingConfig:
     directory = r.take(data, p, "directory", str, "/var/lib/baromapd")
     size = r.take(data, p, "rotate_size_mb", float, 1024.0, _positive)
     minutes = r.take(data, p, "rotate_minutes", float, 60.0, _positive)
+    compression = r.take(
+        data,
+        p,
+        "compression",
+        str,
+        "zstd",
+        _one_of(list(COMPRESSIONS)),
+        "zstd is smallest; lz4 costs the CPU less; none leaves chunks as written",
+    )
     min_free = r.take(
         data, p, "min_free_mb", float, 200.0, lambda v: None if v >= 0 else "must not be negative"
     )
@@ -341,28 +352,70 @@ def _recording(r: _Reader, data: dict[str, Any]) -> RecordingConfig:
     r.unknown(
         data,
         p,
-        "directory, rotate_size_mb, rotate_minutes, min_free_mb, flush_interval_s, queue_size",
+        "directory, rotate_size_mb, rotate_minutes, compression, min_free_mb, "
+        "flush_interval_s, queue_size",
     )
-    return RecordingConfig(Path(directory), size, minutes, min_free, flush, queue)
+    return RecordingConfig(Path(directory), size, minutes, compression, min_free, flush, queue)
 
 
-def _floors(r: _Reader, data: dict[str, Any]) -> FloorDetectorConfig:
+#: Settings of the detector that are not numbers (the rest are floats).
+_FLOOR_TEXT: Final = ("start_floor", "building")
+START_FLOOR_HINT: Final = 'the floor the robot starts on, e.g. start_floor = "0" or "lobby"'
+BUILDING_HINT: Final = (
+    "a building.yaml written by `baromap build-maps` (floors: index, elevation_m, name); "
+    "a relative path is taken from the configuration file's directory"
+)
+
+
+def _floors(r: _Reader, data: dict[str, Any], directory: Path | None) -> FloorDetectorConfig:
     p = "floors."
     names = [f.name for f in fields(FloorDetectorConfig)]
-    values = {name: r.take(data, p, name, float, None) for name in names if name in data}
+    values: dict[str, Any] = {
+        name: r.take(data, p, name, float, None)
+        for name in names
+        if name in data and name not in _FLOOR_TEXT
+    }
+    values["start_floor"] = r.take(
+        data,
+        p,
+        "start_floor",
+        str,
+        None,
+        lambda v: None if v.strip() else "must not be empty",
+        START_FLOOR_HINT,
+    )
+    building = r.take(data, p, "building", str, None, None, BUILDING_HINT)
     r.unknown(data, p, ", ".join(names))
+    if building is not None:
+        path = Path(building)
+        if not path.is_absolute() and directory is not None:
+            path = directory / path
+        try:
+            values["building"] = load_building_model(path)
+        except BaromapError as exc:
+            r.problem(p + "building", str(exc), BUILDING_HINT)
     try:
         return FloorDetectorConfig(**{k: v for k, v in values.items() if v is not None})
     except ConfigError as exc:
-        r.problem("floors", str(exc))
+        # The detector names the setting first ("start_floor 'x' is not a floor of ...").
+        first = str(exc).split(" ", 1)[0]
+        key = p + first if first in names else "floors"
+        hint = {"start_floor": START_FLOOR_HINT, "building": BUILDING_HINT}.get(first, "")
+        r.problem(key, str(exc), hint)
         return FloorDetectorConfig()
 
 
 _TOP_KEYS = "robot, role, log_level, recording, laser, base, barometer, floors, zenoh, reference"
 
 
-def parse_config(text: str, source: str = "<config>") -> DaemonConfig:
-    """The configuration in ``text``, or :class:`ConfigProblems` naming every problem."""
+def parse_config(
+    text: str, source: str = "<config>", directory: Path | None = None
+) -> DaemonConfig:
+    """The configuration in ``text``, or :class:`ConfigProblems` naming every problem.
+
+    ``directory`` is where the file lives: relative paths in it (``floors.building``) are
+    taken from there (the working directory when None).
+    """
     r = _Reader()
     try:
         data: dict[str, Any] = tomllib.loads(text)
@@ -392,7 +445,7 @@ def parse_config(text: str, source: str = "<config>") -> DaemonConfig:
     laser = _laser(r, sections["laser"]) if sections["laser"] is not None else None
     base = _base(r, sections["base"]) if sections["base"] is not None else None
     barometer = _barometer(r, sections["barometer"]) if sections["barometer"] is not None else None
-    floors = _floors(r, sections["floors"] or {})
+    floors = _floors(r, sections["floors"] or {}, directory)
     live = config_problems(sections["zenoh"], sections["reference"], robot=robot, role=role)
     for key, message in live:
         r.problem(key, message)
@@ -431,4 +484,4 @@ def load_config(path: str | Path) -> DaemonConfig:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigProblems(str(path), [Problem("<file>", f"cannot read: {exc}")]) from exc
-    return parse_config(text, str(path))
+    return parse_config(text, str(path), path.parent)

@@ -31,6 +31,9 @@ _REFERENCE: Final = -1
 class FloorTracker(QueueWorker):
     """Feeds the detector with pressure samples; publishes what it decides."""
 
+    #: What the fanout offers it (everything else never reaches :meth:`offer`).
+    accepts = (PressureSample, Odometry)
+
     def __init__(
         self, config: FloorDetectorConfig, publish: Callable[[Message], None], maxsize: int = 4096
     ) -> None:

@@ -20,7 +20,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import structlog
 
@@ -38,11 +38,10 @@ from baromap.messages import (
     FloorState,
     PressureSample,
 )
+from daemon.osthread import name_os_thread
 
 if TYPE_CHECKING:
     import zenoh
-
-    from daemon.config import DaemonConfig
 
 log = structlog.get_logger(__name__)
 
@@ -82,6 +81,9 @@ class LivePublisher:
     station (pressure and health only, under ``baromap/reference/<id>/``). Call
     :meth:`follow_reference` before :meth:`start` for a robot that has a station.
     """
+
+    #: What the daemon's fanout offers it: scans and odometry never reach :meth:`offer`.
+    accepts = PublishSchedule.ACCEPTED
 
     def __init__(self, settings: LiveSettings, robot_id: str, *, station: bool = False) -> None:
         self.settings = settings
@@ -197,6 +199,7 @@ class LivePublisher:
     # -- the worker ----------------------------------------------------------------------
 
     def _run(self) -> None:
+        name_os_thread()
         session = None
         try:
             session = self._open()
@@ -334,8 +337,22 @@ class LivePublisher:
             query.reply(self.keys.key(Channel.STATE), payload, encoding=encoding)
 
 
+class LiveConfig(Protocol):
+    """What the publisher reads of the daemon's configuration (``daemon.config`` imports
+    this module to check those tables, so the publisher names the fields, not the class)."""
+
+    @property
+    def robot(self) -> str: ...
+    @property
+    def role(self) -> str: ...
+    @property
+    def zenoh(self) -> Mapping[str, Any] | None: ...
+    @property
+    def reference(self) -> Mapping[str, Any] | None: ...
+
+
 def create_publisher(
-    config: DaemonConfig, *, reference: Callable[[PressureSample], None] | None = None
+    config: LiveConfig, *, reference: Callable[[PressureSample], None] | None = None
 ) -> LivePublisher | None:
     """The daemon's publisher, started, from its configuration (None: ``enabled = false``).
 

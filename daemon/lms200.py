@@ -63,6 +63,8 @@ class Lms200Session(DeviceSession):
         self.line = LinePosition()
         self.streaming = False
         self._in_place = 0
+        self._scan_bytes = 0  # the last scan's size on the line: what a scan in progress needs
+        self._status_healthy: dict[int, bool] = {}
 
     # ---- handshake ----------------------------------------------------------------------------
     def handshake(self) -> None:
@@ -215,14 +217,23 @@ class Lms200Session(DeviceSession):
     def _scan(self, message: lms200.ScanTelegram, read_ns: int) -> None:
         self.good_frame()
         self._in_place = 0
-        size = wire_size(message)
+        size = self._scan_bytes = wire_size(message)
         start_ns = self.line.end_ns(size, self.baud) - transmission_ns(size, self.baud)
         self.publish(message.to_laser_scan(self.clock.unix_ns(start_ns)), read_ns)
-        if not message.sensor_status().healthy:
+        # The status byte hardly ever changes: decode each value once, not 75 times a second.
+        healthy = self._status_healthy.get(message.status)
+        if healthy is None:
+            healthy = self._status_healthy[message.status] = message.sensor_status().healthy
+        if not healthy:
             self.count("status_not_ok")
 
     def up_detail(self) -> str:
         return f"streaming at {self.baud} baud, {self.identity.get('variant', '')}"
+
+    def read_pause_ns(self) -> int:
+        """The rest of a scan in progress, taken to be as long as the last one."""
+        remaining = self._scan_bytes - self.line.pending
+        return transmission_ns(remaining, self.baud) if self.line.pending and remaining > 0 else 0
 
     def reinitialise_note(self, reason: str) -> str | None:
         """Scans stopped: a power cycle puts the sensor back at 9600 baud, where its power-on

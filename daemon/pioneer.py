@@ -72,6 +72,7 @@ class PioneerSession(DeviceSession):
         self.line = LinePosition()
         self._session_open = False
         self._sips_seen = 0
+        self._sip_bytes = 0  # the last SIP's size on the line: what a SIP in progress needs
 
     # ---- handshake ----------------------------------------------------------------------------
     def handshake(self) -> None:
@@ -180,6 +181,7 @@ class PioneerSession(DeviceSession):
                 self.line.skip(size)
                 continue
             # The robot sends its pose as it takes it; at 9600 baud a SIP is ~40 ms of line.
+            self._sip_bytes = size
             end = self.line.end_ns(size, self.baud)
             self._odometry(message, end - transmission_ns(size, self.baud), read_ns)
         return out
@@ -199,6 +201,11 @@ class PioneerSession(DeviceSession):
     def up_detail(self) -> str:
         info = self.identity
         return f"streaming; {info.get('model_note', '')} (robot {info.get('name', '?')!r})"
+
+    def read_pause_ns(self) -> int:
+        """The rest of a SIP in progress, taken to be as long as the last one."""
+        remaining = self._sip_bytes - self.line.pending
+        return transmission_ns(remaining, self.baud) if self.line.pending and remaining > 0 else 0
 
     def keepalive(self) -> None:
         if self._session_open and self.since_write_s() >= PULSE_EVERY_S:

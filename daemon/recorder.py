@@ -28,16 +28,21 @@ import structlog
 
 from baromap import messages
 from baromap.errors import BaromapError
-from baromap.recording import RecordingWriter
+from baromap.recording import RecordingWriter, topics
 from baromap.recording.frames import LaserMount
 from baromap.recording.writer import DEFAULT_TOPICS
 from daemon.config import RecordingConfig
 from daemon.fanout import QueueWorker
+from daemon.osthread import name_os_thread
 
 log = structlog.get_logger(__name__)
 
 MB: Final = 1_000_000
 RESUME_HEADROOM: Final = 1.2
+#: Marks a queued sample as a reference station's (no real receive time is negative).
+_REFERENCE: Final = -1
+#: How often (at most) the current file's size is checked for rotation.
+SIZE_CHECK_NS: Final = 250_000_000
 #: Latency histogram: 20 us bins up to 200 ms, then one overflow bin.
 LATENCY_BIN_NS: Final = 20_000
 LATENCY_BINS: Final = 10_000
@@ -93,6 +98,8 @@ class Recorder(QueueWorker):
         self.latency: dict[str, LatencyHistogram] = {}
         self._writer: RecordingWriter | None = None
         self._opened_ns = 0
+        self._size_checked_ns = 0
+        self._size_check_ns = min(SIZE_CHECK_NS, round(config.flush_interval_s * 1e9))
         self._last_flush_ns = 0
         self._devices: dict[str, dict[str, str]] = {}
         self._pending_devices: dict[str, dict[str, str]] = {}
@@ -106,6 +113,11 @@ class Recorder(QueueWorker):
         """Record a device's identity (now, and at the start of every later file)."""
         with self._lock:
             self._pending_devices[device] = dict(data)
+
+    def offer_reference(self, sample: messages.PressureSample) -> None:
+        """A reference station's sample (from a Zenoh thread), recorded on
+        ``/reference/pressure`` so post-run detection can correct with the station too."""
+        self._put((sample, _REFERENCE))
 
     def health(self, t_ns: int) -> messages.DeviceHealth:
         counters: dict[str, int] = {
@@ -138,7 +150,10 @@ class Recorder(QueueWorker):
 
     def handle(self, message: messages.Message, received_ns: int | None) -> None:
         now = time.monotonic_ns()
-        topic = _topic(message)
+        if received_ns == _REFERENCE:
+            topic, received_ns = topics.REFERENCE_PRESSURE, None
+        else:
+            topic = _topic(message)
         if received_ns is not None:
             hist = self.latency.get(topic)
             if hist is None:
@@ -151,14 +166,15 @@ class Recorder(QueueWorker):
             self._rotate("rotation")
         try:
             assert self._writer is not None
-            self._writer.write(message)
+            self._writer.write(message, topic)
             self.written[topic] += 1
         except (BaromapError, OSError) as exc:
             self.lost[type(message).__name__] += 1
             self._pause(f"write failed: {exc}")
 
     def idle(self) -> None:
-        self._write_pending_devices()
+        if self._pending_devices:
+            self._write_pending_devices()
         if self._writer is not None:
             self._flush_if_due()
         now = time.monotonic_ns()
@@ -191,6 +207,7 @@ class Recorder(QueueWorker):
                 laser_mount=self.laser_mount,
                 flush_interval_s=self.config.flush_interval_s,
                 fsync=False,  # the Syncer does it, off this thread
+                compression=self.config.compression,
             )
         except (BaromapError, OSError) as exc:
             self._writer = None
@@ -222,6 +239,11 @@ class Recorder(QueueWorker):
     def _rotation_due(self, now_ns: int) -> bool:
         if now_ns - self._opened_ns >= self.config.rotate_minutes * 60e9:
             return True
+        # The file grows by the flushed chunks: its size is looked at (a stat) about once a
+        # flush, not for every message.
+        if now_ns - self._size_checked_ns < self._size_check_ns:
+            return False
+        self._size_checked_ns = now_ns
         return bool(self.files) and self._size() >= self.config.rotate_size_mb * MB
 
     def _size(self) -> int:
@@ -300,6 +322,7 @@ class Syncer:
         self._thread.join()
 
     def _run(self) -> None:
+        name_os_thread()
         while True:
             with self._cond:
                 while self._wanted is None and not self._stopped:

@@ -40,11 +40,20 @@ from baromap.messages import DeviceHealth, DeviceState, Message
 from baromap.protocols.framing import BadFrame
 from daemon.clock import HostClock
 from daemon.config import Retry
+from daemon.osthread import name_os_thread
 
 log = structlog.get_logger(__name__)
 
 #: Longest a read blocks: bounds how late a keepalive or a stop request is noticed.
 READ_TIMEOUT_S: Final = 0.05
+READ_TIMEOUT_MS: Final = round(READ_TIMEOUT_S * 1000)
+#: Longest sleep for the rest of a frame (a 9600 baud SIP is ~40 ms; a stop waits no longer).
+READ_PAUSE_MAX_NS: Final = 50_000_000
+#: The sleep for the rest of a frame ends this long before the frame does: the read that
+#: completes it must be a prompt one (woken by the bytes' arrival), because a frame's end is
+#: stamped from the reads around it. A line delivers in packets (a USB adapter's latency timer,
+#: 1 ms when set as the docs say; the twins' 2 ms tick) and a sleep overshoots under load.
+READ_PAUSE_MARGIN_NS: Final = 3_000_000
 #: Most bytes taken in one read (a second of the fastest line is 50 kB).
 READ_CHUNK: Final = 65536
 #: A bad frame this recent makes an UP device DEGRADED.
@@ -95,6 +104,12 @@ class DeviceSession(abc.ABC):
         self.detail = "not started"
         self.path = ""
         self.counters: Counter[str] = Counter()
+        # The two counters of every read and every message are plain integers of this thread
+        # (health() reads them; an int is read whole), not a locked Counter update each time.
+        self._bytes_in = 0
+        self._reads = 0  # reads that returned bytes: the reader's wake-ups for data
+        self._messages = 0
+        self._poll: select.poll | None = None
         self.identity: dict[str, str] = {}
         self.heartbeat_ns = time.monotonic_ns()
         self._last_good_ns = 0
@@ -128,6 +143,12 @@ class DeviceSession(abc.ABC):
         with self._lock:
             state, detail = self.state, self.detail
             counters = dict(self.counters)
+        if self._bytes_in:
+            counters["bytes_in"] = self._bytes_in
+        if self._messages:
+            counters["messages"] = self._messages
+        if self._reads:
+            counters["reads"] = self._reads
         if state is DeviceState.UP and time.monotonic_ns() - self._last_bad_ns < DEGRADED_HOLD_NS:
             bad = sum(v for k, v in counters.items() if k.startswith("bad_"))
             state, detail = DeviceState.DEGRADED, f"{bad} bad frames so far, one in the last 5 s"
@@ -158,13 +179,17 @@ class DeviceSession(abc.ABC):
     def read(self) -> tuple[bytes, int]:
         """What arrived within the read timeout, and the monotonic ns when the read returned.
 
-        A port with a file descriptor is read with one ``select`` and one ``read``: at
+        A port with a file descriptor is read with one ``poll`` and one ``read``: at
         500 kbaud the bytes come in hundreds of small chunks a second, and pyserial's
         ``read(1)`` + ``in_waiting`` + ``read(n)`` costs three times the system calls.
         """
         fd = self._fd
         if fd is not None:
-            ready, _, _ = select.select([fd], [], [], READ_TIMEOUT_S)
+            poll = self._poll
+            if poll is None:
+                poll = self._poll = select.poll()
+                poll.register(fd, select.POLLIN)
+            ready = poll.poll(READ_TIMEOUT_MS)
             data = os.read(fd, READ_CHUNK) if ready else b""
             if ready and not data:
                 raise serial.SerialException("the port reported data but returned none")
@@ -178,7 +203,8 @@ class DeviceSession(abc.ABC):
         now = time.monotonic_ns()
         self.heartbeat_ns = now
         if data:
-            self.count("bytes_in", len(data))
+            self._reads += 1
+            self._bytes_in += len(data)
             self._bytes_since_good += len(data)
         return data, now
 
@@ -210,7 +236,7 @@ class DeviceSession(abc.ABC):
         self._last_bad_ns = time.monotonic_ns()
 
     def publish(self, message: Message, read_ns: int) -> None:
-        self.count("messages")
+        self._messages += 1
         self._publish(message, read_ns)
 
     def since_write_s(self) -> float:
@@ -235,6 +261,17 @@ class DeviceSession(abc.ABC):
     def keepalive(self) -> None:  # noqa: B027 (optional hook, most devices need none)
         """Called after every read: send what the device needs to stay awake."""
 
+    def read_pause_ns(self) -> int:
+        """How long the rest of a frame in progress takes on the line (0: none, read at once).
+
+        While streaming, the reader sleeps that long (less :data:`READ_PAUSE_MARGIN_NS`)
+        before its next read instead of waking for every chunk the port delivers meanwhile (a
+        500 kbaud scan comes in seven or eight 2 ms packets, a 9600 baud SIP in twenty). The
+        read that completes the frame still comes from a wake-up on arrival, so its stamp
+        (:class:`~daemon.clock.LinePosition`) is as good as without the pause.
+        """
+        return 0
+
     def shutdown(self) -> None:  # noqa: B027 (optional hook)
         """Leave the device as it would like to be found (best effort, port still open)."""
 
@@ -256,6 +293,7 @@ class DeviceSession(abc.ABC):
             )
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DeviceError(f"cannot open {self.path}: {exc}") from exc
+        self._poll = None
         try:
             self._fd = self._serial.fileno()
         except (AttributeError, NotImplementedError, serial.SerialException):
@@ -264,6 +302,7 @@ class DeviceSession(abc.ABC):
     def _close(self) -> None:
         port, self._serial = self._serial, None
         self._fd = None
+        self._poll = None
         if port is not None:
             try:
                 port.close()
@@ -271,6 +310,7 @@ class DeviceSession(abc.ABC):
                 log.debug("close failed", device=self.name, error=str(exc))
 
     def _run(self) -> None:
+        name_os_thread()
         delay = self.retry.initial_s
         log.info("device session started", device=self.name, port=self.port_spec)
         try:
@@ -337,6 +377,9 @@ class DeviceSession(abc.ABC):
             data, read_ns = self.read()
             if data:
                 self.handle(data, read_ns)
+                pause_ns = self.read_pause_ns() - READ_PAUSE_MARGIN_NS
+                if pause_ns > 0:
+                    time.sleep(min(pause_ns, READ_PAUSE_MAX_NS) / 1e9)
             self.keepalive()
             quiet_s = (read_ns - self._last_good_ns) / 1e9
             if quiet_s > retry.garbage_s and self._bytes_since_good > 0:

@@ -23,6 +23,7 @@ SIGKILL loses about a second; the reader recovers everything up to the last flus
 
 from __future__ import annotations
 
+import io
 import os
 import time
 from collections.abc import Mapping
@@ -32,7 +33,7 @@ from types import TracebackType
 import foxglove
 import structlog
 from foxglove.channels import FrameTransformChannel, LaserScanChannel, OdometryChannel
-from foxglove.mcap import MCAPWriteOptions
+from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 from foxglove.messages import (
     FrameTransform,
     KeyValuePair,
@@ -64,6 +65,14 @@ DEFAULT_TOPICS: dict[type, str] = {
 
 #: Keys of the P2OS counters in a ``foxglove.Odometry`` message's metadata.
 RAW_ODOMETRY_KEYS = ("raw_x", "raw_y", "raw_theta")
+
+#: Chunk compressions a recording may use (what the MCAP SDK writes and the reader reads):
+#: zstd is smaller (the default), lz4 is cheaper on the CPU, none is for debugging a file.
+COMPRESSIONS: dict[str, MCAPCompression | None] = {
+    "zstd": MCAPCompression.Zstd,
+    "lz4": MCAPCompression.Lz4,
+    "none": None,
+}
 
 #: How often (recording time) the static transform is repeated.
 STATIC_PERIOD_NS = 1_000_000_000
@@ -105,8 +114,14 @@ class RecordingWriter:
         flush_interval_s: float = 1.0,
         fsync: bool = True,
         allow_overwrite: bool = False,
+        compression: str = "zstd",
     ) -> None:
+        if compression not in COMPRESSIONS:
+            raise RecordingError(
+                f"compression must be one of {', '.join(COMPRESSIONS)}, not {compression!r}"
+            )
         self.path = Path(path)
+        self.compression = compression
         self.context = foxglove.Context()
         self._flush_interval_s = flush_interval_s
         self._fsync = fsync
@@ -122,19 +137,29 @@ class RecordingWriter:
         self._last_static_ns = -1
         self._closed = True
         self.counts: dict[str, int] = {}
+        self._file: io.FileIO | None = None
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            # The SDK writes through this file object, so each write to the disk is a
+            # FileIO.write that lets go of the GIL while the kernel takes the bytes. Given the
+            # path, the SDK writes from Rust with the GIL held: a disk busy with other work
+            # (a flush blocked for 0.3 s, measured) then stopped every thread of the process,
+            # the device readers too, and a 500 kbaud line overflowed its pty.
+            self._file = io.FileIO(self.path, "w" if allow_overwrite else "x")
             self._writer = foxglove.open_mcap(
-                str(self.path),
-                allow_overwrite=allow_overwrite,
+                self._file,
                 context=self.context,
-                writer_options=MCAPWriteOptions(profile="baromap"),
+                writer_options=MCAPWriteOptions(
+                    profile="baromap", compression=COMPRESSIONS[compression]
+                ),
             )
             # fsync works on the file, whichever descriptor wrote it: the SDK keeps its own.
             self._sync_fd = os.open(self.path, os.O_RDONLY) if fsync else -1
             if fsync:
                 _fsync_dir(self.path.parent)
         except (OSError, RuntimeError, ValueError) as exc:
+            if self._file is not None:
+                self._file.close()
             raise RecordingError(f"cannot create recording {self.path}: {exc}") from exc
         self._closed = False
         if laser_mount is None and metadata:
@@ -266,6 +291,8 @@ class RecordingWriter:
             if self._sync_fd >= 0:
                 os.fsync(self._sync_fd)
         finally:
+            if self._file is not None:
+                self._file.close()
             if self._sync_fd >= 0:
                 os.close(self._sync_fd)
                 self._sync_fd = -1

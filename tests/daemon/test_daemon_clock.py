@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from baromap.messages import LaserScan
+from baromap.protocols import lms200
 from daemon.clock import DeviceClockFit, HostClock, LinePosition, transmission_ns
+from daemon.config import parse_config
+from daemon.lms200 import Lms200Session
+from daemon.session import READ_PAUSE_MARGIN_NS
 
 
 def test_a_wall_clock_step_after_start_changes_nothing() -> None:
@@ -81,3 +86,26 @@ def test_a_frame_within_one_read_ends_before_the_bytes_after_it() -> None:
     assert line.end_ns(20, 115_200) == 5_000_000
     line.chunk(40, 9_000_000)
     assert line.end_ns(22, 115_200) == 9_000_000 - transmission_ns(18, 115_200)
+
+
+def test_a_laser_reader_sleeps_through_the_rest_of_a_scan_but_stamps_it_as_before() -> None:
+    """A scan in progress: the reader may sleep for the rest of it (less the margin that keeps
+    the completing read a prompt one); the scan's stamp is what the reads say either way."""
+    scans: list[LaserScan] = []
+    config = parse_config('robot = "r"\n[laser]\nport = "loop://"\nbaud = 500000\n').laser
+    assert config is not None
+    session = Lms200Session(config, clock=HostClock(), publish=lambda m, t: scans.append(m))
+    session.streaming = True
+    telegram = lms200.encode_scan(np.full(181, 1000, dtype=np.uint16))
+    size = len(telegram)
+    assert session.read_pause_ns() == 0  # nothing in progress
+    session.handle(telegram, 10_000_000)  # a whole scan in one read: its size is known
+    assert len(scans) == 1 and session.read_pause_ns() == 0
+    session.handle(telegram[:100], 20_000_000)  # the next one begins
+    rest_ns = transmission_ns(size - 100, 500_000)
+    assert session.read_pause_ns() == rest_ns
+    assert rest_ns > READ_PAUSE_MARGIN_NS  # worth a sleep at 500 kbaud
+    session.handle(telegram[100:], 20_000_000 + rest_ns + 2_000_000)  # read 2 ms late
+    assert len(scans) == 2 and session.read_pause_ns() == 0
+    start = session.clock.unix_ns(20_000_000 + rest_ns - transmission_ns(size, 500_000))
+    assert scans[1].t_ns == start  # bounded by the prompt read at its start, not the late one

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from daemon.config import ConfigProblems, parse_config
+from daemon.config import ConfigProblems, load_config, parse_config
 from daemon.main import main
 
 REPO = Path(__file__).resolve().parents[2]
@@ -55,7 +55,7 @@ def test_every_problem_is_reported_at_once() -> None:
         "base.model",
         "barometer.port",
         "barometer.oversampling",
-        "floors",
+        "floors.min_transition_m",
         "zenoh.mode",
     }
 
@@ -86,3 +86,48 @@ def test_a_station_records_a_barometer_only() -> None:
         parse_config('robot = "roof"\nrole = "station"\n[laser]\nport = "/dev/ttyUSB0"\n')
     config = parse_config('robot = "roof"\nrole = "station"\n[barometer]\nport = "/dev/ttyACM0"\n')
     assert config.role == "station"
+
+
+BUILDING = """floors:
+  - {index: 0, elevation_m: 0.0, name: basement}
+  - {index: 1, elevation_m: 3.6, name: lobby}
+  - {index: 2, elevation_m: 7.2, name: lab}
+"""
+
+
+def test_start_floor_and_a_building_model_reach_the_detector(tmp_path: Path) -> None:
+    (tmp_path / "site").mkdir()
+    (tmp_path / "site" / "building.yaml").write_text(BUILDING)
+    path = tmp_path / "baromapd.toml"
+    path.write_text(
+        'robot = "r1"\n[barometer]\nport = "/dev/ttyACM0"\n'
+        '[floors]\nstart_floor = "lobby"\nbuilding = "site/building.yaml"\n'
+    )
+    floors = load_config(path).floors  # the relative path is the configuration file's
+    assert floors.start_floor == "lobby"
+    assert floors.building is not None
+    assert [f.name for f in floors.building.floors] == ["basement", "lobby", "lab"]
+    assert floors.building.elevation_of("lab") == pytest.approx(7.2)
+    plain = parse_config('robot = "r1"\n[barometer]\nport = "/dev/ttyACM0"\n').floors
+    assert (plain.start_floor, plain.building) == ("0", None)
+
+
+def test_check_config_names_a_bad_start_floor_or_building_with_a_hint(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "building.yaml").write_text(BUILDING)
+    head = 'robot = "r1"\n[barometer]\nport = "/dev/ttyACM0"\n[floors]\n'
+    cases = {
+        'start_floor = "roof"\nbuilding = "building.yaml"': ("floors.start_floor", "roof"),
+        'building = "missing.yaml"': ("floors.building", "missing.yaml"),
+        "start_floor = 3": ("floors.start_floor", "must be str"),
+        'start_floor = " "': ("floors.start_floor", "must not be empty"),
+    }
+    for body, (key, what) in cases.items():
+        path = tmp_path / "bad.toml"
+        path.write_text(head + body + "\n")
+        assert main(["--check-config", str(path)]) == 2, body
+        err = capsys.readouterr().err
+        line = next((x for x in err.splitlines() if key in x), "")
+        assert what in line, (body, err)
+        assert 'e.g. start_floor = "0"' in line or "baromap build-maps" in line, line  # hint

@@ -83,28 +83,41 @@ def test_a_replug_at_a_new_path_is_found_by_usb_identity(rig: Rig, twins: SimDev
     """The laser named by USB identity comes back as another tty; no restart needed."""
     identity = UsbIdentity(0x0403, 0x6001, "LASER1")
     port = twins.lms200.port
+    misses = 0  # retries that looked for the identity while it was unplugged
 
     def resolve(spec: str) -> str:
         # What pyserial's port list says now: the twin's current pty carries the identity.
+        nonlocal misses
         attached = [SerialDevice(path=port.slave_path, usb=identity)] if port.plugged else []
+        if not attached:
+            misses += 1
         return resolve_port(spec, attached)
+
+    def laser_detail() -> str:
+        return next(h.detail for h in run.daemon.health() if h.device == "laser")
 
     rig.ports["laser"] = str(identity)
     config = make_config(rig, devices=("laser",))
+    # Deadlines, not pauses: on a loaded machine the retries and the handshake come late.
     with RunningDaemon(config, resolve=resolve) as run:
-        run.wait_up(("laser",))
+        run.wait_up(("laser",), timeout=30)
         first_path = next(h.port for h in run.daemon.health() if h.device == "laser")
         twins.lms200.unplug()
-        run.wait_until(lambda: run.states()["laser"] is DeviceState.DOWN, 5, "laser down")
-        time.sleep(1.5)  # retries meanwhile find no such device
-        detail = run.daemon.health()[0].detail
+        run.wait_until(lambda: run.states()["laser"] is DeviceState.DOWN, 30, "laser down")
+        # Two retries found no such device, and health says so.
+        run.wait_until(
+            lambda: misses >= 2 and "no serial device with USB identity" in laser_detail(),
+            30,
+            "two retries found no device with the identity",
+        )
+        detail = laser_detail()
         blocker = os.openpty()  # holds the old pty number, as another device would
         try:
             twins.lms200.replug()
         finally:
             for fd in blocker:
                 os.close(fd)
-        run.wait_up(("laser",))
+        run.wait_up(("laser",), timeout=60)
         second_path = next(h.port for h in run.daemon.health() if h.device == "laser")
     assert "no serial device with USB identity 0403:6001:LASER1" in detail
     assert first_path != second_path

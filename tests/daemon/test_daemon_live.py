@@ -12,6 +12,7 @@ from baromap.live.keys import Channel
 from baromap.live.settings import LiveSettings
 from baromap.live.watch import FloorWatch, HealthReport, PressureReport, RobotGone, RobotUp
 from baromap.messages import DeviceState
+from daemon.app import Daemon
 from daemon.config import parse_config
 
 
@@ -59,3 +60,9 @@ def test_health_and_pressure_reach_a_watcher(rig: Rig) -> None:
         DeviceState.DEGRADED,
     }
     assert gone, "the liveliness token goes when the daemon stops"
+
+
+def test_zenoh_disabled_in_the_configuration_leaves_no_publisher(rig: Rig) -> None:
+    daemon = Daemon(parse_config(config_text(rig)), live=True)  # config_text: enabled = false
+    assert daemon.live is None
+    assert "zenoh" not in {h.device for h in daemon.health()}

@@ -6,11 +6,14 @@ import time
 from pathlib import Path
 
 import pytest
+from mcap.records import Chunk
+from mcap.stream_reader import StreamReader
 
+from baromap.errors import RecordingError
 from baromap.messages import DeviceState, PressureSample
-from baromap.recording import read_messages, read_metadata, topics
+from baromap.recording import RecordingWriter, read_messages, read_metadata, topics
 from daemon import recorder as recorder_module
-from daemon.config import RecordingConfig
+from daemon.config import ConfigProblems, RecordingConfig, parse_config
 from daemon.recorder import LatencyHistogram, Recorder
 
 
@@ -105,3 +108,32 @@ def test_latency_percentiles() -> None:
     assert 980_000 <= hist.percentile_ns(99) <= 1_000_000
     assert 480_000 <= hist.percentile_ns(50) <= 520_000
     assert recorder_module.LATENCY_BIN_NS == 20_000
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_the_compression_setting_reaches_the_chunks(tmp_path: Path, compression: str) -> None:
+    config = parse_config(
+        f'robot = "r1"\n[recording]\ndirectory = "{tmp_path}"\nmin_free_mb = 0\n'
+        f'compression = "{compression}"\nflush_interval_s = 0.05\n'
+        '[barometer]\nport = "loop://"\n'
+    )
+    rec = Recorder(config.recording, robot="r1", metadata={"role": "robot"}, run_name="r1_c")
+    rec.start()
+    for i, sample in enumerate(_samples(500)):
+        rec.offer(sample)
+        if i % 100 == 0:
+            time.sleep(0.06)  # several chunks
+    rec.close()
+    with rec.files[0].open("rb") as f:
+        chunks = [r for r in StreamReader(f, emit_chunks=True).records if isinstance(r, Chunk)]
+    assert len(chunks) >= 2
+    assert {c.compression for c in chunks} == {"" if compression == "none" else compression}
+    got = [r.message.seq for r in read_messages(rec.files[0], [topics.BARO])]
+    assert got == list(range(500))
+
+
+def test_an_unknown_compression_is_refused_by_key() -> None:
+    with pytest.raises(ConfigProblems, match=r"recording\.compression: 'gzip' is not one of"):
+        parse_config('robot = "r1"\n[recording]\ncompression = "gzip"\n[base]\nport = "loop://"\n')
+    with pytest.raises(RecordingError, match="compression must be one of zstd, lz4, none"):
+        RecordingWriter(Path("unused.mcap"), robot="r1", compression="brotli")
