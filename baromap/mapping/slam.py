@@ -670,11 +670,10 @@ class _Slam:
         if self.clouds.extent[k] < CAR_EXTENT_M:
             # a small enclosure (the elevator car): its walls are a metre away, where a 5 cm
             # cell blurs a degree of rotation, so it is matched in a field twice as fine made
-            # of what the submap's keyframes saw of it. Its walls hold the pose in every
-            # direction, and a turn in place is where odometry slips most: no odometry prior.
+            # of what the submap's keyframes saw of it
             fld = self._fine_field(sub, local_guess)
             window = SearchWindow(window.linear_m, window.angular_rad, MIN_ANGLE_STEP_RAD)
-            result = match(fld, points, local_guess, window)
+            result = match(fld, points, local_guess, window, prior=prior)
         else:
             coarse = sub.coarse(window.coarse_step_cells) if window.coarse_step_cells > 1 else None
             result = match(sub.field, points, local_guess, window, coarse_field=coarse, prior=prior)
