@@ -5,6 +5,7 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.baromap-installed
+TEST_STAMP := $(VENV)/.baromap-test-installed
 PYTEST_ARGS ?=
 
 .PHONY: demo test lint setup system-deps firmware bench clean
@@ -12,27 +13,33 @@ PYTEST_ARGS ?=
 demo: $(STAMP)
 	$(BIN)/baromap demo
 
-test: $(STAMP)
+test: $(TEST_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 	@if command -v avr-gcc >/dev/null 2>&1; then $(MAKE) -C firmware; else echo "firmware: build skipped (avr-gcc not found; install gcc-avr avr-libc arduino-core-avr)"; fi
 	$(BIN)/pytest $(PYTEST_ARGS)
 
-lint: $(STAMP)
+lint: $(TEST_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
-setup: $(STAMP)
+setup: $(TEST_STAMP)
 
 system-deps:
 	@scripts/system-deps.sh
 
+# The demo needs baromap and what it runs on; the test tools come with `make test`. Modules
+# are compiled to bytecode when first imported, not all at install (that halves the install).
 $(STAMP): pyproject.toml scripts/system-deps.sh
 	@scripts/system-deps.sh
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install -q -e '.[test]'
+	$(BIN)/python -m pip install -q --no-compile -e .
+	touch $@
+
+$(TEST_STAMP): $(STAMP)
+	$(BIN)/python -m pip install -q --no-compile -e '.[test]'
 	touch $@
 
 bench: $(STAMP)

@@ -193,6 +193,12 @@ def bench_logs(names: list[str], seeds: list[int]) -> bool:
             ok &= met
         if rel_t and name != "intel":
             verdict.append(f"relations mean {np.mean(rel_t):.4f} m, {np.mean(rel_r):.3f} deg")
+        if rep.reference_relations is not None:
+            ref = rep.reference_relations
+            verdict.append(
+                f"the ATE's reference (corrected poses) itself on the relations "
+                f"{ref.trans_mean:.4f} m, {ref.rot_mean:.3f} deg"
+            )
         verdict.append(f"ATE mean {np.mean(ates):.3f} m")
         print(f"{'':{len(name)}}  " + "; ".join(verdict) + f"; {_load()}")
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

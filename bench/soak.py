@@ -61,6 +61,8 @@ EDGE_S = 0.2
 #: Router down, as a fraction of the mission, and for how many simulated seconds.
 ROUTER_DOWN_AT = 0.45
 ROUTER_DOWN_S = 30.0
+#: How far past a short stretch the daemon's counters are read for damage found late.
+READ_LAG_S = 2.0
 
 
 def run_router(endpoint: str) -> int:
@@ -206,6 +208,53 @@ def fault_windows(
     return out
 
 
+def reading(health: list[DeviceHealth], lo: int, hi: int) -> tuple[int, float]:
+    """Between two recording times, from the daemon's health reports of one device: frames its
+    decoder found damaged (bad CRC, garbage, sequence gaps: bytes lost or changed before it read
+    them), and the longest time [s] its reader took in no byte at all. The span is stretched by
+    ``READ_LAG_S``: a reader that fell behind finds the damage late."""
+    hi += int(READ_LAG_S * 1e9)
+    ordered = sorted(health, key=lambda h: h.t_ns)
+    window = [h for h in ordered if lo <= h.t_ns <= hi]
+    before = [h for h in ordered if h.t_ns < lo][-1:]
+    after = [h for h in ordered if h.t_ns > hi][:1]
+
+    def bad(h: DeviceHealth) -> int:
+        return sum(
+            int(v) for k, v in h.counters.items()
+            if k.startswith("bad_") or k == "samples_lost"
+        )  # fmt: skip
+
+    span = before + window + after
+    if len(span) < 2:
+        return 0, 0.0
+    damaged = bad(span[-1]) - bad(span[0])
+    idle = 0.0
+    since = span[0]
+    for h in span[1:]:
+        if h.counters.get("bytes_in", 0) != since.counters.get("bytes_in", 0):
+            since = h
+        else:
+            idle = max(idle, (h.t_ns - since.t_ns) / 1e9)
+    return damaged, idle
+
+
+def internal_drops(by_topic: dict[str, list[Any]]) -> dict[str, int]:
+    """What the daemon itself dropped after reading: its recorder's queue and pauses, its
+    publisher's queues (last counters of each)."""
+    last: dict[str, DeviceHealth] = {}
+    for h in by_topic[topics.DIAGNOSTICS]:
+        mine = isinstance(h, DeviceHealth) and h.device in ("recorder", "zenoh")
+        if mine and (h.device not in last or h.t_ns >= last[h.device].t_ns):
+            last[h.device] = h
+    out: dict[str, int] = {}
+    for device, h in sorted(last.items()):
+        for k, v in h.counters.items():
+            if k.startswith("dropped") or k == "backlog":
+                out[f"{device}.{k}"] = int(v)
+    return out
+
+
 def report(
     live: LiveRun,
     mission: Mission,
@@ -235,6 +284,7 @@ def report(
           f"daemon exit {live.daemon_exit} (must be 0)")  # fmt: skip
     failures += live.daemon_exit != 0
     print("lost messages on healthy streams (must be 0):")
+    short: list[tuple[str, int, int, int, int, float]] = []  # device, span, missing, ...
     for device, twin in DEVICES.items():
         windows = fault_windows(scheduled, twin, clock_timeline)
         stretches = healthy_stretches(health[device], windows)
@@ -251,14 +301,18 @@ def report(
                 (r, t) for r, t in zip(sent, sent_unix, strict=True)
                 if any(lo <= t <= hi for lo, hi in stretches)
             ]  # fmt: skip
-            lost = [
-                r.seq for r, t in inside
+            lost_at = [
+                int(t) for r, t in inside
                 if not any(abs(int(t) - g) < 500_000_000 for g in got.get(r.seq or 0, ()))
             ]  # fmt: skip
             healthy_s = sum(hi - lo for lo, hi in stretches) / 1e9
             print(f"  barometer: {len(inside)} samples sent in {len(stretches)} healthy "
-                  f"stretches ({healthy_s:.0f} s), {len(lost)} not recorded")  # fmt: skip
-            failures += bool(lost)
+                  f"stretches ({healthy_s:.0f} s), {len(lost_at)} not recorded")  # fmt: skip
+            failures += bool(lost_at)
+            for lo, hi in stretches:
+                n = sum(1 for t in lost_at if lo <= t <= hi)
+                if n:
+                    short.append((device, lo, hi, n, *reading(health[device], lo, hi)))
             continue
         topic = topics.SCAN if device == "laser" else topics.ODOM
         stamps = np.array(sorted(m.t_ns for m in by_topic[topic]))
@@ -275,10 +329,22 @@ def report(
             total_sent += n_sent
             total_got += n_got
             worst = max(worst, n_sent - n_got)
+            if n_sent - n_got > 2:
+                short.append((device, a, b, n_sent - n_got, *reading(health[device], a, b)))
         print(f"  {device}: {total_sent} frames sent in {len(stretches)} healthy stretches, "
               f"{total_got} recorded; worst stretch short by {worst} (a stretch's two ends "
               "may each shift one frame: more than 2 is a loss)")  # fmt: skip
         failures += worst > 2
+    t0 = min((m.t_ns for m in by_topic[topics.BARO]), default=0)
+    for device, lo, hi, missing, damaged, idle in short:
+        print(f"  where: {device} {(lo - t0) / 1e9:.0f}-{(hi - t0) / 1e9:.0f} s of the recording: "
+              f"{missing} missing; there (and {READ_LAG_S:g} s after) the daemon's decoder counted "
+              f"{damaged} damaged frame(s) or sequence gap(s), and its reader took in no byte "
+              f"for up to {idle:.1f} s")  # fmt: skip
+    drops = internal_drops(by_topic)
+    print(f"  dropped inside the daemon after reading (must be 0): {sum(drops.values())} "
+          f"({', '.join(f'{k} {v}' for k, v in drops.items()) or 'no counters'})")  # fmt: skip
+    failures += sum(drops.values()) > 0
     seqs = [m.seq for m in by_topic[topics.BARO] if isinstance(m, PressureSample)]
     print("rotation (every", ROTATE_SIZE_MB, "MB or", ROTATE_MINUTES, "min):")
     for path, size, span in file_spans:

@@ -62,7 +62,9 @@ def test_not_ipin() -> None:
 
 def test_real_logs(shared_data: Path) -> None:
     """Invariants of what the reader makes of the real logs, not their exact counts."""
-    for path in sorted((shared_data / "baro").glob("*.txt")):
+    paths = sorted((shared_data / "baro").glob("*.txt"))
+    assert paths, "no IPIN logs in the shared data: the loop below would check nothing"
+    for path in paths:
         log = read_ipin(path)
         seconds = np.diff(log.t_ns) / 1e9
         assert np.all(seconds > 0)  # strictly increasing times

@@ -25,7 +25,7 @@ from baromap.mapping.pose_graph import Edge, PoseGraph
 from baromap.mapping.relations import Relations, relation_errors
 from baromap.mapping.scan_matcher import LikelihoodField, SearchWindow, match
 from baromap.mapping.scans import ScanBlock
-from baromap.mapping.segmentation import label_scans
+from baromap.mapping.segmentation import label_scans, moving_scans
 from baromap.mapping.slam import BETWEEN_FLOORS
 
 # an L-shaped room with a pillar: walls as segments (x0, y0, x1, y1)
@@ -323,6 +323,26 @@ def test_label_scans_keeps_a_guard_around_transitions_only() -> None:
     floor, _ = label_scans(t, [(5 * s, 12 * s, 0), (18 * s, 32 * s, 1)], guard_s=2.0)
     # the run's own start and end are no transition: no guard there
     assert floor.tolist() == [0, 0, BETWEEN_FLOORS, BETWEEN_FLOORS, 1, 1, 1, 1]
+
+
+def test_transition_guard_stops_where_the_robot_moved() -> None:
+    """A recording sped up sixfold: the robot turns in the car a second before the ride and
+    drives out half a second after it; those scans stay on their floors whatever the guard."""
+    s = 1_000_000_000
+    t = np.array([0, 8, 9, 10, 10.5, 13, 13.5, 14, 20], dtype=np.float64) * s
+    odom = np.zeros((len(t), 3))
+    odom[1:3, 2] = [0.5, 1.0]  # turning in the car
+    odom[3:6, 2] = 1.0  # standing still: the ride (11-13 s), door time around it
+    odom[6:, 2] = 1.0
+    odom[6:, 0] = [0.3, 0.6, 3.0]  # driving out
+    segments = [(0, 11 * s, 0), (13 * s, 30 * s, 1)]
+    moving = moving_scans(odom)
+    assert moving.tolist() == [True, True, True, False, False, False, True, True, True]
+    floor, _ = label_scans(t.astype(np.int64), segments, guard_s=3.0, moving=moving)
+    assert floor.tolist() == [0, 0, 0, BETWEEN_FLOORS, BETWEEN_FLOORS, BETWEEN_FLOORS, 1, 1, 1]
+    # without the odometry the guard in seconds takes the turn and the drive out too
+    floor, _ = label_scans(t.astype(np.int64), segments, guard_s=3.0)
+    assert floor.tolist() == [0, 0, BETWEEN_FLOORS, *[BETWEEN_FLOORS] * 5, 1]
 
 
 @pytest.mark.parametrize(

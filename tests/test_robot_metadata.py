@@ -44,11 +44,11 @@ def test_a_recordings_counters_turn_into_its_own_metres_again(tmp_path: Path) ->
     record_run(path, seed=1, floors=2, minutes=2.0, progress=False)
     odom = [r.message for r in read_messages(path, ["/odom"]) if isinstance(r.message, Odometry)]
     model = model_from_metadata(read_metadata(path))
-    assert model is not None
+    assert model == P3AT_SH  # the recorder's default base, today's ARCOS P3-AT
     again = reintegrate(odom, model)
     np.testing.assert_allclose([(o.x_m, o.y_m) for o in again], [(o.x_m, o.y_m) for o in odom])
     # The same counters read with the other generation's factor: every distance scaled.
-    other = P3AT_SH if model is P3AT else P3AT
+    other = P3AT
     wrong = reintegrate(odom, other)
     ratio = other.dist_conv_factor / model.dist_conv_factor
     assert wrong[-1].x_m == pytest.approx(odom[-1].x_m * ratio, rel=1e-9, abs=1e-9)

@@ -11,6 +11,8 @@ import pytest
 
 from baromap.cli.main import main
 from baromap.messages import BeamFlag, LaserScan, Odometry, PressureSample, TruthFloor, TruthPose
+from baromap.odometry.robot_metadata import ROBOT_METADATA, model_from_metadata
+from baromap.protocols.robot_models import DEFAULT_MODEL
 from baromap.recording import read_messages, read_metadata
 from baromap.sim.building import make_building
 from baromap.sim.laser import LaserConfig, cast
@@ -59,6 +61,11 @@ def test_topics_rates_and_metadata(recording: Path, messages: dict[str, list]) -
     assert json.loads(meta["elevations_m"]) == pytest.approx(list(building.elevations_m), abs=1e-3)
     assert json.loads(meta["laser"])["angle_deg"] == 180
     assert [(t["from"], t["to"]) for t in json.loads(meta["transitions"])] == [(1, 2), (2, 0)]
+    # The robot record the daemon writes: the model the host chose from the reported subclass.
+    robot = read_metadata(recording)[ROBOT_METADATA]
+    assert (robot["model"], robot["model_source"]) == (DEFAULT_MODEL.name, "reported")
+    assert robot["reported_subclass"] == DEFAULT_MODEL.name
+    assert model_from_metadata(read_metadata(recording)) == DEFAULT_MODEL
 
 
 def test_messages_are_in_time_order(recording: Path) -> None:
@@ -155,8 +162,27 @@ def test_cli_record(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "/scan" in printed
     meta = read_metadata(out)[METADATA_NAME]
     assert meta["floors"] == "2"
+    assert read_metadata(out)[ROBOT_METADATA]["model"] == "p3at-sh"
     # Refuses to overwrite without --force.
     assert main(["sim", "record", "-o", str(out), "--minutes", "1"]) == 1
+
+
+def test_cli_record_an_older_base(tmp_path: Path) -> None:
+    """An old P2OS P3-AT counts in 2.15 mm units: its counters run 1/0.465 times slower, and
+    its recording says so, so /odom in metres is the same motion either way."""
+    runs = {}
+    for model in ("p3at-sh", "p3at"):
+        out = tmp_path / f"{model}.mcap"
+        args = ["-o", str(out), "--minutes", "2", "--floors", "2", "--robot-model", model]
+        assert main(["sim", "record", *args]) == 0
+        assert read_metadata(out)[ROBOT_METADATA]["model"] == model
+        runs[model] = [r.message for r in read_messages(out, ["/odom"])]
+    new, old = runs["p3at-sh"], runs["p3at"]
+    assert [o.x_m for o in old] == pytest.approx([o.x_m for o in new], abs=0.01)
+    assert [o.y_m for o in old] == pytest.approx([o.y_m for o in new], abs=0.01)
+    far = max(range(len(new)), key=lambda i: abs(new[i].x_m) + abs(new[i].y_m))
+    assert abs(new[far].x_m) + abs(new[far].y_m) > 0.1  # the robot did move
+    assert (old[far].raw_x, old[far].raw_y) != (new[far].raw_x, new[far].raw_y)
 
 
 @pytest.mark.parametrize(
@@ -170,6 +196,7 @@ def test_cli_record(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
         (["--rate", "1e-9"], "fewer than two samples"),
         (["--seed", "-5"], "seed must not be negative"),
         (["--floors", "0"], "floors must be"),
+        (["--robot-model", "p9"], "unknown robot model"),
     ],
 )
 def test_cli_record_refuses_nonsense_in_one_line(

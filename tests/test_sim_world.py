@@ -15,7 +15,7 @@ from baromap.errors import ConfigError
 from baromap.sim import building as bld
 from baromap.sim.atmosphere import height_m, hydrostatic_pa
 from baromap.sim.motion import Move, trapezoid_duration, trapezoid_progress
-from baromap.sim.route import default_route
+from baromap.sim.route import check_route, default_route
 from baromap.sim.scenario import ROBOT_SENSOR_HEIGHT_M, make_scenario, pressure_run
 
 
@@ -144,7 +144,9 @@ def scenario():  # type: ignore[no-untyped-def]
 
 def test_default_route_is_the_papers_with_a_revisit(scenario) -> None:  # type: ignore[no-untyped-def]
     assert scenario.route == (4, 5, 3, 2, 1, 0, 2)
-    assert default_route(6) == scenario.route
+    for floors in range(2, 12):  # the paper's order generalised: every floor, one revisit
+        route = check_route(default_route(floors), floors)
+        assert set(route) == set(range(floors)) and len(route) == floors + 1
     hops = [(t.from_floor, t.to_floor) for t in scenario.transitions()]
     assert hops == list(itertools.pairwise(scenario.route))
     assert scenario.moves.end_s == pytest.approx(46 * 60)

@@ -120,7 +120,7 @@ def test_aria_resets_waits_for_power_on_then_gets_32m_scans(lms: Lms200Twin) -> 
         assert ok and config is not None and (config.measuring_mode, config.units) == (5, 1)
         port.write(lms200.start_continuous())
         got: list[lms200.LmsMessage] = []
-        deadline = time.monotonic() + 1.5
+        deadline = time.monotonic() + 10.0  # a loaded machine may be slow to give 6
         while time.monotonic() < deadline and len(scans(got)) < 6:
             got += decoder.feed(port.read(max(1, port.in_waiting)))
         port.write(lms200.stop_continuous())
@@ -227,12 +227,16 @@ def test_interlaced_scans_come_no_faster_than_the_mirror(tmp_path: Path) -> None
         twin.port.set_baud(500000)  # a line fast enough that only the mirror limits
         twin.mode = lms200.Mode.CONTINUOUS
         with serial.serial_for_url(twin.path, baudrate=500000, timeout=0.05) as port:
-            deadline = time.monotonic() + 10.0  # a loaded machine may be slow to give 6
-            while time.monotonic() < deadline and twin.truth.count < 6:
+            deadline = time.monotonic() + 10.0  # a loaded machine may be slow to give 11
+            while time.monotonic() < deadline and twin.truth.count < 11:
                 port.read(4096)
-        taken = np.diff([t.t_mono_ns for t in twin.truth.records()]) / 1e9
-    assert len(taken) >= 3
-    assert taken.min() >= 2 / 75  # two mirror turns per 0.5 deg scan: at most 37.5 Hz
+        taken = [t.t_mono_ns / 1e9 for t in twin.truth.records()]
+    assert len(taken) >= 11
+    # Two mirror turns per 0.5 deg scan: at most 37.5 Hz (a scan every 2/75 s). A twin that
+    # ignored the interlacing would send one every turn (1/75 s). A loaded machine only makes
+    # the gaps longer, and one scan's stamp taken late shortens one gap but not ten.
+    mean_gap = (taken[-1] - taken[0]) / (len(taken) - 1)
+    assert mean_gap > 1.5 / 75
 
 
 def test_a_scheduled_power_cycle_ends_with_the_power_on_telegram(tmp_path: Path) -> None:
@@ -244,9 +248,16 @@ def test_a_scheduled_power_cycle_ends_with_the_power_on_telegram(tmp_path: Path)
         seen: list[lms200.LmsMessage] = []
         with serial.serial_for_url(twin.path, baudrate=9600, timeout=0.05) as port:
             port.write(lms200.start_continuous())
-            deadline = time.monotonic() + 2.8
+            # Until the twin is up again and its power-on telegram is on the line, and 1 s
+            # more (no scan may follow it unasked); a loaded machine may be slow to get there.
+            deadline = time.monotonic() + 30.0
+            up_again: float | None = None
             while time.monotonic() < deadline:
                 seen += decoder.feed(port.read(max(1, port.in_waiting)))
+                if up_again is None and twin.boot >= 1 and not twin.booting:
+                    up_again = time.monotonic() if not twin.port.pending else None
+                if up_again is not None and time.monotonic() - up_again > 1.0:
+                    break
         # The telegram cut by the power loss claims bytes that never come; a driver gives up
         # on it after a silence (flush), and what followed decodes.
         seen += decoder.flush()
@@ -315,20 +326,24 @@ def test_each_generation_counts_in_its_own_units(tmp_path: Path, subclass: str, 
     assert travelled == pytest.approx(true_length, rel=0.05)
 
 
-def test_aria_reconnects_within_3_s_after_its_client_was_killed(tmp_path: Path) -> None:
+def test_aria_reconnects_after_its_client_was_killed(tmp_path: Path) -> None:
+    """ARIA's connect handler meets the old session's SIPs, closes it and gets through the
+    handshake in a few attempts (counted: a loaded machine stretches their wall time)."""
     twin = P2osTwin(SimClock(scenario()), tmp_path / "p3at")
     with twin:
         with serial.serial_for_url(twin.path, baudrate=9600, timeout=0.05) as port:
             handshake(port, p2os.Decoder())
             port.write(p2os.enable_motors(True))
             time.sleep(0.3)  # then the process dies: no CLOSE
-        killed = time.monotonic()
         with serial.serial_for_url(twin.path, baudrate=9600, timeout=0.05) as port:
             decoder = p2os.Decoder()
             state = 0
-            while state < 3 and time.monotonic() - killed < 3.0:
+            attempts = 0
+            deadline = time.monotonic() + 60.0  # a safety net only
+            while state < 3 and attempts < 20 and time.monotonic() < deadline:
+                attempts += 1
                 port.write(p2os.sync(state))  # ARIA's asyncConnectHandler, one step per call
-                packet = read_until(port, decoder, lambda m: not isinstance(m, type(None)), 1.0)[0]
+                packet = read_until(port, decoder, lambda m: not isinstance(m, type(None)), 5.0)[0]
                 decoder = p2os.Decoder()
                 kind = getattr(packet, "step", None) if isinstance(packet, p2os.SyncEcho) else None
                 if isinstance(packet, p2os.Sync2Info):
@@ -343,6 +358,7 @@ def test_aria_reconnects_within_3_s_after_its_client_was_killed(tmp_path: Path) 
                 else:
                     state = 0
                     time.sleep(0.08)  # ARIA's cycle between attempts
-            connected = time.monotonic() - killed
     assert state == 3, "ARIA never got through the handshake"
-    assert connected < 3.0
+    print(f"handshake after {attempts} attempts")
+    # One SYNC meets a SIP of the old session (closed then), three go through; one spare.
+    assert attempts <= 5

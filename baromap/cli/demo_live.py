@@ -4,9 +4,8 @@ Order matters. The daemon starts first, on ports that do not exist yet (as a ser
 for its devices), so it records the mission from its first seconds when the twins are
 switched on; ``baromap watch`` joins over Zenoh once the barometer is up (the daemon's state
 queryable answers once there is a state), long before the first ride ends. When the mission
-is over the daemon gets
-SIGTERM (it stops the devices, finishes the detector, closes the recording), the watcher sees
-the robot go, and the twins are switched off.
+is over the daemon gets SIGTERM (it stops the devices, finishes the detector, closes the
+recording), the watcher sees the robot go, and the twins are switched off.
 
 Everything the children print comes back as :class:`Shown` items through ``show``: the
 watcher's lines as they arrive, the daemon's device states from its JSON log, and a progress
@@ -67,14 +66,11 @@ class _Session:
         self.watch_lines: list[str] = []
         self.device_states: dict[str, str] = {}
         self.been_up: set[str] = set()
-        self.daemon_notes: list[str] = []
         self.twin_paths: dict[str, str] | None = None
         self.daemon_events: set[str] = set()
-        self.ended: set[str] = set()
 
     def handle(self, line: Line) -> None:
-        if line.text is None:
-            self.ended.add(f"{line.child}:{line.stream}")
+        if line.text is None:  # a stream ended; the child's exit is checked where it matters
             return
         if line.child == "watch" and line.stream == "out":
             self.watch_lines.append(line.text)
@@ -91,8 +87,7 @@ class _Session:
         try:
             entry = json.loads(text)
         except ValueError:
-            self.daemon_notes.append(text)
-            return
+            return  # a line that is not the daemon's log (its log file has it)
         if not isinstance(entry, dict):
             return
         event = str(entry.get("event", ""))

@@ -22,6 +22,9 @@ def _common(parser: argparse.ArgumentParser) -> None:
         help="largest weather drift rate (default 1.5 hPa/h)",
     )
     parser.add_argument(
+        "--minutes", type=float, default=46.0, help="length of the simulated run (default 46)"
+    )
+    parser.add_argument(
         "--route",
         default=None,
         help="floors to visit, 0-based, comma separated (default: the paper's 4,5,3,2,1,0,2)",
@@ -36,7 +39,6 @@ def register(subparsers: Any) -> None:
         "runs until Ctrl-C. `baromap sim record` writes a simulated run to MCAP instead.",
     )
     _common(sim)
-    sim.add_argument("--minutes", type=float, default=46.0, help="length of the route")
     sim.add_argument("--speed", type=float, default=1.0, help="time factor (default 1x)")
     sim.add_argument(
         "--link-dir",
@@ -65,7 +67,6 @@ def register(subparsers: Any) -> None:
     )
     rec.add_argument("-o", "--output", required=True, help="MCAP file to write")
     _common(rec)
-    rec.add_argument("--minutes", type=float, default=46.0, help="run length (default 46)")
     rec.add_argument("--rate", type=float, default=25.0, help="barometer rate in Hz (default 25)")
     rec.add_argument(
         "--laser-resolution",
@@ -76,6 +77,12 @@ def register(subparsers: Any) -> None:
     )
     rec.add_argument("--laser-units", choices=("mm", "cm"), default="mm")
     rec.add_argument("--laser-baud", type=int, default=38400, choices=(9600, 19200, 38400, 500000))
+    rec.add_argument(
+        "--robot-model",
+        default=None,
+        metavar="SUBCLASS",
+        help="the base's subclass, which sets its odometry factors (default p3at-sh, ARCOS P3-AT)",
+    )
     rec.add_argument("--force", action="store_true", help="overwrite an existing file")
     rec.set_defaults(run=run_record)
 
@@ -90,6 +97,7 @@ def parse_route(text: str | None) -> list[int] | None:
 
 
 def run_record(args: argparse.Namespace) -> int:
+    from baromap.protocols.robot_models import DEFAULT_MODEL, robot_model
     from baromap.sim.laser import LaserConfig
     from baromap.sim.record import record_run
 
@@ -108,6 +116,7 @@ def run_record(args: argparse.Namespace) -> int:
         route=parse_route(args.route),
         laser=laser,
         rate_hz=args.rate,
+        model=robot_model(args.robot_model) if args.robot_model else DEFAULT_MODEL,
         overwrite=args.force,
     )
     total = sum(summary.counts.values())

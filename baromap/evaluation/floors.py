@@ -24,6 +24,7 @@ from baromap.evaluation.floor_live import LiveScore, live_score
 from baromap.floors.config import FloorDetectorConfig
 from baromap.floors.detection import FloorDetection, detect_floors
 from baromap.floors.evaluation import (
+    DetectionRates,
     FloorTruth,
     Score,
     score,
@@ -82,17 +83,13 @@ def real_cases(directory: str | Path) -> list[Case]:
 
 
 def sim_case(seed: int, settings: SimSettings | None = None) -> Case:
-    from baromap.sim.scenario import make_scenario, pressure_run
+    from baromap.sim.scenario import make_scenario, scenario_pressure_run
 
     s = settings or SimSettings()
-    shape: dict[str, Any] = {
-        "minutes": s.minutes,
-        "drift_hpa_per_h": s.drift_hpa_per_h,
-        "stops": s.stops,
-        "route": s.route,
-    }
-    run = pressure_run(seed, **shape)
-    scenario = make_scenario(seed, **shape)
+    scenario = make_scenario(
+        seed, minutes=s.minutes, drift_hpa_per_h=s.drift_hpa_per_h, stops=s.stops, route=s.route
+    )
+    run = scenario_pressure_run(scenario)
     floor = np.where(np.asarray(run.truth_floor) < 0, np.nan, np.asarray(run.truth_floor))
     truth = truth_from_series(run.t_ns, floor)
     truth = FloorTruth(
@@ -172,7 +169,7 @@ def evaluate_case(case: Case, method: str, config: FloorDetectorConfig | None = 
 
 
 @dataclass
-class Totals:
+class Totals(DetectionRates):
     """Scores summed over cases (one method, one kind of figure)."""
 
     true: int = 0
@@ -200,15 +197,6 @@ class Totals:
         if s.height_error_m is not None:
             self.heights += 1
             self.height_max = max(self.height_max, s.height_error_m)
-
-    @property
-    def recall(self) -> float:
-        return self.found / self.true if self.true else 1.0
-
-    @property
-    def precision(self) -> float:
-        detected = self.found + self.false
-        return self.found / detected if detected else 1.0
 
     @property
     def mean_accuracy(self) -> float:

@@ -61,6 +61,9 @@ class LogReport:
     odometry_ate: TrajectoryError
     slam_relations: RelationErrors | None
     odometry_relations: RelationErrors | None
+    #: the corrected poses' own score on the relations: how far the ATE's reference itself is
+    #: from the ground truth
+    reference_relations: RelationErrors | None
     result: SlamResult
     seconds: float  # SLAM wall time, for the bench to print
 
@@ -88,11 +91,12 @@ def run_log(
     start = time.perf_counter()
     result = run_slam(block, odom, zeros, zeros, config=config)
     seconds = time.perf_counter() - start
-    slam_rel = odom_rel = None
+    slam_rel = odom_rel = ref_rel = None
     if spec.relations_file is not None:
         relations = read_relations(directory / spec.relations_file)
         slam_rel = relation_errors(times, result.scan_poses, relations)
         odom_rel = relation_errors(times, odom, relations)
+        ref_rel = relation_errors(times, reference, relations)
     return LogReport(
         log=name,
         seed=seed,
@@ -101,6 +105,7 @@ def run_log(
         odometry_ate=trajectory_error(odom, reference),
         slam_relations=slam_rel,
         odometry_relations=odom_rel,
+        reference_relations=ref_rel,
         result=result,
         seconds=seconds,
     )

@@ -29,12 +29,8 @@ import yaml
 from scipy import ndimage
 
 from baromap.errors import InputFormatError
-from baromap.evaluation.mapping import (
-    LOBBY_RADIUS_M,
-    WALL_TOLERANCE_M,
-    fit_rigid,
-    mean_pose_error,
-)
+from baromap.evaluation.mapping import LOBBY_RADIUS_M, WALL_TOLERANCE_M
+from baromap.evaluation.trajectory import fit_rigid, mean_pose_error
 from baromap.mapping import se2
 from baromap.mapping.export import read_pgm
 from baromap.sim.building import Building, FloorPlan

@@ -34,6 +34,7 @@ import structlog
 import yaml
 
 from baromap.errors import InputFormatError
+from baromap.export.map_yaml import read_yaml_mapping
 from baromap.mapping.export import read_pgm
 
 log = structlog.get_logger(__name__)
@@ -105,7 +106,7 @@ def export_rmf(
     building_yaml = Path(building_yaml)
     out = Path(out_path)
     directory = building_yaml.parent
-    building = _read_yaml(building_yaml)
+    building = read_yaml_mapping(building_yaml)
     levels = _levels(directory, building)
     stem = out.name.removesuffix(".yaml").removesuffix(".building")
     site_name = name or stem
@@ -139,16 +140,6 @@ def export_rmf(
     return RmfSite(out, [lvl.name for lvl in levels], lift_name, notes)
 
 
-def _read_yaml(path: Path) -> dict[str, Any]:
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
-        raise InputFormatError(f"cannot read {path}: {exc}") from exc
-    if not isinstance(data, dict):
-        raise InputFormatError(f"{path} is not a YAML mapping")
-    return data
-
-
 def _levels(directory: Path, building: dict[str, Any]) -> list[MapLevel]:
     floors = building.get("floors")
     if not isinstance(floors, list):
@@ -157,7 +148,7 @@ def _levels(directory: Path, building: dict[str, Any]) -> list[MapLevel]:
     for floor in floors:
         if not isinstance(floor, dict) or not floor.get("map"):
             continue  # a floor too short for a map has no level to draw
-        meta = _read_yaml(directory / str(floor["map"]))
+        meta = read_yaml_mapping(directory / str(floor["map"]))
         try:
             index = int(floor["index"])
             elevation = float(floor["elevation_m"])

@@ -43,10 +43,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import structlog
-import yaml
 
 from baromap import jsonmsg, messages
 from baromap.errors import ConfigError, InputFormatError
+from baromap.export.map_yaml import read_yaml_mapping
 from baromap.mapping.export import read_pgm
 from baromap.mapping.run_data import laser_offset_from_metadata
 from baromap.recording import read_messages, read_metadata, topics
@@ -371,7 +371,7 @@ def _write_start(
 
 def _load_maps(directory: Path) -> list[tuple[int, dict[str, Any]]]:
     """The floors of a build-maps directory as OccupancyGrid fields (map_server's reading)."""
-    building = _read_yaml(directory / "building.yaml")
+    building = read_yaml_mapping(directory / "building.yaml")
     floors = building.get("floors")
     if not isinstance(floors, list):
         raise InputFormatError(f"{directory}/building.yaml has no floors list")
@@ -379,7 +379,7 @@ def _load_maps(directory: Path) -> list[tuple[int, dict[str, Any]]]:
     for floor in floors:
         if not isinstance(floor, dict) or "map" not in floor:
             continue
-        meta = _read_yaml(directory / str(floor["map"]))
+        meta = read_yaml_mapping(directory / str(floor["map"]))
         try:
             index = int(floor["index"])
             elevation = float(floor.get("elevation_m") or 0.0)
@@ -446,13 +446,3 @@ def _map_transforms(directory: Path) -> list[tuple[int, tuple[Any, ...]]]:
             )
         )
     return out
-
-
-def _read_yaml(path: Path) -> dict[str, Any]:
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
-        raise InputFormatError(f"cannot read {path}: {exc}") from exc
-    if not isinstance(data, dict):
-        raise InputFormatError(f"{path} is not a YAML mapping")
-    return data

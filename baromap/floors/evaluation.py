@@ -32,6 +32,7 @@ import dataclasses
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -117,8 +118,35 @@ def truth_from_series(
     return FloorTruth(tuple(transitions), t, f, heights)
 
 
+class _Counted(Protocol):
+    @property
+    def true(self) -> int: ...
+    @property
+    def found(self) -> int: ...
+    @property
+    def false(self) -> int: ...
+
+
+class DetectionRates:
+    """Recall and precision of whatever counts true, found and false transitions: one case's
+    :class:`Score`, or scores summed over many."""
+
+    __slots__ = ()
+
+    @property
+    def recall(self: _Counted) -> float:
+        """Share of the true transitions found; 1 where there was none to find."""
+        return self.found / self.true if self.true else 1.0
+
+    @property
+    def precision(self: _Counted) -> float:
+        """Share of the detections that were true; 1 where nothing was detected."""
+        detected = self.found + self.false
+        return self.found / detected if detected else 1.0
+
+
 @dataclass(frozen=True, slots=True)
-class Score:
+class Score(DetectionRates):
     true: int
     found: int
     missed: int
@@ -131,15 +159,6 @@ class Score:
     height_error_m: float | None
     flushed: int
     settled_delays_s: tuple[float, ...] = ()
-
-    @property
-    def recall(self) -> float:
-        return self.found / self.true if self.true else 1.0
-
-    @property
-    def precision(self) -> float:
-        detected = self.found + self.false
-        return self.found / detected if detected else 1.0
 
     @property
     def median_delay_s(self) -> float:

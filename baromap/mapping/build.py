@@ -212,6 +212,8 @@ def _build(
             run.temperature_c,
             method=method,
             reference=(run.reference_t_ns, run.reference_pa) if len(run.reference_t_ns) else None,
+            odometry=(run.odometry_t_ns, run.odometry_poses),
+            scan_odom=run.odom,
         )
         timings["segmentation"] = time.perf_counter() - t0
         # the pressure figure needs nothing the SLAM makes: drawn while it runs
@@ -327,6 +329,7 @@ def write_outputs(
         grid = result.grids.get(info.index)
         entry: dict[str, Any] = {
             "index": info.index,
+            "name": info.label,
             "elevation_m": round(info.elevation_m, 3),
             "mean_pressure_pa": None if info.level_pa is None else round(info.level_pa, 2),
             "visits": info.visits,
@@ -364,6 +367,15 @@ def write_outputs(
         "resolution_m": resolution,
         "segmentation": seg.source,
         "floors": floor_entries,
+        "rides": [
+            {
+                "t_start_ns": r.t_start_ns,
+                "t_end_ns": r.t_end_ns,
+                "from_floor": r.from_floor,
+                "to_floor": r.to_floor,
+            }
+            for r in seg.rides
+        ],
         "loop_closures": {
             "within_floors": len(result.slam.loop_edges),
             "cross_floor": result.cross_floor_closures,

@@ -5,9 +5,10 @@ a few metres long, and their small errors add up along chains; a loop closure ti
 passes through a place together at a few keyframes only. Once the graph has converged, each
 keyframe is matched again, now against the finished map of its floor made from all other
 keyframes: every revisit of a place constrains it, not just the closures that were found.
-The result enters a last solve as a prior on the keyframe's pose, with the information of its
-fit (weak along a corridor, where odometry keeps deciding), beside the odometry and the
-elevator edges that join the floors.
+The result enters a last solve as an edge from a node of its floor's own frame (one per
+floor: the floor keeps its shape and may still turn as a whole against the others), with the
+information of its fit (weak along a corridor, where odometry keeps deciding), beside the
+odometry, the elevator edges and the matches of the elevator core across floors.
 
 A keyframe must not be matched against a field that holds its own points (it would only find
 itself where it already is), so the keyframes of a floor are split in two by parity, and each

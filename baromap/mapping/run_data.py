@@ -42,6 +42,8 @@ class RunData:
     metadata: dict[str, dict[str, str]]
     reference_t_ns: IntArray  # fixed reference barometer, empty when none was recorded
     reference_pa: FloatArray
+    odometry_t_ns: IntArray  # the recording's odometry as it came (for the floor detector)
+    odometry_poses: FloatArray  # (N, 3)
 
 
 def interpolate_poses(t_src: IntArray, poses: FloatArray, t_query: IntArray) -> FloatArray:
@@ -89,7 +91,8 @@ def load_run(path: str | Path) -> RunData:
         raise InputFormatError(f"{path}: no odometry on {topics.ODOM}")
     reference = load_pressure(path, topics.REFERENCE_PRESSURE)
     block = ScanBlock.from_messages(scans, laser_offset_from_metadata(metadata))
-    odom = interpolate_poses(odometry.t_ns, odometry.poses(), block.t_ns)
+    odometry_poses = odometry.poses()
+    odom = interpolate_poses(odometry.t_ns, odometry_poses, block.t_ns)
     log.info("run loaded", scans=len(block), odometry=len(odometry), pressure=len(pressure.t_ns))
     return RunData(
         scans=block,
@@ -100,4 +103,6 @@ def load_run(path: str | Path) -> RunData:
         metadata=metadata,
         reference_t_ns=reference.t_ns,
         reference_pa=reference.pressure_pa,
+        odometry_t_ns=odometry.t_ns,
+        odometry_poses=odometry_poses,
     )

@@ -192,6 +192,10 @@ FINAL_ITERATIONS = 30
 CAR_EXTENT_M = 2.5
 CAR_MIN_POINTS = 30
 CAR_MIN_SCORE = 0.6
+#: Keyframes this near the car (on any floor) see the elevator core, and of what they see,
+#: what lies this near the car is matched across floors (:meth:`_Slam._core_edges`).
+CORE_RADIUS_M = 4.0
+CORE_REACH_M = 6.0
 #: How far the car at a ride can be from where the rides' chain of car matches puts it.
 CAR_WINDOW_M = 0.3
 CAR_WINDOW_RAD = math.radians(5.0)
@@ -258,6 +262,24 @@ class _Keyframes:
     def in_car(self, k: int) -> bool:
         """A small enclosed scan: the robot inside the closed elevator car."""
         return bool(len(self.points[k]) >= CAR_MIN_POINTS and self.extent[k] < CAR_EXTENT_M)
+
+
+@dataclass(frozen=True, slots=True)
+class _MapFits:
+    """Keyframes' poses as fitted to their floor's map, with each fit's information."""
+
+    nodes: IntArray
+    poses: FloatArray
+    information: FloatArray
+
+
+def _graph(poses: FloatArray, edges: list[Edge]) -> PoseGraph:
+    graph = PoseGraph()
+    for pose in poses:
+        graph.add_node(pose)
+    for edge in edges:
+        graph.add_edge(edge)
+    return graph
 
 
 def _info(sigma_xy: float, sigma_theta: float) -> FloatArray:
@@ -402,8 +424,8 @@ class _Slam:
         )
 
     def _refine(self) -> None:
-        """Each floor's keyframes against the map of the others (see refine.py), as priors in
-        a graph of odometry and the elevator edges; match and loop edges have had their say."""
+        """Each floor's keyframes against the map of the others (see refine.py), in a graph of
+        odometry, the elevator edges and the core; match and loop edges have had their say."""
         config = self.config
         poses = self.graph.poses.copy()
         nodes: list[IntArray] = []
@@ -429,17 +451,109 @@ class _Slam:
                 nodes.append(mine[out.usable])
                 measured.append(out.poses[out.usable])
                 infos.append(info[out.usable])
-        graph = PoseGraph()
-        for pose in poses:
-            graph.add_node(pose)
-        for edge in self.graph.edges:
-            if edge.kind in ("odometry", "ride", "car"):
-                graph.add_edge(edge)
-        if nodes:
-            graph.set_priors(np.concatenate(nodes), np.concatenate(measured), np.concatenate(infos))
+        kept = [e for e in self.graph.edges if e.kind in ("odometry", "ride", "car")]
+        kept += self._core_edges(poses)
+        fits = _MapFits(
+            np.concatenate(nodes) if nodes else np.zeros(0, dtype=np.int64),
+            np.concatenate(measured) if nodes else np.zeros((0, 3)),
+            np.concatenate(infos) if nodes else np.zeros((0, 3, 3)),
+        )
+        if len(np.unique(self.kf_floor)) > 1:
+            self.graph = self._solve_with_floor_frames(poses, kept, fits)
+        else:  # one floor: nothing to turn it against, the fits hold it where it is
+            graph = _graph(poses, kept)
+            graph.set_priors(fits.nodes, fits.poses, fits.information)
+            graph.optimize(iterations=FINAL_ITERATIONS)
+            self.graph = graph
+        self.stats["refined"] = len(fits.nodes)
+
+    def _solve_with_floor_frames(
+        self, poses: FloatArray, edges: list[Edge], fits: _MapFits
+    ) -> PoseGraph:
+        """The last solve, with each floor's map fits relative to a frame of that floor.
+
+        A fit says where a keyframe stands on its floor's map, and that map is in the frame
+        the floor had when it was drawn. As priors in that frame they would hold each floor
+        where it stands; relative to a node of the floor's own (one per floor, free) they
+        keep the floor's shape, and where the floor stands against the others is decided by
+        the edges that join floors (the rides, the car, the core).
+        """
+        count = len(poses)
+        graph = _graph(poses, edges)
+        frames = {int(f): graph.add_node(np.zeros(3)) for f in np.unique(self.kf_floor)}
+        owner = np.array([frames[int(f)] for f in self.kf_floor[fits.nodes]], dtype=np.int64)
+        for k, frame, z, info in zip(fits.nodes, owner, fits.poses, fits.information, strict=True):
+            graph.add_edge(Edge(int(frame), int(k), z.copy(), _rotate_info(info, z[2]), "map"))
         graph.optimize(iterations=FINAL_ITERATIONS)
-        self.graph = graph
-        self.stats["refined"] = sum(len(n) for n in nodes)
+        solved = graph.poses
+        # the graph handed on: keyframes only, the fits as priors where their floors went
+        final = _graph(solved[:count], edges)
+        if len(fits.nodes):
+            moved = solved[owner]
+            infos = np.array(
+                [_rotate_info(i, -t) for i, t in zip(fits.information, moved[:, 2], strict=True)]
+            )
+            final.set_priors(fits.nodes, se2.compose(moved, fits.poses), infos)
+        return final
+
+    def _core_edges(self, poses: FloatArray) -> list[Edge]:
+        """The elevator core on every visit against the core on every other visit.
+
+        The shaft is vertical, so the car and the walls around its doors stand at the same
+        place on every floor: keyframes near the car, on any visit, see one structure. Each
+        visit's keyframes near the car are stamped into a field in the frame of the first of
+        them; every other visit's keyframes near the car are matched against it (Gauss-Newton
+        from where the car edges put them) and enter as robust edges. A floor whose lobby
+        differs finds little to match (the score stays low) and adds nothing.
+        """
+        cars = [k for ride in self._car_ends() for k in ride]
+        if not cars:
+            return []
+        center = poses[cars, :2].mean(axis=0)
+        res = self.config.resolution_m
+        near = np.hypot(poses[:, 0] - center[0], poses[:, 1] - center[1]) < CORE_RADIUS_M
+        visits = {
+            int(v): np.flatnonzero(near & (self.kf_visit == v)) for v in np.unique(self.kf_visit)
+        }
+        visits = {v: ids for v, ids in visits.items() if len(ids) >= 3}
+        edges: list[Edge] = []
+        for v, ids in visits.items():
+            anchor = int(ids[0])
+            clouds = []
+            for k in ids:
+                pts = se2.transform_points(poses[k], self.clouds.surfaces[k])
+                keep = np.hypot(pts[:, 0] - center[0], pts[:, 1] - center[1]) < CORE_REACH_M
+                clouds.append(se2.transform_points(se2.inverse(poses[anchor]), pts[keep]))
+            fld = LikelihoodField.from_points(
+                voxel_filter(np.concatenate(clouds), res / 2), res, res
+            )
+            others = np.concatenate([o for w, o in visits.items() if w != v])
+            if len(others) == 0:
+                continue
+            clouds = []
+            for k in others:
+                pts = self.clouds.points[k]
+                world = se2.transform_points(poses[k], pts)
+                clouds.append(
+                    pts[np.hypot(world[:, 0] - center[0], world[:, 1] - center[1]) < CORE_REACH_M]
+                )
+            points, owner = concatenate(clouds)
+            start = se2.between(poses[anchor][None, :], poses[others])
+            out = refine_batch(fld, points, owner, start)
+            for n in np.flatnonzero(out.usable):
+                info = _match_info(out.information[n], LOOP_SIGMA_M, LOOP_SIGMA_RAD)
+                edges.append(
+                    Edge(
+                        anchor,
+                        int(others[n]),
+                        out.poses[n].copy(),
+                        _rotate_info(info, out.poses[n, 2]),
+                        "core",
+                        robust_c=LOOP_ROBUST_C,
+                    )
+                )
+        self.stats["core_edges"] = len(edges)
+        return edges
 
     def register_scans(self, scans: ScanBlock, floor: IntArray) -> FloatArray:
         """Every scan's pose: keyframes as the graph has them; the scans between them
@@ -556,10 +670,11 @@ class _Slam:
         if self.clouds.extent[k] < CAR_EXTENT_M:
             # a small enclosure (the elevator car): its walls are a metre away, where a 5 cm
             # cell blurs a degree of rotation, so it is matched in a field twice as fine made
-            # of what the submap's keyframes saw of it
+            # of what the submap's keyframes saw of it. Its walls hold the pose in every
+            # direction, and a turn in place is where odometry slips most: no odometry prior.
             fld = self._fine_field(sub, local_guess)
             window = SearchWindow(window.linear_m, window.angular_rad, MIN_ANGLE_STEP_RAD)
-            result = match(fld, points, local_guess, window, prior=prior)
+            result = match(fld, points, local_guess, window)
         else:
             coarse = sub.coarse(window.coarse_step_cells) if window.coarse_step_cells > 1 else None
             result = match(sub.field, points, local_guess, window, coarse_field=coarse, prior=prior)

@@ -136,19 +136,26 @@ class ResetCause(enum.IntFlag):
     WATCHDOG = 1 << 3
 
 
-# Every frame class lists its payload fields in wire order and the struct that packs them;
-# ``seq`` and ``time_us`` (the header) come first in every class.
+@dataclass(frozen=True, slots=True)
+class FrameHeader:
+    """What every frame's header carries besides its type: the sender's sequence number (one
+    counter per frame type) and its clock in microseconds, both wrapping."""
+
+    seq: int
+    time_us: int
+
+
+# Every frame class adds its payload fields, in wire order, to the header's and names the
+# struct that packs them.
 
 
 @dataclass(frozen=True, slots=True)
-class HelloFrame:
+class HelloFrame(FrameHeader):
     """Who the board is and how it is set up (after start, sensor (re)found, IDENTIFY)."""
 
     TYPE: ClassVar[FrameType] = FrameType.HELLO
     PAYLOAD: ClassVar[struct.Struct] = struct.Struct("<12B")
 
-    seq: int
-    time_us: int
     protocol_minor: int
     fw_major: int
     fw_minor: int
@@ -168,14 +175,12 @@ class HelloFrame:
 
 
 @dataclass(frozen=True, slots=True)
-class SampleFrame:
+class SampleFrame(FrameHeader):
     """One compensated reading: pressure in Q24.8 Pa, temperature in 0.01 degC."""
 
     TYPE: ClassVar[FrameType] = FrameType.SAMPLE
     PAYLOAD: ClassVar[struct.Struct] = struct.Struct("<Ih")
 
-    seq: int
-    time_us: int
     pressure_q24_8: int
     temperature_centi_c: int
 
@@ -196,14 +201,12 @@ class SampleFrame:
 
 
 @dataclass(frozen=True, slots=True)
-class StatusFrame:
+class StatusFrame(FrameHeader):
     """The board's counters since reset, once a second."""
 
     TYPE: ClassVar[FrameType] = FrameType.STATUS
     PAYLOAD: ClassVar[struct.Struct] = struct.Struct("<9IB")
 
-    seq: int
-    time_us: int
     frames_sent: int
     frames_dropped: int
     i2c_errors: int
@@ -234,68 +237,57 @@ _STATUS_COUNTERS = (
 
 
 @dataclass(frozen=True, slots=True)
-class ErrorFrame:
+class ErrorFrame(FrameHeader):
     """A sensor problem the board is retrying through (:class:`ErrorCode`)."""
 
     TYPE: ClassVar[FrameType] = FrameType.ERROR
     PAYLOAD: ClassVar[struct.Struct] = struct.Struct("<BBH")
 
-    seq: int
-    time_us: int
     code: int
     detail: int
     count: int
 
 
 @dataclass(frozen=True, slots=True)
-class AckFrame:
+class AckFrame(FrameHeader):
     """The board's answer to one host frame (:class:`AckResult`)."""
 
     TYPE: ClassVar[FrameType] = FrameType.ACK
     PAYLOAD: ClassVar[struct.Struct] = struct.Struct("<BHB")
 
-    seq: int
-    time_us: int
     command: int
     command_seq: int
     result: int
 
 
 @dataclass(frozen=True, slots=True)
-class SetRateCommand:
+class SetRateCommand(FrameHeader):
     """Host asks for ``rate_hz`` samples per second (1..50)."""
 
     TYPE: ClassVar[FrameType] = FrameType.SET_RATE
     PAYLOAD: ClassVar[struct.Struct] = struct.Struct("<B")
 
-    seq: int
-    time_us: int
     rate_hz: int
 
 
 @dataclass(frozen=True, slots=True)
-class SetOversamplingCommand:
+class SetOversamplingCommand(FrameHeader):
     """Host sets the sensor's oversampling (1..16) and IIR filter coefficient (0..16)."""
 
     TYPE: ClassVar[FrameType] = FrameType.SET_OVERSAMPLING
     PAYLOAD: ClassVar[struct.Struct] = struct.Struct("<BBB")
 
-    seq: int
-    time_us: int
     osrs_p: int
     osrs_t: int
     iir_filter: int
 
 
 @dataclass(frozen=True, slots=True)
-class IdentifyCommand:
+class IdentifyCommand(FrameHeader):
     """Host asks for a HELLO (and a blinking LED)."""
 
     TYPE: ClassVar[FrameType] = FrameType.IDENTIFY
     PAYLOAD: ClassVar[struct.Struct] = struct.Struct("<")
-
-    seq: int
-    time_us: int
 
 
 Frame = (
@@ -322,9 +314,9 @@ FRAME_CLASSES: Final[tuple[type[Frame], ...]] = (
     IdentifyCommand,
 )
 _BY_TYPE: Final[dict[int, type[Frame]]] = {int(cls.TYPE): cls for cls in FRAME_CLASSES}
-#: Payload field names of each frame class, in wire order (after ``seq`` and ``time_us``).
+#: Payload field names of each frame class, in wire order (after the header's).
 PAYLOAD_FIELDS: Final[dict[type[Frame], tuple[str, ...]]] = {
-    cls: tuple(f.name for f in fields(cls))[2:] for cls in FRAME_CLASSES
+    cls: tuple(f.name for f in fields(cls))[len(fields(FrameHeader)) :] for cls in FRAME_CLASSES
 }
 
 

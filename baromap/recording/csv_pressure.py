@@ -24,6 +24,7 @@ import structlog
 from baromap.errors import InputFormatError
 from baromap.messages import NS_PER_S, PressureSample
 from baromap.recording.reader import PressureSeries
+from baromap.recording.text_logs import parse_text_log
 
 log = structlog.get_logger(__name__)
 
@@ -39,11 +40,7 @@ MAX_LINE_CHARS = 1024
 
 
 def read_csv_pressure(path: str | Path) -> PressureSeries:
-    try:
-        with open(path, encoding="utf-8", errors="replace") as handle:
-            return parse_csv_pressure(handle, source=str(path))
-    except OSError as exc:
-        raise InputFormatError(f"cannot read {path}: {exc}") from exc
+    return parse_text_log(path, parse_csv_pressure)
 
 
 def parse_csv_pressure(lines: Iterable[str], source: str = "<csv>") -> PressureSeries:

@@ -28,6 +28,7 @@ import structlog
 
 from baromap.errors import InputFormatError
 from baromap.messages import NS_PER_S
+from baromap.recording.text_logs import parse_text_log
 
 log = structlog.get_logger(__name__)
 
@@ -73,11 +74,7 @@ def looks_like_ipin(head: str) -> bool:
 
 def read_ipin(path: str | Path) -> IpinLog:
     """Read pressure samples and waypoints of an IPIN log."""
-    try:
-        with open(path, encoding="utf-8", errors="replace") as handle:
-            return parse_ipin(handle, source=str(path))
-    except OSError as exc:
-        raise InputFormatError(f"cannot read {path}: {exc}") from exc
+    return parse_text_log(path, parse_ipin)
 
 
 def _time_s(text: str) -> float:

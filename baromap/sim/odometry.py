@@ -22,7 +22,7 @@ import numpy.typing as npt
 
 from baromap.odometry.errors import OdometryErrorModel
 from baromap.protocols import p2os
-from baromap.protocols.robot_models import P3AT, RobotModel
+from baromap.protocols.robot_models import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -42,11 +42,9 @@ class OdometryModel:
         self,
         errors: OdometryErrorModel,
         rng: np.random.Generator,
-        model: RobotModel = P3AT,
     ) -> None:
         self.errors = errors
         self.rng = rng
-        self.model = model
         self.x_m = 0.0
         self.y_m = 0.0
         self.theta = 0.0

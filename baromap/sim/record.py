@@ -34,8 +34,9 @@ import structlog
 from baromap.messages import Message, PressureSample, TruthFloor, TruthPose
 from baromap.odometry.errors import OdometryErrorModel
 from baromap.odometry.integrator import OdometryIntegrator
+from baromap.odometry.robot_metadata import ROBOT_METADATA, robot_metadata
 from baromap.protocols import baro
-from baromap.protocols.robot_models import P3AT
+from baromap.protocols.robot_models import DEFAULT_MODEL, PIONEER_CLASS, RobotModel
 from baromap.recording.frames import LaserMount
 from baromap.sim.building import CAR_DOOR_WIDTH_M, CAR_RECT, ELEVATOR_XY, INTERIOR_WALL_M
 from baromap.sim.laser import LaserConfig, Lms200Model
@@ -55,7 +56,7 @@ from baromap.sim.scenario import (
     STREAM_ODOMETRY,
     Scenario,
     make_scenario,
-    pressure_run,
+    scenario_pressure_run,
 )
 
 log = structlog.get_logger(__name__)
@@ -109,7 +110,11 @@ def scan_floors(truth: PoseSamples, sc: Scenario) -> npt.NDArray[np.int64]:
 
 
 def sim_metadata(
-    sc: Scenario, laser: LaserConfig, rate_hz: float, odo: OdometryErrorModel
+    sc: Scenario,
+    laser: LaserConfig,
+    rate_hz: float,
+    odo: OdometryErrorModel,
+    model: RobotModel,
 ) -> dict[str, str]:
     b = sc.building
     return {
@@ -135,7 +140,7 @@ def sim_metadata(
             }
         ),
         "laser_mount": LASER_MOUNT.to_json(),
-        "robot_model": P3AT.name,
+        "robot_model": model.name,
         "odometry_errors": json.dumps(odo.as_dict()),
         "elevations_m": json.dumps([round(float(z), 3) for z in b.elevations_m]),
         "floor_names": json.dumps([f.name for f in b.floors]),
@@ -171,6 +176,7 @@ class RunGenerator:
         laser: LaserConfig,
         rate_hz: float,
         start_ns: int,
+        model: RobotModel,
     ) -> None:
         self.sc = make_scenario(
             seed,
@@ -180,28 +186,26 @@ class RunGenerator:
             route=route,
             start_ns=start_ns,
         )
-        self.run = pressure_run(
-            seed,
-            floors=floors,
-            minutes=minutes,
-            drift_hpa_per_h=drift_hpa_per_h,
-            rate_hz=rate_hz,
-            route=route,
-            start_ns=start_ns,
-        )
+        self.run = scenario_pressure_run(self.sc, rate_hz)
         self.laser = laser
         self.rate_hz = rate_hz
         self.lms = Lms200Model(laser, self.sc.rng(STREAM_LASER))
         odo_rng = self.sc.rng(STREAM_ODOMETRY)
         self.odo_errors = OdometryErrorModel.random(odo_rng)
         self.odometry = OdometryModel(self.odo_errors, odo_rng)
-        self.integrator = OdometryIntegrator(P3AT)
+        self.model = model
+        self.integrator = OdometryIntegrator(model)
         self.baro_clock_ppm = float(odo_rng.uniform(-800.0, 800.0))
         self.baro_boot_us = int(odo_rng.uniform(0.9e6, 1.6e6))
         dur = self.sc.duration_s
         self.t_scan = np.arange(0.013, dur, 1.0 / laser.scan_rate_hz)
         self.t_sip = np.arange(0.05, dur, SIP_PERIOD_S)
-        self.metadata = sim_metadata(self.sc, laser, rate_hz, self.odo_errors)
+        self.metadata = sim_metadata(self.sc, laser, rate_hz, self.odo_errors, model)
+        # What the daemon records for the model it chose: the simulated robot reports the
+        # model's subclass in its SYNC2 echo, and the host takes the model from it.
+        self.robot = robot_metadata(
+            model, (self.sc.twins.robot_name, PIONEER_CLASS, model.name), "reported"
+        )
 
     def windows(self) -> Iterator[list[tuple[int, int, str | None, Message]]]:
         dur = self.sc.duration_s
@@ -299,14 +303,14 @@ class RunGenerator:
         truth = self.sc.truth(t)
         ds, dth = true_increments(truth.x, truth.y, truth.theta, prev)
         x, y, th = self.odometry.step(ds, dth)
-        cx, cy, cth = counters(P3AT, x, y, th)
+        cx, cy, cth = counters(self.model, x, y, th)
         v = ds / SIP_PERIOD_S * (1.0 + self.odo_errors.scale)
         w = dth / SIP_PERIOD_S * (1.0 + self.odo_errors.rotation_scale)
         t_ns = self.sc.t_ns(t)
         out: list[tuple[int, int, str | None, Message]] = []
         for i in range(len(t)):
             packet = sip(
-                P3AT,
+                self.model,
                 x=cx[i],
                 y=cy[i],
                 theta=cth[i],
@@ -353,10 +357,15 @@ def record_run(
     laser: LaserConfig | None = None,
     rate_hz: float = 25.0,
     start_ns: int = SIM_EPOCH_NS,
+    model: RobotModel = DEFAULT_MODEL,
     progress: bool | None = None,
     overwrite: bool = False,
 ) -> RecordSummary:
-    """Write a simulated run to ``path``; returns what was written and how long it took."""
+    """Write a simulated run to ``path``; returns what was written and how long it took.
+
+    ``model`` is the robot's base: the subclass it reports, the factors its counters are in,
+    and the :data:`~baromap.odometry.robot_metadata.ROBOT_METADATA` record written with them.
+    """
     from baromap.recording import RecordingWriter
 
     started = time.perf_counter()
@@ -369,6 +378,7 @@ def record_run(
         laser=laser or LaserConfig(),
         rate_hz=rate_hz,
         start_ns=start_ns,
+        model=model,
     )
     show = sys.stderr.isatty() if progress is None else progress
     windows = gen.windows()
@@ -387,6 +397,7 @@ def record_run(
         allow_overwrite=overwrite,
     ) as writer:
         writer.write_metadata(METADATA_NAME, gen.metadata)
+        writer.write_metadata(ROBOT_METADATA, gen.robot)
         for batch in windows:
             for _, _, topic, message in batch:
                 writer.write(message, topic=topic)

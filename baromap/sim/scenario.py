@@ -270,6 +270,11 @@ def pressure_run(
         start_ns=start_ns,
         stops=stops,
     )
+    return scenario_pressure_run(sc, rate_hz)
+
+
+def scenario_pressure_run(sc: Scenario, rate_hz: float = 25.0) -> PressureRun:
+    """:func:`pressure_run` of a scenario already made (the recorder needs both)."""
     t = sample_times(sc.duration_s, rate_hz)
     truth = sc.truth(t)
     true_p = sc.true_pressure_pa(t, truth)
@@ -280,8 +285,8 @@ def pressure_run(
     station = Bmp280.random(sc.rng(STREAM_REFERENCE_BARO), rate_hz, heated=False)
     ref_p, ref_t = station.measure(sc.reference_true_pa(t), sc.air.floor_c[0])
     return PressureRun(
-        seed=seed,
-        floors=floors,
+        seed=sc.seed,
+        floors=sc.floors,
         rate_hz=rate_hz,
         t_ns=sc.t_ns(t),
         pressure_pa=pressure,

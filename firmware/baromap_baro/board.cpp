@@ -29,18 +29,9 @@ namespace {
 
 const uint8_t LED = _BV(PB5);  // pin 13
 
-struct Counters {
-  uint32_t frames_sent;
-  uint32_t frames_dropped;
-  uint32_t samples_missed;
-  uint32_t rx_bytes;
-  uint32_t rx_frames;
-  uint32_t rx_crc_errors;
-  uint32_t rx_bad_frames;
-  uint32_t rx_overflows;
-};
-
-Counters counters;
+// The counters since reset are kept in the STATUS payload itself; its sensor fields
+// (i2c_errors, sensor_state) are filled from the sensor when a STATUS goes out.
+proto::Status counters;
 BaroSensor sensor;
 RxFramer framer;
 SensorSettings settings;
@@ -84,18 +75,9 @@ void send_hello(uint32_t now) {
 }
 
 void send_status(uint32_t now) {
-  proto::Status s;
-  s.frames_sent = counters.frames_sent;
-  s.frames_dropped = counters.frames_dropped;
-  s.i2c_errors = sensor.i2c_errors();
-  s.samples_missed = counters.samples_missed;
-  s.rx_bytes = counters.rx_bytes;
-  s.rx_frames = counters.rx_frames;
-  s.rx_crc_errors = counters.rx_crc_errors;
-  s.rx_bad_frames = counters.rx_bad_frames;
-  s.rx_overflows = counters.rx_overflows;
-  s.sensor_state = sensor.protocol_state();
-  send(proto::encode_status(seq_status++, now, s, wire, sizeof wire));
+  counters.i2c_errors = sensor.i2c_errors();
+  counters.sensor_state = sensor.protocol_state();
+  send(proto::encode_status(seq_status++, now, counters, wire, sizeof wire));
 }
 
 void send_error(uint32_t now, const SensorEvent &e) {

@@ -236,25 +236,64 @@ static void invert(double p_pa, double temp_c, int32_t *adc_p, int32_t *adc_t) {
 enum { REG_CALIB = 0x88, REG_ID = 0xD0, REG_RESET = 0xE0, REG_STATUS = 0xF3, REG_CTRL = 0xF4,
        REG_CONFIG = 0xF5, REG_DATA = 0xF7 };
 
+/* What both virtual sensors share on the bus: their address, whether the trajectory has them
+ * present, whether the current transaction addressed them, and what the summary counts. */
 typedef struct {
 	avr_t *avr;
 	avr_irq_t *irq; /* [0] to the AVR's TWI input, [1] from its output */
 	uint8_t addr7;
+	int selected, present;
+	FILE *truth;
+	unsigned long transactions, nacked, data_reads;
+} twi_dev_t;
+
+static void twi_dev_attach(twi_dev_t *d, avr_t *avr, uint8_t addr7, const char *names[2],
+                           avr_irq_notify_t hook, void *param) {
+	d->avr = avr;
+	d->addr7 = addr7;
+	d->irq = avr_alloc_irq(&avr->irq_pool, 0, 2, names);
+	avr_irq_register_notify(d->irq + 1, hook, param);
+	avr_connect_irq(d->irq + 0, avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_INPUT));
+	avr_connect_irq(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT), d->irq + 1);
+	double p, temp;
+	trajectory_at(0, &p, &temp, &d->present);
+}
+
+/* A START with an address: 1 if it is this device's and the device is there (selected now; the
+ * caller answers ACK), 0 if not addressed or absent (no ACK: the master sees an address NACK).
+ * *appeared says the device has just come back, so it powers up. */
+static int twi_dev_start(twi_dev_t *d, uint8_t addr, double now, int *appeared) {
+	d->selected = 0;
+	*appeared = 0;
+	if ((addr >> 1) != d->addr7)
+		return 0;
+	double p, temp;
+	int present;
+	trajectory_at(now * 1e-6, &p, &temp, &present);
+	*appeared = present && !d->present;
+	d->present = present;
+	d->transactions++;
+	if (!present) {
+		d->nacked++;
+		return 0;
+	}
+	d->selected = 1;
+	return 1;
+}
+
+typedef struct {
+	twi_dev_t dev;
 	uint8_t regs[256];
 	uint8_t data[6];     /* latest measurement: press msb lsb xlsb, temp msb lsb xlsb */
 	uint8_t snapshot[6]; /* what the current burst read returns */
 	uint8_t ptr;
-	int selected;
 	int index;
-	int present;
 	double nvm_busy_until;   /* us */
 	double normal_since;     /* us, start of normal mode; < 0 when sleeping */
 	long meas_index;         /* index of the measurement in data[], -1 none */
 	double meas_time;        /* us */
 	double meas_p, meas_temp;
 	int32_t meas_adc_p, meas_adc_t;
-	FILE *truth;
-	unsigned long transactions, nacked, data_reads;
 } vbmp_t;
 
 static vbmp_t bmp;
@@ -378,47 +417,37 @@ static void bmp_twi_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
 	vbmp_t *b = param;
 	avr_twi_msg_irq_t v;
 	v.u.v = value;
-	double now = sim_us(b->avr);
+	double now = sim_us(b->dev.avr);
 	if (v.u.twi.msg & TWI_COND_STOP)
-		b->selected = 0;
+		b->dev.selected = 0;
 	if (v.u.twi.msg & TWI_COND_START) {
-		b->selected = 0;
 		b->index = 0;
-		if ((v.u.twi.addr >> 1) != b->addr7)
+		int appeared;
+		if (!twi_dev_start(&b->dev, v.u.twi.addr, now, &appeared))
 			return;
-		double p, temp;
-		int present;
-		trajectory_at(now * 1e-6, &p, &temp, &present);
-		if (present && !b->present)
+		if (appeared)
 			bmp_power_on(b, now);
-		b->present = present;
-		b->transactions++;
-		if (!present) {
-			b->nacked++;
-			return; /* no ACK: the master sees an address NACK */
-		}
-		b->selected = 1;
 		if (v.u.twi.addr & 1) { /* read: serve from a snapshot, like the shadow registers */
 			bmp_update(b, now);
 			memcpy(b->snapshot, b->data, 6);
 			if (b->ptr == REG_DATA) {
-				b->data_reads++;
-				if (b->truth) {
+				b->dev.data_reads++;
+				if (b->dev.truth) {
 					if (b->meas_index >= 0)
-						fprintf(b->truth, "%.1f,%.1f,%.6f,%.4f,%d,%d\n", now, b->meas_time,
+						fprintf(b->dev.truth, "%.1f,%.1f,%.6f,%.4f,%d,%d\n", now, b->meas_time,
 						        b->meas_p, b->meas_temp, b->meas_adc_p, b->meas_adc_t);
 					else
-						fprintf(b->truth, "%.1f,-1,nan,nan,%d,%d\n", now, 0x80000, 0x80000);
+						fprintf(b->dev.truth, "%.1f,-1,nan,nan,%d,%d\n", now, 0x80000, 0x80000);
 				}
 			}
 		}
-		twi_reply(b->irq, TWI_COND_ACK, v.u.twi.addr, 1);
+		twi_reply(b->dev.irq, TWI_COND_ACK, v.u.twi.addr, 1);
 		return;
 	}
-	if (!b->selected)
+	if (!b->dev.selected)
 		return;
 	if (v.u.twi.msg & TWI_COND_WRITE) {
-		twi_reply(b->irq, TWI_COND_ACK, v.u.twi.addr, 1);
+		twi_reply(b->dev.irq, TWI_COND_ACK, v.u.twi.addr, 1);
 		/* writes come as register, value, register, value... */
 		if (b->index % 2 == 0)
 			b->ptr = v.u.twi.data;
@@ -429,21 +458,14 @@ static void bmp_twi_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
 	if (v.u.twi.msg & TWI_COND_READ) {
 		uint8_t data = bmp_read(b, b->ptr, now);
 		b->ptr++;
-		twi_reply(b->irq, TWI_COND_READ, v.u.twi.addr, data);
+		twi_reply(b->dev.irq, TWI_COND_READ, v.u.twi.addr, data);
 	}
 }
 
 static void bmp_attach(avr_t *avr, vbmp_t *b, uint8_t addr7) {
 	static const char *names[2] = {"8>bmp280.out", "32<bmp280.in"};
 	memset(b, 0, sizeof *b);
-	b->avr = avr;
-	b->addr7 = addr7;
-	b->irq = avr_alloc_irq(&avr->irq_pool, 0, 2, names);
-	avr_irq_register_notify(b->irq + 1, bmp_twi_hook, b);
-	avr_connect_irq(b->irq + 0, avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_INPUT));
-	avr_connect_irq(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT), b->irq + 1);
-	double p, temp;
-	trajectory_at(0, &p, &temp, &b->present);
+	twi_dev_attach(&b->dev, avr, addr7, names, bmp_twi_hook, b);
 	bmp_power_on(b, 0);
 }
 
@@ -528,10 +550,7 @@ static void ms_invert(double p_pa, double temp_c, uint32_t *d1, uint32_t *d2) {
 }
 
 typedef struct {
-	avr_t *avr;
-	avr_irq_t *irq;
-	uint8_t addr7;
-	int selected, present;
+	twi_dev_t dev;
 	uint8_t command; /* last command byte written */
 	int conv_kind;   /* conversion under way: 1 = D1, 2 = D2, 0 = none */
 	double conv_end; /* us */
@@ -540,8 +559,6 @@ typedef struct {
 	uint8_t out[3]; /* bytes of the current read */
 	int out_index;
 	uint32_t last_d2;
-	FILE *truth;
-	unsigned long transactions, nacked, data_reads;
 } vms_t;
 
 static vms_t ms;
@@ -556,9 +573,9 @@ static void ms_finish_conversion(vms_t *m) {
 	m->adc_valid = 1;
 	if (m->conv_kind == 2)
 		m->last_d2 = d2;
-	if (m->conv_kind == 1 && m->truth)
-		fprintf(m->truth, "%.1f,%.1f,%.6f,%.4f,%u,%u\n", sim_us(m->avr), m->conv_end, p, temp, d1,
-		        m->last_d2);
+	if (m->conv_kind == 1 && m->dev.truth)
+		fprintf(m->dev.truth, "%.1f,%.1f,%.6f,%.4f,%u,%u\n", sim_us(m->dev.avr), m->conv_end, p,
+		        temp, d1, m->last_d2);
 	m->conv_kind = 0;
 }
 
@@ -567,27 +584,17 @@ static void ms_twi_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
 	vms_t *m = param;
 	avr_twi_msg_irq_t v;
 	v.u.v = value;
-	double now = sim_us(m->avr);
+	double now = sim_us(m->dev.avr);
 	if (v.u.twi.msg & TWI_COND_STOP)
-		m->selected = 0;
+		m->dev.selected = 0;
 	if (v.u.twi.msg & TWI_COND_START) {
-		m->selected = 0;
-		if ((v.u.twi.addr >> 1) != m->addr7)
+		int appeared;
+		if (!twi_dev_start(&m->dev, v.u.twi.addr, now, &appeared))
 			return;
-		double p, temp;
-		int present;
-		trajectory_at(now * 1e-6, &p, &temp, &present);
-		if (present && !m->present) { /* power-up: nothing converted */
+		if (appeared) { /* power-up: nothing converted */
 			m->conv_kind = 0;
 			m->adc_valid = 0;
 		}
-		m->present = present;
-		m->transactions++;
-		if (!present) {
-			m->nacked++;
-			return;
-		}
-		m->selected = 1;
 		if (v.u.twi.addr & 1) { /* read: what the last command asked for */
 			m->out_index = 0;
 			memset(m->out, 0, sizeof m->out);
@@ -600,20 +607,20 @@ static void ms_twi_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
 					m->out[2] = m->adc;
 				}
 				m->adc_valid = 0; /* a second read gives 0, as on the chip */
-				m->data_reads++;
+				m->dev.data_reads++;
 			} else if (m->command >= 0xA0 && m->command <= 0xAE) {
 				uint16_t w = ms_prom[(m->command - 0xA0) / 2];
 				m->out[0] = w >> 8;
 				m->out[1] = w & 0xFF;
 			}
 		}
-		twi_reply(m->irq, TWI_COND_ACK, v.u.twi.addr, 1);
+		twi_reply(m->dev.irq, TWI_COND_ACK, v.u.twi.addr, 1);
 		return;
 	}
-	if (!m->selected)
+	if (!m->dev.selected)
 		return;
 	if (v.u.twi.msg & TWI_COND_WRITE) {
-		twi_reply(m->irq, TWI_COND_ACK, v.u.twi.addr, 1);
+		twi_reply(m->dev.irq, TWI_COND_ACK, v.u.twi.addr, 1);
 		uint8_t cmd = v.u.twi.data;
 		m->command = cmd;
 		if (cmd == 0x1E) {
@@ -630,23 +637,16 @@ static void ms_twi_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
 	if (v.u.twi.msg & TWI_COND_READ) {
 		uint8_t data = m->out_index < 3 ? m->out[m->out_index] : 0;
 		m->out_index++;
-		twi_reply(m->irq, TWI_COND_READ, v.u.twi.addr, data);
+		twi_reply(m->dev.irq, TWI_COND_READ, v.u.twi.addr, data);
 	}
 }
 
 static void ms_attach(avr_t *avr, vms_t *m, uint8_t addr7) {
 	static const char *names[2] = {"8>ms5611.out", "32<ms5611.in"};
 	memset(m, 0, sizeof *m);
-	m->avr = avr;
-	m->addr7 = addr7;
 	m->command = 0xFF;
 	ms_prom[7] = (ms_prom[7] & 0xFFF0) | ms_crc4(ms_prom);
-	m->irq = avr_alloc_irq(&avr->irq_pool, 0, 2, names);
-	avr_irq_register_notify(m->irq + 1, ms_twi_hook, m);
-	avr_connect_irq(m->irq + 0, avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_INPUT));
-	avr_connect_irq(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT), m->irq + 1);
-	double p, temp;
-	trajectory_at(0, &p, &temp, &m->present);
+	twi_dev_attach(&m->dev, avr, addr7, names, ms_twi_hook, m);
 }
 
 /* --------------------------------------------------------------- UART <-> pty -- */
@@ -849,10 +849,10 @@ int main(int argc, char **argv) {
 	}
 	if (use_ms5611) {
 		ms_attach(avr, &ms, (uint8_t)address);
-		ms.truth = truth;
+		ms.dev.truth = truth;
 	} else {
 		bmp_attach(avr, &bmp, (uint8_t)address);
-		bmp.truth = truth;
+		bmp.dev.truth = truth;
 	}
 
 	uint32_t flags = 0; /* no stdio echo of UART bytes, no polling sleeps */
@@ -916,8 +916,8 @@ int main(int argc, char **argv) {
 	        "data reads %lu\n",
 	        state == cpu_Crashed ? "CRASHED" : "stopped", sim_s, wall_s,
 	        wall_s > 0 ? sim_s / wall_s : 0.0, bytes_to_host, bytes_from_host, bytes_dropped,
-	        bmp.transactions + ms.transactions, bmp.nacked + ms.nacked,
-	        bmp.data_reads + ms.data_reads);
+	        bmp.dev.transactions + ms.dev.transactions, bmp.dev.nacked + ms.dev.nacked,
+	        bmp.dev.data_reads + ms.dev.data_reads);
 	if (truth)
 		fclose(truth);
 	close(pty_master);

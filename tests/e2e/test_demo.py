@@ -217,13 +217,6 @@ def test_maps_of_floors_visited_once_match_their_plans(demo: DemoRun, truth: Tru
             assert s.free_precision >= 0.95, s
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="mapping: scans within TRANSITION_GUARD_S = 3 s (recording time) of a ride are kept "
-    "out of the floors; at the demo's 6x that is 18 simulated seconds, which takes the turn "
-    "in the car and the car-to-car match out of the SLAM, so floors are joined by odometry "
-    "alone (a guard of 3 s / speed gives 2-4 cm and under 1 deg at the lobby)",
-)
 def test_all_maps_match_their_plans_in_one_frame(demo: DemoRun, truth: TruthSeries) -> None:
     scores = score_outputs(demo.maps, demo.scenario().building, truth.t_ns, truth.xyt, truth.floor)
     for s in scores:

@@ -13,6 +13,7 @@ import threading
 import time
 from pathlib import Path
 from types import TracebackType
+from typing import Self
 
 import structlog
 
@@ -78,7 +79,28 @@ class SimClock:
         return int(self.scenario.start_ns + round(sim_seconds * 1e9))
 
 
-class Twin:
+class Started:
+    """Something that runs between ``start()`` and ``stop()``, or for a ``with`` block."""
+
+    def start(self) -> Self:
+        raise NotImplementedError
+
+    def stop(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+
+class Twin(Started):
     """A device on a pty, served by its own thread; use as a context manager or start/stop."""
 
     name = "device"
@@ -122,17 +144,6 @@ class Twin:
             self._thread.join(timeout=5.0)
             self._thread = None
         self.port.close()
-
-    def __enter__(self) -> Twin:
-        return self.start()
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.stop()
 
     # ---- faults ---------------------------------------------------------------------------------
     def inject_garbage(self, data: bytes) -> None:

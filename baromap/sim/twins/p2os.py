@@ -73,7 +73,7 @@ class P2osTwin(Twin):
         self.session = Session.CLOSED
         self.sync_step = 0
         self.motors = False
-        self.odometry = OdometryModel(self.errors, self._rng, self.model)
+        self.odometry = OdometryModel(self.errors, self._rng)
         self._prev = self._true_pose()
         self._next_sip = time.monotonic()
         self._last_heard = time.monotonic()

@@ -5,17 +5,16 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Sequence
 from pathlib import Path
-from types import TracebackType
 
 from baromap.sim.scenario import TwinSettings, make_scenario
 from baromap.sim.twins.baro import BaroTwin
-from baromap.sim.twins.base import SimClock, Twin
+from baromap.sim.twins.base import SimClock, Started, Twin
 from baromap.sim.twins.lms200 import Lms200Twin
 from baromap.sim.twins.p2os import P2osTwin
 from baromap.sim.twins.truth import TruthSink
 
 
-class SimDevices:
+class SimDevices(Started):
     """The LMS200, the P3-AT and the barometer board of one scenario, on ptys."""
 
     def __init__(
@@ -72,14 +71,3 @@ class SimDevices:
     def stop(self) -> None:
         for t in self.twins:
             t.stop()
-
-    def __enter__(self) -> SimDevices:
-        return self.start()
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.stop()
