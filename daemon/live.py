@@ -20,7 +20,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import structlog
 
@@ -42,8 +42,6 @@ from daemon.osthread import name_os_thread
 
 if TYPE_CHECKING:
     import zenoh
-
-    from daemon.config import DaemonConfig
 
 log = structlog.get_logger(__name__)
 
@@ -339,8 +337,22 @@ class LivePublisher:
             query.reply(self.keys.key(Channel.STATE), payload, encoding=encoding)
 
 
+class LiveConfig(Protocol):
+    """What the publisher reads of the daemon's configuration (``daemon.config`` imports
+    this module to check those tables, so the publisher names the fields, not the class)."""
+
+    @property
+    def robot(self) -> str: ...
+    @property
+    def role(self) -> str: ...
+    @property
+    def zenoh(self) -> Mapping[str, Any] | None: ...
+    @property
+    def reference(self) -> Mapping[str, Any] | None: ...
+
+
 def create_publisher(
-    config: DaemonConfig, *, reference: Callable[[PressureSample], None] | None = None
+    config: LiveConfig, *, reference: Callable[[PressureSample], None] | None = None
 ) -> LivePublisher | None:
     """The daemon's publisher, started, from its configuration (None: ``enabled = false``).
 
