@@ -111,8 +111,13 @@ class Recorder(QueueWorker):
     # ---- from other threads -----------------------------------------------------------------
     def set_device_metadata(self, device: str, data: Mapping[str, str]) -> None:
         """Record a device's identity (now, and at the start of every later file)."""
+        self.set_metadata(f"baromap.device.{device}", data)
+
+    def set_metadata(self, record: str, data: Mapping[str, str]) -> None:
+        """Record a named metadata record (now, and at the start of every later file): a
+        device's identity, or what a reader needs to interpret it (``baromap.robot``)."""
         with self._lock:
-            self._pending_devices[device] = dict(data)
+            self._pending_devices[record] = dict(data)
 
     def offer_reference(self, sample: messages.PressureSample) -> None:
         """A reference station's sample (from a Zenoh thread), recorded on
@@ -265,11 +270,11 @@ class Recorder(QueueWorker):
             self._devices.update(pending)
         if self._writer is None:
             return
-        for device, data in pending.items():
+        for record, data in pending.items():
             try:
-                self._writer.write_metadata(f"baromap.device.{device}", data)
+                self._writer.write_metadata(record, data)
             except (BaromapError, OSError) as exc:
-                log.error("device metadata not written", device=device, error=str(exc))
+                log.error("device metadata not written", record=record, error=str(exc))
 
     def _free_mb(self) -> float:
         try:
