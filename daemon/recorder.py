@@ -15,7 +15,6 @@ adds is what a long unattended run needs:
 
 from __future__ import annotations
 
-import os
 import shutil
 import threading
 import time
@@ -30,7 +29,7 @@ from baromap import messages
 from baromap.errors import BaromapError
 from baromap.recording import RecordingWriter, topics
 from baromap.recording.frames import LaserMount
-from baromap.recording.writer import DEFAULT_TOPICS
+from baromap.recording.writer import DEFAULT_TOPICS, fsync_path
 from daemon.config import RecordingConfig
 from daemon.fanout import QueueWorker
 from daemon.osthread import name_os_thread
@@ -232,7 +231,7 @@ class Recorder(QueueWorker):
             return
         try:
             writer.close()
-            _fsync(writer.path)
+            fsync_path(writer.path)
         except (BaromapError, OSError) as exc:
             log.error("closing the recording failed", path=str(writer.path), error=str(exc))
 
@@ -336,19 +335,11 @@ class Syncer:
                 if path is None:
                     return
             try:
-                _fsync(path)
+                fsync_path(path)
                 self.syncs += 1
             except OSError as exc:  # the file may have been finished and moved meanwhile
                 self.errors += 1
                 log.warning("fsync failed", path=str(path), error=str(exc))
-
-
-def _fsync(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def _topic(message: messages.Message) -> str:
