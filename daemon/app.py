@@ -89,7 +89,7 @@ class Daemon:
         common: dict[str, Any] = {
             "clock": self.clock,
             "publish": self.fanout.publish,
-            "identify": self.recorder.set_device_metadata,
+            "identify": self.recorder.set_metadata,
             "resolve": resolve,
         }
         self.sessions: list[DeviceSession] = []

@@ -21,6 +21,7 @@ import structlog
 
 from baromap.errors import ConfigError, DeviceError
 from baromap.odometry.integrator import OdometryIntegrator
+from baromap.odometry.robot_metadata import ROBOT_METADATA, robot_metadata
 from baromap.protocols import p2os
 from baromap.protocols.framing import BadFrame
 from baromap.protocols.robot_models import RobotModel, find_model, select_model
@@ -62,6 +63,14 @@ def choose_model(subclass: str, configured: str, allow_mismatch: bool) -> tuple[
     return model, note
 
 
+def model_source(model: RobotModel, subclass: str, configured: str) -> str:
+    """Where the model came from, as the ``baromap.robot`` record says it: the robot's own
+    subclass, a configuration the robot agrees with, or a configuration overriding it."""
+    if configured == "auto":
+        return "reported"
+    return "configured" if find_model(subclass) is model else "override"
+
+
 class PioneerSession(DeviceSession):
     def __init__(self, config: BaseConfig, **kwargs: Any) -> None:
         super().__init__("base", port=config.port, baud=config.baud, retry=config.retry, **kwargs)
@@ -87,6 +96,11 @@ class PioneerSession(DeviceSession):
         )
         self.model = model
         self.integrator = OdometryIntegrator(model)
+        self.records[ROBOT_METADATA] = robot_metadata(
+            model,
+            (info.name, info.robot_class, info.subclass),
+            model_source(model, info.subclass, self.config.model),
+        )
         self.line.reset()
         self.write(p2os.open_controller())
         self._session_open = True

@@ -15,7 +15,6 @@ adds is what a long unattended run needs:
 
 from __future__ import annotations
 
-import os
 import shutil
 import threading
 import time
@@ -30,7 +29,7 @@ from baromap import messages
 from baromap.errors import BaromapError
 from baromap.recording import RecordingWriter, topics
 from baromap.recording.frames import LaserMount
-from baromap.recording.writer import DEFAULT_TOPICS
+from baromap.recording.writer import DEFAULT_TOPICS, fsync_path
 from daemon.config import RecordingConfig
 from daemon.fanout import QueueWorker
 from daemon.osthread import name_os_thread
@@ -111,8 +110,13 @@ class Recorder(QueueWorker):
     # ---- from other threads -----------------------------------------------------------------
     def set_device_metadata(self, device: str, data: Mapping[str, str]) -> None:
         """Record a device's identity (now, and at the start of every later file)."""
+        self.set_metadata(f"baromap.device.{device}", data)
+
+    def set_metadata(self, record: str, data: Mapping[str, str]) -> None:
+        """Record a named metadata record (now, and at the start of every later file): a
+        device's identity, or what a reader needs to interpret it (``baromap.robot``)."""
         with self._lock:
-            self._pending_devices[device] = dict(data)
+            self._pending_devices[record] = dict(data)
 
     def offer_reference(self, sample: messages.PressureSample) -> None:
         """A reference station's sample (from a Zenoh thread), recorded on
@@ -227,7 +231,7 @@ class Recorder(QueueWorker):
             return
         try:
             writer.close()
-            _fsync(writer.path)
+            fsync_path(writer.path)
         except (BaromapError, OSError) as exc:
             log.error("closing the recording failed", path=str(writer.path), error=str(exc))
 
@@ -265,11 +269,11 @@ class Recorder(QueueWorker):
             self._devices.update(pending)
         if self._writer is None:
             return
-        for device, data in pending.items():
+        for record, data in pending.items():
             try:
-                self._writer.write_metadata(f"baromap.device.{device}", data)
+                self._writer.write_metadata(record, data)
             except (BaromapError, OSError) as exc:
-                log.error("device metadata not written", device=device, error=str(exc))
+                log.error("device metadata not written", record=record, error=str(exc))
 
     def _free_mb(self) -> float:
         try:
@@ -331,19 +335,11 @@ class Syncer:
                 if path is None:
                     return
             try:
-                _fsync(path)
+                fsync_path(path)
                 self.syncs += 1
             except OSError as exc:  # the file may have been finished and moved meanwhile
                 self.errors += 1
                 log.warning("fsync failed", path=str(path), error=str(exc))
-
-
-def _fsync(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def _topic(message: messages.Message) -> str:

@@ -62,6 +62,8 @@ DEGRADED_HOLD_NS: Final = 5_000_000_000
 Publish = Callable[[Message, int], None]
 """(message, host monotonic ns at which its last byte was read)."""
 Identify = Callable[[str, Mapping[str, str]], None]
+"""(metadata record name, its string fields): a device's identity, ``baromap.device.<name>``,
+and any record its messages need to be read (``baromap.robot``)."""
 
 
 class DeviceRestarted(Exception):
@@ -111,6 +113,9 @@ class DeviceSession(abc.ABC):
         self._messages = 0
         self._poll: select.poll | None = None
         self.identity: dict[str, str] = {}
+        #: Further metadata records a reader needs to interpret this device's messages, by
+        #: record name (the base's ``baromap.robot``: the factors its counters were read with).
+        self.records: dict[str, dict[str, str]] = {}
         self.heartbeat_ns = time.monotonic_ns()
         self._last_good_ns = 0
         self._last_bad_ns = 0
@@ -401,8 +406,12 @@ class DeviceSession(abc.ABC):
         return None
 
     def _publish_identity(self) -> None:
-        if self._identify is not None and self.identity:
-            self._identify(self.name, dict(self.identity))
+        if self._identify is None:
+            return
+        if self.identity:
+            self._identify(f"baromap.device.{self.name}", dict(self.identity))
+        for record, data in self.records.items():
+            self._identify(record, dict(data))
 
 
 class _Stopping(Exception):

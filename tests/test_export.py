@@ -359,7 +359,8 @@ def test_rmf_site_loads_with_one_level_per_floor_and_one_lift(
 ) -> None:
     from matplotlib import image as mpimg
 
-    from baromap.export.rmf import read_tum, ride_segments
+    from baromap.export.rmf import ride_segments
+    from baromap.mapping.export import read_tum
 
     run, out = sim_out
     site_path = tmp_path / "site" / "demo.building.yaml"
@@ -392,7 +393,7 @@ def test_rmf_site_loads_with_one_level_per_floor_and_one_lift(
 
     # the lift stands where the robot rode, and serves the floors it rode between
     lift = next(iter(site["lifts"].values()))
-    _, xyz = read_tum(out / "trajectory.tum")
+    _, xyz, _ = read_tum(out / "trajectory.tum")
     elevations = np.array([f["elevation_m"] for f in floors])
     rides = ride_segments(xyz[:, 2], elevations)
     assert rides

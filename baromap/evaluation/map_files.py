@@ -32,7 +32,7 @@ from baromap.errors import InputFormatError
 from baromap.evaluation.mapping import LOBBY_RADIUS_M, WALL_TOLERANCE_M
 from baromap.evaluation.trajectory import fit_rigid, mean_pose_error
 from baromap.mapping import se2
-from baromap.mapping.export import read_pgm
+from baromap.mapping.export import read_pgm, read_tum
 from baromap.sim.building import Building, FloorPlan
 
 FloatArray = npt.NDArray[np.float64]
@@ -106,18 +106,11 @@ def read_map(yaml_path: Path, index: int, elevation_m: float) -> MapFile:
     return MapFile(index, elevation_m, p > occupied_thresh, p < free_thresh, origin, resolution)
 
 
-def read_tum(path: Path) -> Trajectory:
+def read_trajectory(path: Path) -> Trajectory:
     """A TUM trajectory (time x y z qx qy qz qw) of planar poses."""
-    try:
-        rows = np.loadtxt(path, dtype=str, ndmin=2)
-        seconds = [s.split(".") for s in rows[:, 0]]
-        t = np.array([int(a) * 1_000_000_000 + int(b.ljust(9, "0")) for a, b in seconds])
-        values = rows[:, 1:].astype(np.float64)
-    except (OSError, ValueError, IndexError) as exc:
-        raise InputFormatError(f"{path}: not a TUM trajectory: {exc}") from exc
-    theta = 2.0 * np.arctan2(values[:, 5], values[:, 6])
-    xyt = np.column_stack([values[:, 0], values[:, 1], theta])
-    return Trajectory(t.astype(np.int64), xyt, values[:, 2])
+    t, xyz, quaternion = read_tum(path)
+    theta = 2.0 * np.arctan2(quaternion[:, 2], quaternion[:, 3])
+    return Trajectory(t, np.column_stack([xyz[:, 0], xyz[:, 1], theta]), xyz[:, 2])
 
 
 def read_outputs(out_dir: Path) -> tuple[list[MapFile], Trajectory]:
@@ -131,7 +124,7 @@ def read_outputs(out_dir: Path) -> tuple[list[MapFile], Trajectory]:
         for f in model.get("floors", [])
         if f.get("map")
     ]
-    return maps, read_tum(out_dir / "trajectory.tum")
+    return maps, read_trajectory(out_dir / "trajectory.tum")
 
 
 def _occupied_precision(

@@ -35,7 +35,7 @@ import yaml
 
 from baromap.errors import InputFormatError
 from baromap.export.map_yaml import read_yaml_mapping
-from baromap.mapping.export import read_pgm
+from baromap.mapping.export import read_pgm, read_tum
 
 log = structlog.get_logger(__name__)
 
@@ -217,19 +217,6 @@ def _write_drawing(path: Path, image: npt.NDArray[np.uint8]) -> None:
     mpimg.imsave(path, image, cmap="gray", vmin=0, vmax=255)
 
 
-def read_tum(path: Path) -> tuple[FloatArray, FloatArray]:
-    """(t_s, (N, 3) x y z) of a TUM trajectory."""
-    try:
-        data = np.loadtxt(path, dtype=np.float64, ndmin=2)
-    except (OSError, ValueError) as exc:
-        raise InputFormatError(f"cannot read trajectory {path}: {exc}") from exc
-    if data.size == 0:
-        return np.zeros(0), np.zeros((0, 3))
-    if data.shape[1] != 8:
-        raise InputFormatError(f"{path}: TUM lines have 8 columns, not {data.shape[1]}")
-    return data[:, 0], data[:, 1:4]
-
-
 def ride_segments(z: FloatArray, elevations: FloatArray) -> list[tuple[int, int]]:
     """[start, end) index ranges of poses whose z is at no floor's elevation."""
     if len(z) == 0 or len(elevations) == 0:
@@ -244,7 +231,7 @@ def _find_lift(tum: Path, levels: list[MapLevel], notes: list[str]) -> Lift | No
     if not tum.exists():
         notes.append(f"no {tum.name}: no lift")
         return None
-    _, xyz = read_tum(tum)
+    _, xyz, _ = read_tum(tum)
     elevations = np.array([lvl.elevation_m for lvl in levels])
     rides = [(s, e) for s, e in ride_segments(xyz[:, 2], elevations) if s > 0 and e < len(xyz)]
     if not rides:

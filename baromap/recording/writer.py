@@ -156,7 +156,7 @@ class RecordingWriter:
             # fsync works on the file, whichever descriptor wrote it: the SDK keeps its own.
             self._sync_fd = os.open(self.path, os.O_RDONLY) if fsync else -1
             if fsync:
-                _fsync_dir(self.path.parent)
+                fsync_path(self.path.parent)
         except (OSError, RuntimeError, ValueError) as exc:
             if self._file is not None:
                 self._file.close()
@@ -404,9 +404,10 @@ class RecordingWriter:
         self.counts[topics.TF_STATIC] = self.counts.get(topics.TF_STATIC, 0) + 1
 
 
-def _fsync_dir(directory: Path) -> None:
-    """Make a new file's directory entry durable (else a power cut can lose the whole file)."""
-    fd = os.open(directory, os.O_RDONLY)
+def fsync_path(path: Path) -> None:
+    """Make a file's content, or a directory's entries, durable by path (a new file's directory
+    entry too: else a power cut can lose the whole file)."""
+    fd = os.open(path, os.O_RDONLY)
     try:
         os.fsync(fd)
     finally:

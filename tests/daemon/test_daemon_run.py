@@ -13,6 +13,7 @@ import numpy as np
 from daemon_rig import Rig, RunningDaemon, make_config, read_all
 
 from baromap import messages
+from baromap.odometry.robot_metadata import ROBOT_METADATA, model_from_metadata
 from baromap.protocols import lms200
 from baromap.recording import read_metadata, topics
 
@@ -86,6 +87,10 @@ def test_a_run_records_every_stream_with_identities(rig: Rig) -> None:
     assert laser["type"].startswith("LMS")
     assert laser["baud"] == "500000"
     assert base["subclass"] and base["model"]
+    # ... and with what factors /odom's raw counters were turned into metres.
+    robot = model_from_metadata(meta)
+    assert robot is not None and robot.name == base["model"]
+    assert meta[ROBOT_METADATA]["reported_subclass"] == base["subclass"]
     assert barometer["firmware_version"].count(".") == 2
 
     health = [m for m in by_topic[topics.DIAGNOSTICS] if isinstance(m, messages.DeviceHealth)]

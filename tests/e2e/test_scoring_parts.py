@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from baromap.evaluation.map_files import read_map, read_tum, score_outputs
+from baromap.evaluation.map_files import read_map, read_trajectory, score_outputs
 from baromap.evaluation.twin_truth import HostClock, sim_timeline
 from baromap.mapping.export import write_map_server, write_tum
 from baromap.mapping.occupancy import OccupancyGrid
@@ -43,7 +43,7 @@ def test_a_tum_trajectory_reads_back(tmp_path: Path) -> None:
     t = np.array([1_700_000_000_000_000_001, 1_700_000_000_500_000_000], dtype=np.int64)
     poses = np.array([[1.0, 2.0, 0.5], [-3.0, 4.0, -2.5]])
     write_tum(tmp_path / "t.tum", t, poses, np.array([0.0, 5.25]))
-    back = read_tum(tmp_path / "t.tum")
+    back = read_trajectory(tmp_path / "t.tum")
     assert np.array_equal(back.t_ns, t)
     assert back.xyt[:, :2] == pytest.approx(poses[:, :2])
     assert back.xyt[:, 2] == pytest.approx(poses[:, 2], abs=1e-8)
