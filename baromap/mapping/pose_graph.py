@@ -218,11 +218,7 @@ class PoseGraph:
                 self._add_priors(poses, extra, grad)
             h = structure.matrix(blocks, anchor, extra)
             try:
-                # symmetric normal matrix: a minimum-degree ordering on A + A^T keeps the
-                # fill-in of loop closures down (5x faster than the default COLAMD here)
-                factor = sparse_linalg.splu(
-                    h, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True}
-                )
+                factor = _factorize(h)
                 delta = factor.solve(-grad.ravel())
             except RuntimeError:  # singular: a node without any edge
                 delta = np.full(3 * n, np.nan)
@@ -252,33 +248,71 @@ class PoseGraph:
         np.add.at(grad, node, np.einsum("mki,mk->mi", weighted, err))
 
 
+def _factorize(h: sparse.csc_matrix) -> sparse_linalg.SuperLU:
+    """LU of the normal matrix, which is symmetric positive definite (a sum of J^T W J with
+    positive weights, a regulariser on every diagonal block and the anchor's stiff prior).
+
+    A minimum-degree ordering on A + A^T keeps the fill-in of loop closures down (5x faster
+    than the default COLAMD here), and since the matrix is positive definite its diagonal
+    pivots are as safe as they are for a Cholesky factor: no pivot search (the default
+    threshold 1 lets SuperLU swap rows, which spoils the symmetric ordering and costs five
+    times the time on the 46-minute run's graph of 1,800 nodes and 550 closures).
+    """
+    return sparse_linalg.splu(
+        h,
+        permc_spec="MMD_AT_PLUS_A",
+        diag_pivot_thresh=0.0,
+        options={"SymmetricMode": True},
+    )
+
+
 class _BlockStructure:
     """The 3x3-block sparsity of a graph's normal matrix, computed once per optimisation so
-    each iteration only sums block values into place."""
+    each iteration only sums block values into place, straight into the compressed-column
+    arrays the solver takes."""
 
     def __init__(self, i: IntArray, j: IntArray, n: int) -> None:
         diag = np.arange(n, dtype=np.int64)
         rows = np.concatenate([i, j, i, j, diag])
         cols = np.concatenate([i, j, j, i, diag])
-        keys, self.inverse = np.unique(rows * n + cols, return_inverse=True)
-        self.inverse = self.inverse.reshape(-1)
+        # blocks sorted by (block column, block row): the order of a CSC matrix's columns
+        keys, inverse = np.unique(cols * n + rows, return_inverse=True)
+        inverse = inverse.reshape(-1)
         self.n = n
         self.blocks = len(keys)
-        self.indices = (keys % n).astype(np.int32)
-        block_rows = keys // n
-        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(block_rows, minlength=n))])
-        self.diagonal_slot = self.inverse[-n:]
+        block_col, block_row = keys // n, keys % n
+        per_col = np.bincount(block_col, minlength=n)  # blocks in each block column
+        # each block column becomes three scalar columns of 3 * per_col entries each
+        col_start = np.concatenate([[0], np.cumsum(3 * per_col)[:-1]])
+        first_block = np.concatenate([[0], np.cumsum(per_col)[:-1]])
+        # entry (block b, r, c) sits in scalar column 3 * block_col + c, at position
+        # 3 * (b - first block of the column) + r within it
+        b = np.arange(self.blocks)
+        within = 3 * (b - first_block[block_col])
+        r, c = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")  # (3, 3)
+        position = (
+            3 * col_start[block_col][:, None, None]
+            + c[None] * (3 * per_col[block_col])[:, None, None]
+            + within[:, None, None]
+            + r[None]
+        )
+        # slot of each summed (block, r, c) value in the CSC data array
+        self.slot = position.reshape(-1)
+        self.row_index = np.empty(9 * self.blocks, dtype=np.int32)
+        self.row_index[self.slot] = (3 * block_row[:, None, None] + r[None]).reshape(-1)
+        self.indptr = np.concatenate([[0], np.cumsum(np.repeat(3 * per_col, 3))]).astype(
+            np.int32
+        )
+        # summing block values: one bincount over (block, entry) slots
+        self.entry = (9 * inverse[:, None] + np.arange(9)[None, :]).reshape(-1)
 
     def matrix(self, edge_blocks: FloatArray, anchor: int, extra: FloatArray) -> sparse.csc_matrix:
         n = self.n
         # every node's diagonal block gets a tiny regulariser, the anchor a stiff prior
         diag = extra + np.eye(3) * 1e-9
         diag[anchor] += np.eye(3) * ANCHOR_INFORMATION
-        values = np.concatenate([edge_blocks, diag]).reshape(-1, 9)
-        summed = np.empty((self.blocks, 9))
-        for c in range(9):
-            summed[:, c] = np.bincount(self.inverse, weights=values[:, c], minlength=self.blocks)
-        bsr = sparse.bsr_matrix(
-            (summed.reshape(-1, 3, 3), self.indices, self.indptr), shape=(3 * n, 3 * n)
-        )
-        return bsr.tocsc()
+        values = np.concatenate([edge_blocks, diag]).reshape(-1)
+        summed = np.bincount(self.entry, weights=values, minlength=9 * self.blocks)
+        data = np.empty(9 * self.blocks)
+        data[self.slot] = summed
+        return sparse.csc_matrix((data, self.row_index, self.indptr), shape=(3 * n, 3 * n))
