@@ -67,14 +67,29 @@ def grid_bounds(
     scans: ScanBlock, indices: npt.NDArray[np.int64], poses: FloatArray, max_range_m: float
 ) -> tuple[float, float, float, float]:
     """Bounding box of the endpoints of the given scans (robot positions included)."""
-    lo = np.array([np.inf, np.inf])
-    hi = -lo
-    for k, s in enumerate(indices):
-        pts = se2.transform_points(poses[k], scans.endpoints(int(s), max_range_m))
-        pts = np.vstack([pts, poses[k, :2][None, :]])
-        lo = np.minimum(lo, pts.min(axis=0))
-        hi = np.maximum(hi, pts.max(axis=0))
-    if not np.all(np.isfinite(lo)):
+    if len(indices) == 0:
+        return (0.0, 0.0, 1.0, 1.0)
+    r = scans.ranges_m[indices].astype(np.float64)
+    ok = np.isfinite(r) & (r > 0.05) & (r <= max_range_m)
+    # endpoints in the robot frame (the laser's offset applied), then in the world
+    laser = se2.transform_points(
+        scans.laser_offset,
+        np.stack([(r * np.cos(scans.angles_rad))[ok], (r * np.sin(scans.angles_rad))[ok]], 1),
+    )
+    poses = np.asarray(poses, dtype=np.float64)
+    owner = np.nonzero(ok)[0]
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    x = poses[owner, 0] + c[owner] * laser[:, 0] - s[owner] * laser[:, 1]
+    y = poses[owner, 1] + s[owner] * laser[:, 0] + c[owner] * laser[:, 1]
+    lo = (
+        min(x.min(initial=np.inf), poses[:, 0].min()),
+        min(y.min(initial=np.inf), poses[:, 1].min()),
+    )
+    hi = (
+        max(x.max(initial=-np.inf), poses[:, 0].max()),
+        max(y.max(initial=-np.inf), poses[:, 1].max()),
+    )
+    if not np.all(np.isfinite(lo + hi)):
         return (0.0, 0.0, 1.0, 1.0)
     return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
 
@@ -97,9 +112,9 @@ def build_grid(
     y0 = math.floor((by0 - margin_m) / resolution) * resolution
     w = math.ceil((bx1 + margin_m - x0) / resolution)
     h = math.ceil((by1 + margin_m - y0) / resolution)
-    hits = np.zeros(h * w, dtype=np.int64)
-    misses = np.zeros(h * w, dtype=np.int64)
-    step = resolution
+    cells = h * w
+    hits = np.zeros(cells + 1, dtype=np.int64)  # the last bin takes what falls outside
+    misses = np.zeros(cells + 1, dtype=np.int64)
     for start in range(0, len(indices), batch):
         idx = indices[start : start + batch]
         laser = se2.compose(poses[start : start + batch], scans.laser_offset[None, :])
@@ -113,29 +128,55 @@ def build_grid(
         # endpoints
         ex = (ox + length * cos)[hit]
         ey = (oy + length * sin)[hit]
-        ci = np.floor((ex - x0) / resolution).astype(np.int64)
-        ri = np.floor((ey - y0) / resolution).astype(np.int64)
-        inside = (ci >= 0) & (ci < w) & (ri >= 0) & (ri < h)
-        hits += np.bincount(ri[inside] * w + ci[inside], minlength=h * w)
-        # free samples along each beam, stopping half a cell before the endpoint
-        counts = np.maximum(np.floor((length - 0.5 * resolution) / step).astype(np.int64), 0)
+        hits += np.bincount(_cell_index(ex, ey, x0, y0, resolution, h, w), minlength=cells + 1)
+        # free samples along each beam, stopping half a cell before the endpoint: beam b's
+        # k-th sample is at distance k * resolution from the laser
+        counts = np.maximum(np.floor((length - 0.5 * resolution) / resolution).astype(np.int64), 0)
         counts = np.where(ok, counts, 0).ravel()
         total = int(counts.sum())
         if total == 0:
             continue
-        beam = np.repeat(np.arange(counts.size), counts)
         first = np.cumsum(counts) - counts
-        k = np.arange(total) - np.repeat(first, counts)
-        d = k * step
-        fx = ox.repeat(ranges.shape[1], axis=1).ravel()[beam] + d * cos.ravel()[beam]
-        fy = oy.repeat(ranges.shape[1], axis=1).ravel()[beam] + d * sin.ravel()[beam]
-        ci = np.floor((fx - x0) / resolution).astype(np.int64)
-        ri = np.floor((fy - y0) / resolution).astype(np.int64)
-        inside = (ci >= 0) & (ci < w) & (ri >= 0) & (ri < h)
-        misses += np.bincount(ri[inside] * w + ci[inside], minlength=h * w)
+        d = (np.arange(total) - np.repeat(first, counts)) * resolution
+        beams = ranges.shape[1]
+        fx = _along(np.broadcast_to(ox, ranges.shape).ravel(), cos.ravel(), counts, d)
+        fy = _along(np.broadcast_to(oy, (len(idx), beams)).ravel(), sin.ravel(), counts, d)
+        misses += np.bincount(_cell_index(fx, fy, x0, y0, resolution, h, w), minlength=cells + 1)
+    hits, misses = hits[:cells], misses[:cells]
     log_odds = np.clip(hits * L_HIT + misses * L_MISS, -L_CLAMP, L_CLAMP)
     return OccupancyGrid(
         log_odds=log_odds.reshape(h, w).astype(np.float32),
         origin_xy=(x0, y0),
         resolution=resolution,
     )
+
+
+def _along(
+    origin: FloatArray, direction: FloatArray, counts: npt.NDArray[np.int64], d: FloatArray
+) -> FloatArray:
+    """One coordinate of every free sample: each beam's origin plus ``d`` times its direction
+    cosine, beam b's repeated ``counts[b]`` times (in place, as few temporaries as can be:
+    a batch holds a million samples)."""
+    out = np.repeat(direction, counts)
+    out *= d
+    out += np.repeat(origin, counts)
+    return out
+
+
+def _cell_index(
+    x: FloatArray, y: FloatArray, x0: float, y0: float, resolution: float, h: int, w: int
+) -> npt.NDArray[np.int64]:
+    """Flat cell index of each point, ``h * w`` (one bin past the grid) for points outside.
+    Overwrites ``x`` and ``y``."""
+    x -= x0
+    x /= resolution
+    np.floor(x, out=x)
+    y -= y0
+    y /= resolution
+    np.floor(y, out=y)
+    inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+    y *= w
+    y += x
+    flat = y.astype(np.int64)
+    flat[~inside] = h * w
+    return flat
