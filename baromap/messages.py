@@ -75,6 +75,15 @@ class BeamFlag(enum.IntFlag):
         )
 
 
+def usable_beams(
+    ranges_m: npt.NDArray[np.float32], flags: npt.NDArray[np.uint16]
+) -> npt.NDArray[np.bool_]:
+    """Beams (of one scan, or of many stacked) that carry a usable range: no error flag and
+    a finite range."""
+    ok: npt.NDArray[np.bool_] = ((flags & BeamFlag.error_mask()) == 0) & np.isfinite(ranges_m)
+    return ok
+
+
 def _frozen_array(values: npt.ArrayLike, dtype: type[np.generic]) -> npt.NDArray[np.generic]:
     array = np.array(values, dtype=dtype, copy=True)
     array.setflags(write=False)
@@ -124,10 +133,7 @@ class LaserScan:
 
     def valid(self) -> npt.NDArray[np.bool_]:
         """Beams that carry a usable range."""
-        ok: npt.NDArray[np.bool_] = ((self.flags & BeamFlag.error_mask()) == 0) & np.isfinite(
-            self.ranges_m
-        )
-        return ok
+        return usable_beams(self.ranges_m, self.flags)
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, LaserScan):

@@ -13,7 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from baromap.mapping import se2
-from baromap.messages import LaserScan
+from baromap.messages import LaserScan, usable_beams
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -42,12 +42,18 @@ class ScanBlock:
             )
         first = scans[0]
         beams = first.beam_count
-        block = np.full((len(scans), beams), np.nan, dtype=np.float32)
-        for k, scan in enumerate(scans):
-            ranges = np.where(scan.valid(), scan.ranges_m, np.float32(np.nan))
-            if scan.beam_count != beams:
-                ranges = ranges[np.linspace(0, scan.beam_count - 1, beams).round().astype(int)]
-            block[k] = ranges
+        if all(scan.beam_count == beams for scan in scans):
+            # one sensor setting all run long (always, on one robot): validity in one pass
+            ranges = np.stack([scan.ranges_m for scan in scans])
+            flags = np.stack([scan.flags for scan in scans])
+            block = np.where(usable_beams(ranges, flags), ranges, np.float32(np.nan))
+        else:
+            block = np.full((len(scans), beams), np.nan, dtype=np.float32)
+            for k, scan in enumerate(scans):
+                one = np.where(scan.valid(), scan.ranges_m, np.float32(np.nan))
+                if scan.beam_count != beams:
+                    one = one[np.linspace(0, scan.beam_count - 1, beams).round().astype(int)]
+                block[k] = one
         return cls(
             t_ns=np.array([s.t_ns for s in scans], dtype=np.int64),
             ranges_m=block,
