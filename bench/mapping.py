@@ -13,7 +13,7 @@ rigid 2D alignment (all three). Bar: Intel relations <= 0.025 m and <= 0.4 deg, 
 on Freiburg 079 and <= 0.10 m on Acapulco, for every seed.
 
 Simulated run: for each seed, records it (``baromap sim record``), then runs ``build-maps`` in
-a child process (its own peak memory, ru_maxrss) and prints the run's duration over the wall
+a child process (its own peak memory, ru_maxrss, plus its painter process's) and prints the run's duration over the wall
 time beside the wall time, then scores the maps against the true plans and path
 (baromap.evaluation.mapping). Bar: >= 100x real time on 2 cores, <= 1 GB; the whole building
 under one rigid transform within 0.05 m RMS and 0.20 m of the true path, every floor's walls
@@ -71,6 +71,8 @@ def child_build(recording: str, out: str) -> None:
     wall = time.perf_counter() - start
     cpu = time.process_time() - cpu
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    # the build's second process (build.py's painter) has been joined: its CPU and peak
+    painter = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = result.run.scans.t_ns
     duration_s = float(t[-1] - t[0]) / 1e9
     report = evaluate_recording(result, recording)
@@ -79,8 +81,10 @@ def child_build(recording: str, out: str) -> None:
             {
                 "wall_s": wall,
                 "cpu_s": cpu,
+                "painter_cpu_s": painter.ru_utime + painter.ru_stime,
                 "duration_s": duration_s,
                 "peak_mb": peak_mb,
+                "painter_peak_mb": painter.ru_maxrss / 1024,
                 "load": _load(),
                 "timings": result.timings_s,
                 "stats": result.slam.stats,
@@ -131,12 +135,21 @@ def bench_sim(seed: int, minutes: float, keep: Path | None) -> bool:
     )
     data = json.loads(out.stdout.strip().splitlines()[-1])
     ratio = data["duration_s"] / data["wall_s"]
-    fast = ratio >= REAL_TIME_RATIO and data["peak_mb"] <= PEAK_MB
+    # both processes' peaks count against the memory bar: they are alive together
+    peak = data["peak_mb"] + data["painter_peak_mb"]
+    fast = ratio >= REAL_TIME_RATIO and peak <= PEAK_MB
     print(
         f"  build-maps: {ratio:.0f}x real time ({data['duration_s']:.0f} s of run in "
-        f"{data['wall_s']:.1f} s wall, {data['cpu_s']:.1f} s cpu), peak {data['peak_mb']:.0f} MB "
+        f"{data['wall_s']:.1f} s wall), peak {peak:.0f} MB "
         f"[bar >= {REAL_TIME_RATIO:.0f}x, <= {PEAK_MB:.0f} MB: {'met' if fast else 'NOT met'}]; "
         f"{data['load']}"
+    )
+    cpu = data["cpu_s"] + data["painter_cpu_s"]
+    print(
+        f"  cpu (load-independent): {cpu:.1f} s = {data['cpu_s']:.1f} s main process + "
+        f"{data['painter_cpu_s']:.1f} s painter; run duration over main-process cpu "
+        f"{data['duration_s'] / data['cpu_s']:.0f}x; peaks {data['peak_mb']:.0f} MB main + "
+        f"{data['painter_peak_mb']:.0f} MB painter"
     )
     print("  stages: " + ", ".join(f"{k} {v:.1f} s" for k, v in data["timings"].items()))
     print("  " + ", ".join(f"{k} {int(v)}" for k, v in data["stats"].items()))

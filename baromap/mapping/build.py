@@ -29,7 +29,7 @@ from baromap.mapping import export, figures
 from baromap.mapping.foxglove_maps import write_maps_mcap
 from baromap.mapping.keyframes import motion_spaced
 from baromap.mapping.occupancy import OccupancyGrid, build_grid
-from baromap.mapping.run_data import RunData, load_run
+from baromap.mapping.run_data import RunData, load_scans, load_series, run_data
 from baromap.mapping.scans import ScanBlock
 from baromap.mapping.segmentation import Segmentation, segment_run
 from baromap.mapping.slam import BETWEEN_FLOORS, SlamConfig, SlamResult, run_slam
@@ -202,7 +202,11 @@ def _build(
     timings: dict[str, float] = {}
     with _Painter() as painter:
         t0 = time.perf_counter()
-        run = load_run(recording)
+        # the series in the painter while this process reads the scans; then matplotlib
+        series = painter.submit(load_series, recording)
+        painter.submit(figures.warm_up)
+        block, metadata = load_scans(recording)
+        run = run_data(block, metadata, series.result())
         timings["load"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         segmentation = segment_run(
@@ -242,12 +246,12 @@ def _build(
 
 
 class _Painter:
-    """A second process for the figures and half the floors' grids, so a build uses both
-    cores of a small robot computer: matplotlib and ray casting run beside the SLAM and the
-    rest of the outputs. Forked at the start, before the recording is read, so matplotlib
-    loads while the recording does. A process that runs other threads (a daemon, a live
-    publisher) is not forked, since a fork copies their locks in whatever state they are:
-    then, and where no process can be started, it paints in this one."""
+    """A second process for reading the run's series, the figures and half the floors'
+    grids, so a build uses both cores of a small robot computer: the series are read beside
+    the scans, matplotlib and ray casting run beside the SLAM and the rest of the outputs.
+    Forked at the start, before the recording is read. A process that runs other threads
+    (a daemon, a live publisher) is not forked, since a fork copies their locks in whatever
+    state they are: then, and where no process can be started, it paints in this one."""
 
     def __init__(self) -> None:
         self._pool: ProcessPoolExecutor | None = None
@@ -258,7 +262,6 @@ class _Painter:
             return self
         try:
             self._pool = ProcessPoolExecutor(max_workers=1, mp_context=get_context("fork"))
-            self._jobs.append(self._pool.submit(figures.warm_up))
         except (OSError, RuntimeError, ValueError) as exc:  # no processes: paint in this one
             log.warning("outputs drawn in one process", error=str(exc))
             self._pool = None

@@ -113,6 +113,7 @@ def build_grid(
     w = math.ceil((bx1 + margin_m - x0) / resolution)
     h = math.ceil((by1 + margin_m - y0) / resolution)
     cells = h * w
+    raster = _Raster(x0, y0, resolution, w, h)
     hits = np.zeros(cells + 1, dtype=np.int64)  # the last bin takes what falls outside
     misses = np.zeros(cells + 1, dtype=np.int64)
     for start in range(0, len(indices), batch):
@@ -128,7 +129,7 @@ def build_grid(
         # endpoints
         ex = (ox + length * cos)[hit]
         ey = (oy + length * sin)[hit]
-        hits += np.bincount(_cell_index(ex, ey, x0, y0, resolution, h, w), minlength=cells + 1)
+        hits += np.bincount(raster.cell_index(ex, ey), minlength=cells + 1)
         # free samples along each beam, stopping half a cell before the endpoint: beam b's
         # k-th sample is at distance k * resolution from the laser
         counts = np.maximum(np.floor((length - 0.5 * resolution) / resolution).astype(np.int64), 0)
@@ -141,7 +142,7 @@ def build_grid(
         beams = ranges.shape[1]
         fx = _along(np.broadcast_to(ox, ranges.shape).ravel(), cos.ravel(), counts, d)
         fy = _along(np.broadcast_to(oy, (len(idx), beams)).ravel(), sin.ravel(), counts, d)
-        misses += np.bincount(_cell_index(fx, fy, x0, y0, resolution, h, w), minlength=cells + 1)
+        misses += np.bincount(raster.cell_index(fx, fy), minlength=cells + 1)
     hits, misses = hits[:cells], misses[:cells]
     log_odds = np.clip(hits * L_HIT + misses * L_MISS, -L_CLAMP, L_CLAMP)
     return OccupancyGrid(
@@ -163,20 +164,28 @@ def _along(
     return out
 
 
-def _cell_index(
-    x: FloatArray, y: FloatArray, x0: float, y0: float, resolution: float, h: int, w: int
-) -> npt.NDArray[np.int64]:
-    """Flat cell index of each point, ``h * w`` (one bin past the grid) for points outside.
-    Overwrites ``x`` and ``y``."""
-    x -= x0
-    x /= resolution
-    np.floor(x, out=x)
-    y -= y0
-    y /= resolution
-    np.floor(y, out=y)
-    inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
-    y *= w
-    y += x
-    flat = y.astype(np.int64)
-    flat[~inside] = h * w
-    return flat
+@dataclass(frozen=True, slots=True)
+class _Raster:
+    """Where a grid lies: lower-left corner, cell size and cells across (w) and up (h)."""
+
+    x0: float
+    y0: float
+    resolution: float
+    w: int
+    h: int
+
+    def cell_index(self, x: FloatArray, y: FloatArray) -> npt.NDArray[np.int64]:
+        """Flat cell index of each point, ``h * w`` (one bin past the grid) for points
+        outside. Overwrites ``x`` and ``y``."""
+        x -= self.x0
+        x /= self.resolution
+        np.floor(x, out=x)
+        y -= self.y0
+        y /= self.resolution
+        np.floor(y, out=y)
+        inside = (x >= 0) & (x < self.w) & (y >= 0) & (y < self.h)
+        y *= self.w
+        y += x
+        flat = y.astype(np.int64)
+        flat[~inside] = self.h * self.w
+        return flat

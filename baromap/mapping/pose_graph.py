@@ -300,9 +300,7 @@ class _BlockStructure:
         self.slot = position.reshape(-1)
         self.row_index = np.empty(9 * self.blocks, dtype=np.int32)
         self.row_index[self.slot] = (3 * block_row[:, None, None] + r[None]).reshape(-1)
-        self.indptr = np.concatenate([[0], np.cumsum(np.repeat(3 * per_col, 3))]).astype(
-            np.int32
-        )
+        self.indptr = np.concatenate([[0], np.cumsum(np.repeat(3 * per_col, 3))]).astype(np.int32)
         # summing block values: one bincount over (block, entry) slots
         self.entry = (9 * inverse[:, None] + np.arange(9)[None, :]).reshape(-1)
 

@@ -19,6 +19,8 @@ from baromap.errors import InputFormatError
 from baromap.mapping.scans import ScanBlock
 from baromap.recording import (
     LaserMount,
+    OdometrySeries,
+    PressureSeries,
     load_pressure,
     load_pressure_and_odometry,
     read_messages,
@@ -71,13 +73,30 @@ def laser_offset_from_metadata(metadata: dict[str, dict[str, str]]) -> FloatArra
     return np.array([mount.x_m, mount.y_m, mount.yaw_rad])
 
 
-def load_run(path: str | Path) -> RunData:
-    """Read the four topics mapping needs from a recording: scans, odometry, the robot's
-    barometer and a reference station's.
+@dataclass(frozen=True, slots=True)
+class RunSeries:
+    """The run's barometers and odometry as columns: what :func:`load_series` reads."""
 
-    Pressure and odometry come as whole columns in one pass (the reader's series loaders);
-    scans as messages, since a scan is an array already.
+    pressure: PressureSeries
+    odometry: OdometrySeries
+    reference: PressureSeries
+
+
+def load_series(path: str | Path) -> RunSeries:
+    """Pressure and odometry in one pass, the reference station's in another (a small topic).
+
+    Separate from the scans so that another process can read them while this one reads the
+    scans (:mod:`baromap.mapping.build`): each pass decompresses the whole file.
     """
+    pressure, odometry = load_pressure_and_odometry(path)
+    if len(odometry) == 0:
+        raise InputFormatError(f"{path}: no odometry on {topics.ODOM}")
+    return RunSeries(pressure, odometry, load_pressure(path, topics.REFERENCE_PRESSURE))
+
+
+def load_scans(path: str | Path) -> tuple[ScanBlock, dict[str, dict[str, str]]]:
+    """The laser scans of a recording as one block, with the laser's mounting, and the
+    recording's metadata it came from."""
     metadata = read_metadata(path)
     scans = [
         rec.message
@@ -86,11 +105,23 @@ def load_run(path: str | Path) -> RunData:
     ]
     if not scans:
         raise InputFormatError(f"{path}: no laser scans on {topics.SCAN}")
-    pressure, odometry = load_pressure_and_odometry(path)
-    if len(odometry) == 0:
-        raise InputFormatError(f"{path}: no odometry on {topics.ODOM}")
-    reference = load_pressure(path, topics.REFERENCE_PRESSURE)
-    block = ScanBlock.from_messages(scans, laser_offset_from_metadata(metadata))
+    return ScanBlock.from_messages(scans, laser_offset_from_metadata(metadata)), metadata
+
+
+def load_run(path: str | Path) -> RunData:
+    """Read the four topics mapping needs from a recording: scans, odometry, the robot's
+    barometer and a reference station's.
+
+    Pressure and odometry come as whole columns in one pass (the reader's series loaders);
+    scans as messages, since a scan is an array already.
+    """
+    block, metadata = load_scans(path)
+    return run_data(block, metadata, load_series(path))
+
+
+def run_data(block: ScanBlock, metadata: dict[str, dict[str, str]], series: RunSeries) -> RunData:
+    """The run from its scans and series: odometry interpolated at every scan's stamp."""
+    pressure, odometry, reference = series.pressure, series.odometry, series.reference
     odometry_poses = odometry.poses()
     odom = interpolate_poses(odometry.t_ns, odometry_poses, block.t_ns)
     log.info("run loaded", scans=len(block), odometry=len(odometry), pressure=len(pressure.t_ns))
