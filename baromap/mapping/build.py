@@ -309,27 +309,23 @@ def write_outputs(
     resolution: float,
     config: SlamConfig | None,
 ) -> list[Path]:
-    """Grids and every file but pressure.png; half the floors' grids and all figures in the
-    painter. Fills ``result.grids``."""
+    """Grids and every file but pressure.png, the figures in the painter. Fills
+    ``result.grids``.
+
+    Every grid is cast here and handed to the painter as soon as it is done: drawing a floor's
+    picture takes longer than casting its grid (matplotlib), so the painter draws one floor
+    while this process casts the next, and a grid cast in the painter would only queue the
+    pictures behind it.
+    """
     seg = result.segmentation
     files: list[Path] = []
-    jobs = {}
-    for n, info in enumerate(seg.floors):
-        job = _grid_job(
-            result.run, seg, result.slam, info.index, resolution=resolution, config=config
-        )
-        if job is None:
-            continue
-        if n % 2 == 0:
-            jobs[info.index] = painter.submit(floor_grid, *job)
-        else:
-            result.grids[info.index] = floor_grid(*job)
-    for index, future in jobs.items():
-        result.grids[index] = future.result()
     floor_entries = []
     kf_floor = seg.scan_floor[result.slam.keyframes]
     for info in seg.floors:
-        grid = result.grids.get(info.index)
+        job = _grid_job(
+            result.run, seg, result.slam, info.index, resolution=resolution, config=config
+        )
+        grid = None if job is None else floor_grid(*job)
         entry: dict[str, Any] = {
             "index": info.index,
             "name": info.label,
@@ -340,6 +336,7 @@ def write_outputs(
             "scans": int(np.sum(seg.scan_floor == info.index)),
         }
         if grid is not None:
+            result.grids[info.index] = grid
             stem = f"floor_{info.index}"
             png = out / f"{stem}.png"
             painter.submit(

@@ -74,11 +74,9 @@ def write_map_server(grid: OccupancyGrid, directory: Path, stem: str) -> tuple[P
 
 def write_png(grid: OccupancyGrid, path: Path, title: str | None = None) -> None:
     """A picture of the map with a metric frame, for people."""
-    import matplotlib
+    from baromap.mapping.figures import pyplot, settle_layout
 
-    matplotlib.use("Agg")
-    from matplotlib import pyplot as plt
-
+    plt = pyplot()
     h, w = grid.shape
     extent = (
         grid.origin_xy[0],
@@ -102,7 +100,7 @@ def write_png(grid: OccupancyGrid, path: Path, title: str | None = None) -> None
     ax.set_ylabel("y [m]")
     if title:
         ax.set_title(title)
-    fig.tight_layout()
+    settle_layout(fig)
     fig.savefig(path, dpi=100)
     plt.close(fig)
 
