@@ -26,6 +26,7 @@ from baromap.recording import (
     load_odometry,
     load_pressure,
     load_pressure_and_odometry,
+    load_pressures_and_odometry,
     read_messages,
     read_metadata,
 )
@@ -484,6 +485,32 @@ def test_both_series_in_one_pass_match_the_message_reader(tmp_path: Path) -> Non
         equal_nan=True,
     )
     assert odom.raw_x.tolist() == list(range(0, 300, 2))
+
+
+def test_several_pressure_topics_in_one_pass_match_one_topic_at_a_time(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    with RecordingWriter(path, robot="r", flush_interval_s=3600) as writer:
+        for i in range(200):
+            writer.write(m.PressureSample(T0 + i * 40_000_000, 1e5 + i))
+            if i % 4 == 0:
+                writer.write(
+                    m.PressureSample(T0 + i * 40_000_000, 2e5 - i), topic=t.REFERENCE_PRESSURE
+                )
+            writer.write(m.Odometry(T0 + i * 40_000_000, i * 0.01, 0.0, 0.0, raw_x=i))
+            if i % 50 == 49:
+                writer.flush()
+    pressures, odom = load_pressures_and_odometry(
+        path, [t.BARO, t.REFERENCE_PRESSURE, "/absent"], t.ODOM
+    )
+    for topic in (t.BARO, t.REFERENCE_PRESSURE):
+        alone = load_pressure(path, topic)
+        assert pressures[topic].t_ns.tolist() == alone.t_ns.tolist()
+        assert pressures[topic].pressure_pa.tolist() == alone.pressure_pa.tolist()
+    assert pressures[t.REFERENCE_PRESSURE].pressure_pa.tolist() == [
+        2e5 - i for i in range(0, 200, 4)
+    ]
+    assert len(pressures["/absent"].t_ns) == 0
+    assert odom.raw_x.tolist() == list(range(200))
 
 
 def test_any_cut_of_a_file_reads_back_a_prefix(tmp_path: Path) -> None:

@@ -21,8 +21,7 @@ from baromap.recording import (
     LaserMount,
     OdometrySeries,
     PressureSeries,
-    load_pressure,
-    load_pressure_and_odometry,
+    load_pressures_and_odometry,
     read_messages,
     read_metadata,
     topics,
@@ -83,15 +82,17 @@ class RunSeries:
 
 
 def load_series(path: str | Path) -> RunSeries:
-    """Pressure and odometry in one pass, the reference station's in another (a small topic).
+    """Both barometers and odometry, in one pass over the file.
 
     Separate from the scans so that another process can read them while this one reads the
     scans (:mod:`baromap.mapping.build`): each pass decompresses the whole file.
     """
-    pressure, odometry = load_pressure_and_odometry(path)
+    pressures, odometry = load_pressures_and_odometry(
+        path, [topics.BARO, topics.REFERENCE_PRESSURE], topics.ODOM
+    )
     if len(odometry) == 0:
         raise InputFormatError(f"{path}: no odometry on {topics.ODOM}")
-    return RunSeries(pressure, odometry, load_pressure(path, topics.REFERENCE_PRESSURE))
+    return RunSeries(pressures[topics.BARO], odometry, pressures[topics.REFERENCE_PRESSURE])
 
 
 def load_scans(path: str | Path) -> tuple[ScanBlock, dict[str, dict[str, str]]]:

@@ -442,9 +442,19 @@ def load_pressure_and_odometry(
     path: str | Path, pressure_topic: str = topics.BARO, odometry_topic: str = topics.ODOM
 ) -> tuple[PressureSeries, OdometrySeries]:
     """Both series of a run in one pass over the file (each pass decompresses all of it)."""
+    pressures, odometry = load_pressures_and_odometry(path, [pressure_topic], odometry_topic)
+    return pressures[pressure_topic], odometry
+
+
+def load_pressures_and_odometry(
+    path: str | Path, pressure_topics: Sequence[str], odometry_topic: str = topics.ODOM
+) -> tuple[dict[str, PressureSeries], OdometrySeries]:
+    """Several pressure topics (the robot's barometer, a reference station's) and odometry in
+    one pass over the file; a pressure topic the file does not hold comes back empty."""
     walk = Walk(path)
-    raws = _collect(walk, [pressure_topic, odometry_topic])
-    return (
-        pressure_series(_decode_pressure(walk, raws[pressure_topic], pressure_topic)),
-        _decode_odometry(walk, raws[odometry_topic], odometry_topic),
-    )
+    raws = _collect(walk, [*pressure_topics, odometry_topic])
+    pressures = {
+        topic: pressure_series(_decode_pressure(walk, raws[topic], topic))
+        for topic in pressure_topics
+    }
+    return pressures, _decode_odometry(walk, raws[odometry_topic], odometry_topic)
