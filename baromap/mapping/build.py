@@ -204,7 +204,7 @@ def _build(
         t0 = time.perf_counter()
         # the series in the painter while this process reads the scans; then matplotlib
         series = painter.submit(load_series, recording)
-        painter.submit(figures.warm_up)
+        painter.warm_up()
         block, metadata = load_scans(recording)
         run = run_data(block, metadata, series.result())
         timings["load"] = time.perf_counter() - t0
@@ -275,6 +275,12 @@ class _Painter:
         job = self._pool.submit(fn, *args, **kwargs)
         self._jobs.append(job)
         return job
+
+    def warm_up(self) -> None:
+        """Load matplotlib in the painter ahead of its first figure; painting in this
+        process, there is nothing to do ahead."""
+        if self._pool is not None:
+            self._jobs.append(self._pool.submit(figures.warm_up))
 
     def wait(self) -> None:
         """Every job done; the first failure raised here."""
