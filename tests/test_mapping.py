@@ -372,7 +372,8 @@ def test_bad_laser_mount_metadata_is_an_input_error(record: dict[str, str]) -> N
 def test_odometry_calibration_learns_the_systematic_errors_where_scans_pin_the_motion() -> None:
     """Steps read 3 % long, turns 4 % long and creeping 1 deg/m; matches measure the true
     step with 1 cm / 0.2 deg noise, except in a corridor, where the match only repeats
-    odometry along the travel and says so by its covariance: the corridor must not count."""
+    odometry along the travel and says so by its covariance: the corridor must not count, nor
+    must a wrong match however sure of itself."""
     rng = np.random.default_rng(7)
     cal = OdometryCalibration()
     assert np.allclose(cal.correct(np.array([1.0, 0.0, 0.5])), [1.0, 0.0, 0.5])  # unknown yet
@@ -389,6 +390,9 @@ def test_odometry_calibration_learns_the_systematic_errors_where_scans_pin_the_m
         if in_corridor:
             matched[0] = read[0]  # the match slid to wherever odometry put it
         cal.observe(read, matched, cov)
+        if i % 50 == 49:  # now and then a wrong match, sure of itself: a door further, turned
+            cal.observe(read, matched + np.array([0.8, 0.0, math.radians(30.0)]), pinned)
+    assert cal.rejected == 8
     c = cal.scale()
     a, b = cal.turn_terms()
     assert c == pytest.approx(1 / 1.03, abs=0.002)

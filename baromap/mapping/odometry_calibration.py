@@ -45,6 +45,10 @@ MIN_STEP_M = 0.05
 #: A sample whose residual is beyond this many of its own sigmas from the current fit is a
 #: bad match, not odometry: it is left out.
 OUTLIER_SIGMAS = 4.0
+#: ... beyond that and beyond what the fit so far may still be missing: a few percent of the
+#: turn, a couple of degrees per metre (the synthetic logs' creep, twice a P3-AT's).
+TURN_SLACK = 0.05
+CREEP_SLACK_RAD_PER_M = math.radians(2.0)
 
 
 class OdometryCalibration:
@@ -75,7 +79,7 @@ class OdometryCalibration:
         if np.linalg.det(h) <= 1e-12 * max(1.0, float(np.trace(h)) ** 2):
             return 0.0, 0.0
         cov = np.linalg.inv(h)
-        a, b = cov @ self._rot_g
+        a, b = self._turn_fit()
         a = float(a) if math.sqrt(cov[0, 0]) < TURN_SIGMA else 0.0
         b = float(b) if math.sqrt(cov[1, 1]) < CREEP_SIGMA_RAD_PER_M else 0.0
         a = min(MAX_TURN_ERROR, max(-MAX_TURN_ERROR, a))
@@ -95,8 +99,10 @@ class OdometryCalibration:
 
     def observe(self, odometric: FloatArray, matched: FloatArray, covariance: FloatArray) -> None:
         """One step as odometry read it and as matching measured it (same frame, the step's
-        start), with the covariance of the matched step (3x3)."""
+        start), with the covariance of the matched step (3x3). A step whose travel or turn is
+        far from what the fit so far expects is a wrong match, and neither part of it counts."""
         travel = math.hypot(odometric[0], odometric[1])
+        distance: tuple[float, float] | None = None  # (weight, matched travel along)
         if travel >= MIN_STEP_M:
             u = np.asarray(odometric[:2]) / travel
             var = float(u @ covariance[:2, :2] @ u)
@@ -105,15 +111,34 @@ class OdometryCalibration:
                 scale = self._wad / self._wdd if self._wdd > 0 else 1.0
                 if abs(along - scale * travel) > OUTLIER_SIGMAS * math.sqrt(var) + 0.02 * travel:
                     self.rejected += 1
-                else:
-                    w = 1.0 / var
-                    self._wad += w * along * travel
-                    self._wdd += w * travel * travel
-                    self.samples += 1
+                    return
+                distance = (1.0 / var, along)
         var_t = float(covariance[2, 2])
+        turn: tuple[float, FloatArray, float] | None = None  # (weight, features, residual)
         if var_t > 0:
             x = np.array([odometric[2], travel])
             residual = float(math.remainder(matched[2] - odometric[2], math.tau))
-            w = 1.0 / var_t
+            expected = float(x @ self._turn_fit())
+            slack = TURN_SLACK * abs(odometric[2]) + CREEP_SLACK_RAD_PER_M * travel
+            if abs(residual - expected) > OUTLIER_SIGMAS * math.sqrt(var_t) + slack:
+                self.rejected += 1
+                return
+            turn = (1.0 / var_t, x, residual)
+        if distance is not None:
+            w, along = distance
+            self._wad += w * along * travel
+            self._wdd += w * travel * travel
+        if turn is not None:
+            w, x, residual = turn
             self._rot_h += w * np.outer(x, x)
             self._rot_g += w * x * residual
+        if distance is not None or turn is not None:
+            self.samples += 1
+
+    def _turn_fit(self) -> FloatArray:
+        """(a, b) fitted so far, whatever their uncertainty (zero before two samples)."""
+        h = self._rot_h
+        if np.linalg.det(h) <= 1e-12 * max(1.0, float(np.trace(h)) ** 2):
+            return np.zeros(2)
+        fit: FloatArray = np.asarray(np.linalg.solve(h, self._rot_g), dtype=np.float64)
+        return fit
