@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -134,6 +135,12 @@ def test_intel_relations_beat_gmapping(shared_data: Path) -> None:
     relations, odometry = report.slam_relations, report.odometry_relations
     assert relations is not None and odometry is not None
     assert relations.used == gmapping.used >= 15
+    # what the SLAM learnt about the odometry is the error model the odometry was made with:
+    # 5 % long (true = read / 1.05) and turning 2 deg per true metre (1.905 per read metre)
+    scale, turn, creep = report.result.odometry_correction
+    assert scale == pytest.approx(1 / 1.05, abs=0.005)
+    assert turn == pytest.approx(0.0, abs=0.01)
+    assert math.degrees(creep) == pytest.approx(-2.0 / 1.05, abs=0.2)
     assert relations.trans_mean <= gmapping.trans_mean
     assert relations.rot_mean <= gmapping.rot_mean
     # the synthetic odometry really is bad, and SLAM is what fixes it

@@ -13,6 +13,12 @@ almost as well (a door further along, the room turned) is ambiguous and refused:
 alone carries that step. Both odometry and the match enter the pose graph, the match with the
 information of its own fit (weak along a corridor, strong across it).
 
+Odometry's systematic errors (distance read long by the tyres, turns by a skid-steer's slip,
+heading creep per metre) are learnt from the front end's matches wherever they pin a step
+down at both ends (:mod:`baromap.mapping.odometry_calibration`), and taken out of every later
+odometric step and, at the end, of every odometry edge: along a featureless corridor, where
+odometry alone decides, a 2 % scale error would otherwise stretch the map.
+
 Loop closures: each keyframe looks for finished submaps of the *same floor* (the barometer's
 verdict) that it sees from near where they were built, and matches against each with a
 window as wide as the front end can have drifted since it was last tied to the map (the path
@@ -46,6 +52,7 @@ from baromap.errors import ConfigError
 from baromap.mapping import se2
 from baromap.mapping.errors import MappingError
 from baromap.mapping.keyframes import motion_spaced
+from baromap.mapping.odometry_calibration import OdometryCalibration
 from baromap.mapping.pose_graph import Edge, PoseGraph
 from baromap.mapping.refine import Pull, concatenate, refine_batch
 from baromap.mapping.scan_matcher import (
@@ -224,6 +231,9 @@ class SlamResult:
     #: closures between the closed elevator car at different rides (any floors)
     car_edges: list[tuple[int, int]] = field(default_factory=list)
     stats: dict[str, float] = field(default_factory=dict)
+    #: odometry's systematic errors as learnt (:mod:`baromap.mapping.odometry_calibration`):
+    #: distance factor, turn factor - 1, heading creep [rad/m]; (1, 0, 0) when unknown
+    odometry_correction: tuple[float, float, float] = (1.0, 0.0, 0.0)
 
 
 def select_keyframes(
@@ -372,6 +382,10 @@ class _Slam:
         self.last_closure = 0  # keyframe of the last accepted closure (or visit start)
         self.unsolved: list[int] = []  # loop edges added since the last solve
         self.car_edges: list[tuple[int, int]] = []
+        #: odometry's systematic errors, learnt from front-end matches (see the module)
+        self.calibration = OdometryCalibration()
+        #: covariance of each front-matched keyframe's pose (its own frame), for calibration
+        self.front_cov: dict[int, FloatArray] = {}
 
     # ------------------------------------------------------------------ the run
 
@@ -384,7 +398,8 @@ class _Slam:
         new_visit = bool(self.kf_visit[k] != self.kf_visit[k - 1])
         if new_visit:
             self._end_visit()
-        step = se2.between(self.odom[self.kf_scan[k - 1]], self.odom[self.kf_scan[k]])
+        read = self._odometry_step(k - 1, k)
+        step = self.calibration.correct(read)
         guess = se2.compose(graph.poses[k - 1], step)
         graph.add_node(guess)
         sigma_xy, sigma_theta = self._odometry_sigmas(step)
@@ -396,7 +411,7 @@ class _Slam:
             self.last_closure = k
             self._ride(k, guess, sigma_xy, sigma_theta)
         else:
-            self._front_end(k, guess, sigma_xy, sigma_theta)
+            self._front_end(k, guess, sigma_xy, sigma_theta, read)
         self._insert(k)
         if not self.clouds.in_car(k) and k - self.visit_start >= 1:
             self._close_loops(k)
@@ -409,6 +424,17 @@ class _Slam:
         for _ in range(REFINE_PASSES):
             self._refine()
         self.stats["keyframes"] = len(self.kf_scan)
+        self.stats["odometry_samples"] = self.calibration.samples
+        scale = self.calibration.scale()
+        turn, creep = self.calibration.turn_terms()
+        log.info(
+            "odometry calibration",
+            samples=self.calibration.samples,
+            rejected=self.calibration.rejected,
+            scale=round(scale, 5),
+            turn=round(turn, 5),
+            creep_deg_per_m=round(math.degrees(creep), 4),
+        )
         self.stats["loops"] = len(self.loops)
         self.stats["submaps"] = len(self.finished)
         self.stats["submap_releases"] = self.cache.releases
@@ -421,6 +447,7 @@ class _Slam:
             self.loops,
             self.car_edges,
             {k: float(v) for k, v in self.stats.items()},
+            (scale, turn, creep),
         )
 
     def _refine(self) -> None:
@@ -452,6 +479,9 @@ class _Slam:
                 measured.append(out.poses[out.usable])
                 infos.append(info[out.usable])
         kept = [e for e in self.graph.edges if e.kind in ("odometry", "ride", "car")]
+        for e in kept:
+            if e.kind == "odometry":  # with what the whole run taught about odometry
+                e.z = self.calibration.correct(self._odometry_step(e.i, e.j))
         kept += self._core_edges(poses)
         fits = _MapFits(
             np.concatenate(nodes) if nodes else np.zeros(0, dtype=np.int64),
@@ -649,7 +679,25 @@ class _Slam:
 
     # ------------------------------------------------------------------ front end
 
-    def _front_end(self, k: int, guess: FloatArray, sigma_xy: float, sigma_theta: float) -> None:
+    def _odometry_step(self, a: int, b: int) -> FloatArray:
+        """Odometry's motion from keyframe a to keyframe b, as the wheels read it."""
+        return se2.between(self.odom[self.kf_scan[a]], self.odom[self.kf_scan[b]])
+
+    def _learn_odometry(self, k: int, read: FloatArray, edge: Edge) -> None:
+        """Keyframe k was matched: with k - 1 matched too, the step between them is measured at
+        both ends, a sample of what odometry got wrong (:mod:`odometry_calibration`)."""
+        # k's pose, in k's own frame
+        cov: FloatArray = np.asarray(np.linalg.inv(edge.information), dtype=np.float64)
+        self.front_cov[k] = cov
+        before = self.front_cov.get(k - 1)
+        if before is not None:
+            # k's covariance in the frame of k - 1 (k stands turned by z's heading in it)
+            in_before = _rotate_info(cov, -float(edge.z[2]))
+            self.calibration.observe(read, edge.z, before + in_before)
+
+    def _front_end(
+        self, k: int, guess: FloatArray, sigma_xy: float, sigma_theta: float, read: FloatArray
+    ) -> None:
         points = self.clouds.points[k]
         if len(points) < MIN_POINTS or not self.active:
             self.stats["front_skipped"] += 1
@@ -692,6 +740,7 @@ class _Slam:
         edge.z = se2.between(se2.between(anchor, self.graph.poses[k - 1]), result.pose)
         self.graph.add_edge(edge)
         self.stats["front_matches"] += 1
+        self._learn_odometry(k, read, edge)
 
     def _fine_field(self, sub: Submap, local_guess: FloatArray) -> LikelihoodField:
         """Half-cell field of the submap's points within reach of a small enclosure."""
