@@ -431,7 +431,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--speed", type=float, default=6.0)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--floors", type=int, default=4)
-    parser.add_argument("--keep", help="keep the outputs in this directory")
+    parser.add_argument(
+        "--keep", help="keep the outputs in this directory (the daemon's RSS: daemon_rss.csv)"
+    )
     args = parser.parse_args(args_in)
     logs.configure("console", "WARNING")
     mission = Mission(
@@ -484,6 +486,9 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             router.stop()
         code = report(live, mission, scheduled, router, memory)
+        t0 = memory.samples[0][0] if memory.samples else 0.0
+        rows = "".join(f"{t - t0:.1f},{mb:.3f}\n" for t, mb in memory.samples)
+        (out / "daemon_rss.csv").write_text("wall_s,rss_mb\n" + rows)
     print(f"machine: {os.cpu_count()} cores, load average {load:.1f} at start, "
           f"{os.getloadavg()[0]:.1f} at end")  # fmt: skip
     return code
