@@ -8,8 +8,9 @@ free-but-held memory with nothing more in use is fragmentation. Printed: each fi
 after warm-up, at the end, and its slope after warm-up (the median of its increments over a
 minute, per wall minute and per hour of running: the twins stream at their real rates).
 
-``--old-read`` gives the daemon's readers the read they had before (``os.read(fd, 65536)``,
-which allocates 64 KiB per read and shrinks it), to show the growth that read caused.
+``--old-read`` puts the read the daemon's readers had before (``os.read(fd, 65536)``, which
+allocates 64 KiB per read and shrinks it) under their current one, to show the growth that
+read caused.
 
     python bench/memory.py [--minutes 5] [--devices laser,base,barometer] [--zenoh]
                            [--compression zstd|lz4|none] [--old-read] [--warm-up 120]
@@ -54,35 +55,24 @@ def _anonymous_kb():
                 kb += int(line.split()[1])
     return kb
 
-def _old_read(self):
-    fd = self._fd
-    if fd is None:
-        return _new_read(self)
-    import select
-    from daemon import session
-    poll = self._poll
-    if poll is None:
-        poll = self._poll = select.poll()
-        poll.register(fd, select.POLLIN)
-    ready = poll.poll(session.READ_TIMEOUT_MS)
-    data = os.read(fd, 65536) if ready else b""
-    if ready and not data:
-        raise session.serial.SerialException("the port reported data but returned none")
-    now = time.monotonic_ns()
-    self.heartbeat_ns = now
-    if data:
-        self._reads += 1
-        self._bytes_in += len(data)
-        self._bytes_since_good += len(data)
-    return data, now
+class _FormerRead:
+    # os for daemon.session, but readv goes through os.read(fd, 65536) first: the 64 KiB
+    # allocated and shrunk on every read, as the readers did before
+
+    def __getattr__(self, name):
+        return getattr(os, name)
+
+    @staticmethod
+    def readv(fd, buffers):
+        data = os.read(fd, 65536)
+        buffers[0][: len(data)] = data
+        return len(data)
 
 def _sample():
     if os.environ.get("BAROMAP_MEMPROBE_OLD_READ"):
-        global _new_read
         while "daemon.session" not in sys.modules:
             time.sleep(0.01)
-        cls = sys.modules["daemon.session"].DeviceSession
-        _new_read, cls.read = cls.read, _old_read
+        sys.modules["daemon.session"].os = _FormerRead()
     while True:
         info = _libc.mallinfo2()
         with open("/proc/self/statm") as f:
