@@ -8,9 +8,9 @@ free-but-held memory with nothing more in use is fragmentation. Printed: each fi
 after warm-up, at the end, and its slope after warm-up (the median of its increments over a
 minute, per wall minute and per hour of running: the twins stream at their real rates).
 
-``--old-read`` puts the read the daemon's readers had before (``os.read(fd, 65536)``, which
-allocates 64 KiB per read and shrinks it) under their current one, to show the growth that
-read caused.
+``--old-read`` gives the daemon's readers the read they had before: ``os.read(fd, 65536)``,
+which allocates 64 KiB per read and shrinks it, its result handed on as it is (a name or two
+in ``daemon.session`` swapped, not a copy of the reader), to show the growth that read caused.
 
     python bench/memory.py [--minutes 5] [--devices laser,base,barometer] [--zenoh]
                            [--compression zstd|lz4|none] [--old-read] [--warm-up 120]
@@ -55,24 +55,29 @@ def _anonymous_kb():
                 kb += int(line.split()[1])
     return kb
 
-class _FormerRead:
-    # os for daemon.session, but readv goes through os.read(fd, 65536) first: the 64 KiB
-    # allocated and shrunk on every read, as the readers did before
+class _FormerBuffer:
+    # stands for a session's read buffer: it keeps what os.read(fd, 65536) returned, and its
+    # slice is that very object (bytes() of a bytes is itself): the readers' former read
+    data = b""
 
+    def __getitem__(self, key):
+        return self.data
+
+class _FormerOs:
     def __getattr__(self, name):
         return getattr(os, name)
 
     @staticmethod
     def readv(fd, buffers):
-        data = os.read(fd, 65536)
-        buffers[0][: len(data)] = data
-        return len(data)
+        buffers[0].data = os.read(fd, 65536)
+        return len(buffers[0].data)
+
+if os.environ.get("BAROMAP_MEMPROBE_OLD_READ"):
+    import daemon.session as _session
+    _session.os = _FormerOs()
+    _session.memoryview = lambda _: _FormerBuffer()
 
 def _sample():
-    if os.environ.get("BAROMAP_MEMPROBE_OLD_READ"):
-        while "daemon.session" not in sys.modules:
-            time.sleep(0.01)
-        sys.modules["daemon.session"].os = _FormerRead()
     while True:
         info = _libc.mallinfo2()
         with open("/proc/self/statm") as f:
