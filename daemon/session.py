@@ -115,7 +115,7 @@ class DeviceSession(abc.ABC):
         # Reads land here and leave as a bytes object of exactly their length: os.read(fd,
         # READ_CHUNK) allocates READ_CHUNK bytes per call and shrinks them to what arrived,
         # and hundreds of those a second fragmented the reader thread's malloc arena, which
-        # grew without end (0.5 MB a minute on the laser's thread, measured; docs/benchmarks.md).
+        # grew without end (0.2-0.6 MB a minute with the laser; bench/memory.py --old-read).
         self._read_buffer = memoryview(bytearray(READ_CHUNK))
         self.identity: dict[str, str] = {}
         #: Further metadata records a reader needs to interpret this device's messages, by
