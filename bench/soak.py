@@ -12,7 +12,11 @@ Printed, each against what it must be:
   was up and no fault was under way is in the recording; barometer samples by sequence number,
   scans and SIPs (which carry none) by count over each healthy stretch, where a stamp near a
   stretch's end can put one frame on either side;
-- memory: the daemon's RSS sampled every second, the slope of a line fitted after warm-up;
+- memory: the daemon's RSS sampled every second; its steady growth after warm-up per hour of
+  running and per 8-hour shift (the twins stream at least at their real rates: the laser at
+  its line rate, the base and the barometer at the mission's speed, so a wall minute here
+  carries at least a minute of a robot's data), flat below ``MEMORY_MAX_MB_PER_H``; and apart
+  from it the steps at events (a rotation, the router's restart);
 - rotation: files, sizes and spans against the configured limits, nothing lost or repeated at a
   split (barometer sequence continuous across files);
 - live: floor events the watcher printed against those recorded, apart from those decided
@@ -63,6 +67,20 @@ ROUTER_DOWN_AT = 0.45
 ROUTER_DOWN_S = 30.0
 #: How far past a short stretch the daemon's counters are read for damage found late.
 READ_LAG_S = 2.0
+#: Wall seconds of warm-up before the memory slope is fitted: start-up, the Zenoh session, and
+#: the first two files (the first rotation moves the MCAP writer's buffers from their own
+#: mappings into the heap once, about 1 MB: a step, not growth).
+MEMORY_WARM_UP_S = 2 * ROTATE_MINUTES * 60
+#: Flat memory: growth below this after warm-up. 3 MB per hour of running is 24 MB over an
+#: 8-hour shift, and keeps the daemon (about 100 MB) under bench/daemon.py's 150 MB target for
+#: 16 hours; the leak this bench found grew 30-40 MB an hour.
+MEMORY_MAX_MB_PER_H = 3.0
+#: Memory increments are taken over this many wall seconds (a page every 4 kB: 0.5 MB per
+#: hour is a page in 30 s), and a rise over ``MEMORY_STEP_MB`` within ``MEMORY_STEP_S`` is
+#: printed as a step.
+MEMORY_LAG_S = 30.0
+MEMORY_STEP_MB = 0.25
+MEMORY_STEP_S = 10.0
 
 
 def run_router(endpoint: str) -> int:
@@ -155,8 +173,11 @@ class Memory:
     """The daemon's resident set, sampled: (wall s, MB)."""
 
     samples: list[tuple[float, float]] = field(default_factory=list)
+    started_unix: float | None = None  # Unix time of the first sample (events are in Unix s)
 
     def sample(self, pid: int) -> None:
+        if self.started_unix is None:
+            self.started_unix = time.time()
         try:
             for line in Path(f"/proc/{pid}/status").read_text().splitlines():
                 if line.startswith("VmRSS:"):
@@ -367,15 +388,7 @@ def report(
           f"{len(seqs)} samples in all, {len(seqs) - len(set(seqs))} repeated seq numbers "
           "(the board's counter wraps at 65536 and restarts after a power-up)")  # fmt: skip
     failures += bool(too_big or too_long or boundary_gaps)
-    samples = memory.samples
-    t = np.array([s[0] for s in samples]) - samples[0][0]
-    rss = np.array([s[1] for s in samples])
-    warm = t >= t[-1] * 0.2
-    slope = float(np.polyfit(t[warm] / 60, rss[warm], 1)[0])
-    print(f"memory: daemon RSS {rss[0]:.0f} MB at start, {rss[warm][0]:.0f} MB after warm-up, "
-          f"{rss[-1]:.0f} MB at the end, peak {rss.max():.0f} MB; {len(rss)} samples; slope "
-          f"after warm-up {slope:+.2f} MB per wall minute = {slope * 60 / mission.speed:+.1f} MB "
-          f"per simulated hour")  # fmt: skip
+    failures += not memory_flat(memory, router)
     events = [m for m in by_topic[topics.FLOOR_EVENT]]
     printed = [
         int(m.group(1)) for line in live.watch_lines if (m := re.search(r"\[event (\d+)\]", line))
@@ -398,6 +411,65 @@ def report(
     return 0 if failures == 0 else 1
 
 
+def memory_flat(memory: Memory, router: RouterRestart) -> bool:
+    """Print the daemon's memory figures; whether it grows steadily after warm-up.
+
+    Growth is told apart from steps: the median of the RSS increments over ``MEMORY_LAG_S``
+    (one per second) is what the daemon gains all the time, a figure one event cannot move
+    (a step lifts only ``MEMORY_LAG_S`` of them); the steps, one-off rises at events (a file's
+    first rotation, the router's restart), are printed beside it with the events' times.
+    """
+    t = np.array([s[0] for s in memory.samples]) - memory.samples[0][0]
+    rss = np.array([s[1] for s in memory.samples])
+    warm = t >= MEMORY_WARM_UP_S
+    print(f"memory: daemon RSS {rss[0]:.1f} MB at start, {rss[warm][0]:.1f} MB after "
+          f"{MEMORY_WARM_UP_S:.0f} s of warm-up, {rss[-1]:.1f} MB at the end, peak "
+          f"{rss.max():.1f} MB; {len(rss)} samples")  # fmt: skip
+    grid = np.arange(MEMORY_WARM_UP_S, t[-1] + 1e-9, 1.0)
+    lag = round(MEMORY_LAG_S)
+    if len(grid) < 3 * lag:
+        print(f"  {t[-1]:.0f} s sampled: too short to judge after the warm-up (NOT FLAT)")
+        return False
+    on_grid = np.interp(grid, t, rss)
+    increments = on_grid[lag:] - on_grid[:-lag]
+    per_min = float(np.median(increments)) * 60 / MEMORY_LAG_S
+    per_h = per_min * 60
+    flat = per_h < MEMORY_MAX_MB_PER_H
+    fitted = float(np.polyfit(t[warm] / 60, rss[warm], 1)[0])
+    print(f"  steady growth after warm-up (median over {MEMORY_LAG_S:g} s): {per_min:+.3f} MB per "
+          f"wall minute = {per_h:+.1f} MB per hour of running = {per_h * 8:+.0f} MB per 8-hour "
+          f"shift (flat: under {MEMORY_MAX_MB_PER_H:g} MB per hour): "
+          f"{'flat' if flat else 'NOT FLAT'}")  # fmt: skip
+    steps = _steps(t, rss)
+    started = memory.started_unix
+    events = [f"files rotate every {ROTATE_MINUTES * 60:.0f} s"]
+    if started is not None and router.down_wall is not None and router.up_wall is not None:
+        events.append(f"the router was down {router.down_wall - started:.0f}-"
+                      f"{router.up_wall - started:.0f} s")  # fmt: skip
+    print(f"  steps over {MEMORY_STEP_MB:g} MB within {MEMORY_STEP_S:g} s: "
+          + (", ".join(f"{mb:+.2f} MB at {at:.0f} s" for at, mb in steps) or "none")
+          + f" ({'; '.join(events)}); a line fitted after warm-up, steps and all: "
+          f"{fitted:+.3f} MB per wall minute")  # fmt: skip
+    return flat
+
+
+def _steps(t: np.ndarray, rss: np.ndarray) -> list[tuple[float, float]]:
+    """(wall s it had risen by, MB) of each rise over ``MEMORY_STEP_MB`` within
+    ``MEMORY_STEP_S``, on the running median of 5 samples (a file's close dips RSS for one
+    sample)."""
+    padded = np.pad(rss, 2, mode="edge")
+    level = np.median(np.lib.stride_tricks.sliding_window_view(padded, 5), axis=1)
+    out: list[tuple[float, float]] = []
+    i = 0
+    while i < len(t):
+        j = int(np.searchsorted(t, t[i] + MEMORY_STEP_S, side="right")) - 1
+        if j > i and level[j] - level[i] > MEMORY_STEP_MB:
+            out.append((float(t[j]), float(level[j] - level[i])))
+            i = j
+        i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     args_in = sys.argv[1:] if argv is None else argv
     if args_in[:1] == ["router"]:
@@ -407,7 +479,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--speed", type=float, default=6.0)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--floors", type=int, default=4)
-    parser.add_argument("--keep", help="keep the outputs in this directory")
+    parser.add_argument(
+        "--keep", help="keep the outputs in this directory (the daemon's RSS: daemon_rss.csv)"
+    )
     args = parser.parse_args(args_in)
     logs.configure("console", "WARNING")
     mission = Mission(
@@ -460,6 +534,9 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             router.stop()
         code = report(live, mission, scheduled, router, memory)
+        t0 = memory.samples[0][0] if memory.samples else 0.0
+        rows = "".join(f"{t - t0:.1f},{mb:.3f}\n" for t, mb in memory.samples)
+        (out / "daemon_rss.csv").write_text("wall_s,rss_mb\n" + rows)
     print(f"machine: {os.cpu_count()} cores, load average {load:.1f} at start, "
           f"{os.getloadavg()[0]:.1f} at end")  # fmt: skip
     return code

@@ -112,6 +112,11 @@ class DeviceSession(abc.ABC):
         self._reads = 0  # reads that returned bytes: the reader's wake-ups for data
         self._messages = 0
         self._poll: select.poll | None = None
+        # Reads land here and leave as a bytes object of exactly their length: os.read(fd,
+        # READ_CHUNK) allocates READ_CHUNK bytes per call and shrinks them to what arrived,
+        # and hundreds of those a second fragmented the reader thread's malloc arena, which
+        # grew without end (0.2-0.6 MB a minute with the laser; bench/memory.py --old-read).
+        self._read_buffer = memoryview(bytearray(READ_CHUNK))
         self.identity: dict[str, str] = {}
         #: Further metadata records a reader needs to interpret this device's messages, by
         #: record name (the base's ``baromap.robot``: the factors its counters were read with).
@@ -195,9 +200,12 @@ class DeviceSession(abc.ABC):
                 poll = self._poll = select.poll()
                 poll.register(fd, select.POLLIN)
             ready = poll.poll(READ_TIMEOUT_MS)
-            data = os.read(fd, READ_CHUNK) if ready else b""
-            if ready and not data:
-                raise serial.SerialException("the port reported data but returned none")
+            data = b""
+            if ready:
+                size = os.readv(fd, (self._read_buffer,))
+                if not size:
+                    raise serial.SerialException("the port reported data but returned none")
+                data = bytes(self._read_buffer[:size])
         else:
             port = self._port()
             data = port.read(1)

@@ -1,0 +1,194 @@
+"""Where baromapd's memory goes: the daemon on the pty twins (no faults), its C heap sampled.
+
+The soak (bench/soak.py) says whether the daemon's memory is flat; this says why not. A probe
+loaded into the daemon (a ``sitecustomize`` on its ``PYTHONPATH``, written here) samples every
+``--every`` seconds its resident set, the anonymous part of it, and glibc's ``mallinfo2()``:
+bytes in use, free but held, and in mappings of their own. Growth in use is a leak; growth of
+free-but-held memory with nothing more in use is fragmentation. Printed: each figure at start,
+after warm-up, at the end, and its slope after warm-up (the median of its increments over a
+minute, per wall minute and per hour of running: the twins stream at their real rates).
+
+``--old-read`` gives the daemon's readers the read they had before: ``os.read(fd, 65536)``,
+which allocates 64 KiB per read and shrinks it, its result handed on as it is (a name or two
+in ``daemon.session`` swapped, not a copy of the reader), to show the growth that read caused.
+
+    python bench/memory.py [--minutes 5] [--devices laser,base,barometer] [--zenoh]
+                           [--compression zstd|lz4|none] [--old-read] [--warm-up 120]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from baromap.sim.twins import SimDevices
+
+PROBE = r"""
+import ctypes, json, os, sys, threading, time
+
+class _MallInfo2(ctypes.Structure):
+    _fields_ = [(n, ctypes.c_size_t) for n in ("arena", "ordblks", "smblks", "hblks", "hblkhd",
+                "usmblks", "fsmblks", "uordblks", "fordblks", "keepcost")]
+
+_libc = ctypes.CDLL("libc.so.6")
+_libc.mallinfo2.restype = _MallInfo2
+_OUT, _EVERY = os.environ["BAROMAP_MEMPROBE_OUT"], float(os.environ["BAROMAP_MEMPROBE_EVERY"])
+
+def _anonymous_kb():
+    kb, anonymous = 0, False
+    with open("/proc/self/smaps") as f:
+        for line in f:
+            head = line.split(None, 1)[0]
+            if not head.endswith(":"):
+                anonymous = len(line.split()) < 6
+            elif head == "Rss:" and anonymous:
+                kb += int(line.split()[1])
+    return kb
+
+class _FormerBuffer:
+    # stands for a session's read buffer: it keeps what os.read(fd, 65536) returned, and its
+    # slice is that very object (bytes() of a bytes is itself): the readers' former read
+    data = b""
+
+    def __getitem__(self, key):
+        return self.data
+
+class _FormerOs:
+    def __getattr__(self, name):
+        return getattr(os, name)
+
+    @staticmethod
+    def readv(fd, buffers):
+        buffers[0].data = os.read(fd, 65536)
+        return len(buffers[0].data)
+
+if os.environ.get("BAROMAP_MEMPROBE_OLD_READ"):
+    import daemon.session as _session
+    _session.os = _FormerOs()
+    _session.memoryview = lambda _: _FormerBuffer()
+
+def _sample():
+    while True:
+        info = _libc.mallinfo2()
+        with open("/proc/self/statm") as f:
+            rss_kb = int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") // 1024
+        record = {"t": time.monotonic(), "rss": rss_kb / 1024, "anonymous": _anonymous_kb() / 1024,
+                  "in_use": info.uordblks / 2**20, "free_held": info.fordblks / 2**20,
+                  "mmapped": info.hblkhd / 2**20}
+        with open(_OUT, "a") as f:
+            f.write(json.dumps(record) + "\n")
+        time.sleep(_EVERY)
+
+threading.Thread(target=_sample, name="memprobe", daemon=True).start()
+"""
+
+CONFIG = """robot = "memory"
+[recording]
+directory = "{rec}"
+min_free_mb = 0
+compression = "{compression}"
+rotate_size_mb = 4
+rotate_minutes = 1
+[zenoh]
+{zenoh}
+"""
+DEVICES = {
+    "laser": '[laser]\nport = "{lms200}"\nbaud = 500000\n',
+    "base": '[base]\nport = "{p3at}"\n',
+    "barometer": '[barometer]\nport = "{baro}"\nrate_hz = 50\n',
+}
+#: Slopes are the median of increments over this many seconds: a file's close dips the heap
+#: for one sample, a rotation can step it once; neither is growth.
+LAG_S = 60.0
+FIGURES = {
+    "rss": "resident set",
+    "anonymous": "anonymous resident",
+    "in_use": "malloc in use",
+    "free_held": "malloc free but held",
+    "mmapped": "malloc in own mappings",
+}
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--minutes", type=float, default=5.0, help="wall minutes")
+    parser.add_argument("--speed", type=float, default=6.0, help="the mission's speed")
+    parser.add_argument("--devices", default="laser,base,barometer")
+    parser.add_argument("--zenoh", action="store_true", help="run the live publisher")
+    parser.add_argument("--compression", default="zstd", choices=["zstd", "lz4", "none"])
+    parser.add_argument("--old-read", action="store_true", help="the readers' former read")
+    parser.add_argument("--warm-up", type=float, default=120.0, help="s before slopes are fitted")
+    parser.add_argument("--every", type=float, default=5.0, help="s between samples")
+    args = parser.parse_args()
+    devices = [d for d in args.devices.split(",") if d]
+    if not devices or any(d not in DEVICES for d in devices):
+        parser.error(f"--devices: a comma-separated choice of {', '.join(DEVICES)}")
+    zenoh = f'listen = ["tcp/127.0.0.1:{_free_port()}"]' if args.zenoh else "enabled = false"
+    load_before = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory(prefix="baromap-memory-") as tmp:
+        work = Path(tmp)
+        (work / "probe").mkdir()
+        (work / "probe" / "sitecustomize.py").write_text(PROBE)
+        samples = work / "samples.jsonl"
+        minutes = args.minutes * args.speed + 10
+        with SimDevices(link_dir=work / "links", minutes=minutes, seed=11, speed=args.speed) as sim:
+            config = CONFIG.format(rec=work / "rec", compression=args.compression, zenoh=zenoh)
+            config += "".join(DEVICES[d].format(**sim.paths()) for d in devices)
+            (work / "baromapd.toml").write_text(config)
+            env = {
+                **os.environ,
+                "PYTHONPATH": os.pathsep.join(
+                    [str(work / "probe"), *filter(None, [os.environ.get("PYTHONPATH")])]
+                ),
+                "BAROMAP_MEMPROBE_OUT": str(samples),
+                "BAROMAP_MEMPROBE_EVERY": str(args.every),
+            }
+            if args.old_read:
+                env["BAROMAP_MEMPROBE_OLD_READ"] = "1"
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "daemon.main", "--config", str(work / "baromapd.toml")],
+                stderr=(work / "daemon.log").open("wb"),
+                env=env,
+            )
+            time.sleep(args.minutes * 60)
+            proc.send_signal(signal.SIGTERM)
+            code = proc.wait(60)
+        records = [json.loads(line) for line in samples.read_text().splitlines()]
+    t = np.array([r["t"] for r in records]) - records[0]["t"]
+    warm = t >= args.warm_up
+    print(f"baromapd on the twins for {args.minutes:g} min (exit {code}): devices "
+          f"{', '.join(devices)}, Zenoh {'on' if args.zenoh else 'off'}, compression "
+          f"{args.compression}, {'former os.read' if args.old_read else 'current'} reads; "
+          f"load {load_before:.1f} at start, {os.getloadavg()[0]:.1f} at end")  # fmt: skip
+    if np.count_nonzero(warm) * args.every < 2 * LAG_S:
+        print(f"  too short: {t[-1]:.0f} s sampled, warm-up {args.warm_up:g} s")
+        return 1
+    print(f"  MB at start / after {args.warm_up:g} s / at the end; slope after warm-up (median "
+          f"over {LAG_S:g} s) per wall minute (per hour of running)")  # fmt: skip
+    lag = max(1, round(LAG_S / args.every))
+    for key, name in FIGURES.items():
+        y = np.array([r[key] for r in records])
+        slope = float(np.median(y[warm][lag:] - y[warm][:-lag])) * 60 / (lag * args.every)
+        print(f"  {name:24s} {y[0]:7.1f} / {y[warm][0]:7.1f} / {y[-1]:7.1f}   "
+              f"{slope:+.3f} ({slope * 60:+.1f})")  # fmt: skip
+    return 0 if code == 0 else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
