@@ -49,11 +49,13 @@ READ_TIMEOUT_S: Final = 0.05
 READ_TIMEOUT_MS: Final = round(READ_TIMEOUT_S * 1000)
 #: Longest sleep for the rest of a frame (a 9600 baud SIP is ~40 ms; a stop waits no longer).
 READ_PAUSE_MAX_NS: Final = 50_000_000
-#: The sleep for the rest of a frame ends this long before the frame does: the read that
-#: completes it must be a prompt one (woken by the bytes' arrival), because a frame's end is
-#: stamped from the reads around it. A line delivers in packets (a USB adapter's latency timer,
-#: 1 ms when set as the docs say; the twins' 2 ms tick) and a sleep overshoots under load.
-READ_PAUSE_MARGIN_NS: Final = 3_000_000
+#: The sleep for the rest of a frame ends this long after the frame should have: the read
+#: after it then takes the rest in one go. That read is late on purpose; the frame's stamp
+#: comes from the prompt read woken by its first bytes (``LinePosition``: within a frame the
+#: line does not pause). A USB adapter delivers the last bytes up to its latency timer after
+#: they arrived (1 ms when set as the docs say); a read that still comes too early only costs
+#: one more wake-up.
+READ_PAUSE_OVERSHOOT_NS: Final = 1_000_000
 #: Most bytes taken in one read (a second of the fastest line is 50 kB).
 READ_CHUNK: Final = 65536
 #: A bad frame this recent makes an UP device DEGRADED.
@@ -269,11 +271,12 @@ class DeviceSession(abc.ABC):
     def read_pause_ns(self) -> int:
         """How long the rest of a frame in progress takes on the line (0: none, read at once).
 
-        While streaming, the reader sleeps that long (less :data:`READ_PAUSE_MARGIN_NS`)
-        before its next read instead of waking for every chunk the port delivers meanwhile (a
-        500 kbaud scan comes in seven or eight 2 ms packets, a 9600 baud SIP in twenty). The
-        read that completes the frame still comes from a wake-up on arrival, so its stamp
-        (:class:`~daemon.clock.LinePosition`) is as good as without the pause.
+        While streaming, the reader sleeps that long (and :data:`READ_PAUSE_OVERSHOOT_NS`
+        more) before its next read instead of waking for every chunk the port delivers
+        meanwhile (a 500 kbaud scan comes in four 2 ms packets from the twins or eight 1 ms
+        packets from an adapter, a 9600 baud SIP in twenty or forty): two wake-ups a frame.
+        The read woken by the frame's first bytes was a prompt one, and it bounds the frame's
+        end as tightly as the last read would (:class:`~daemon.clock.LinePosition`).
         """
         return 0
 
@@ -382,9 +385,11 @@ class DeviceSession(abc.ABC):
             data, read_ns = self.read()
             if data:
                 self.handle(data, read_ns)
-                pause_ns = self.read_pause_ns() - READ_PAUSE_MARGIN_NS
+                pause_ns = self.read_pause_ns()
                 if pause_ns > 0:
-                    time.sleep(min(pause_ns, READ_PAUSE_MAX_NS) / 1e9)
+                    pause_ns += READ_PAUSE_OVERSHOOT_NS - (time.monotonic_ns() - read_ns)
+                    if pause_ns > 0:
+                        time.sleep(min(pause_ns, READ_PAUSE_MAX_NS) / 1e9)
             self.keepalive()
             quiet_s = (read_ns - self._last_good_ns) / 1e9
             if quiet_s > retry.garbage_s and self._bytes_since_good > 0:
