@@ -41,6 +41,7 @@ from baromap.protocols.framing import BadFrame
 from daemon.clock import HostClock
 from daemon.config import Retry
 from daemon.osthread import name_os_thread
+from daemon.tap import Tap
 
 log = structlog.get_logger(__name__)
 
@@ -79,6 +80,11 @@ class DeviceRefused(DeviceError):
 class DeviceSession(abc.ABC):
     """A device on a serial port, served by its own reader thread."""
 
+    #: Read the port through a tap process (``daemon.tap``) that stamps every read without
+    #: waiting for the GIL: for a device whose frames are stamped with the host's clock alone
+    #: (the laser). A port without a file descriptor (``loop://``) is read directly.
+    tapped: bool = False
+
     def __init__(
         self,
         name: str,
@@ -114,6 +120,8 @@ class DeviceSession(abc.ABC):
         self._reads = 0  # reads that returned bytes: the reader's wake-ups for data
         self._messages = 0
         self._poll: select.poll | None = None
+        self._tap: Tap | None = None
+        self._tap_frame = 0  # the frame size the tap was told
         self.identity: dict[str, str] = {}
         #: Further metadata records a reader needs to interpret this device's messages, by
         #: record name (the base's ``baromap.robot``: the factors its counters were read with).
@@ -191,6 +199,16 @@ class DeviceSession(abc.ABC):
         ``read(1)`` + ``in_waiting`` + ``read(n)`` costs three times the system calls.
         """
         fd = self._fd
+        tap = self._tap
+        if tap is not None:
+            record = tap.read(READ_TIMEOUT_MS)
+            data, now = record if record is not None else (b"", time.monotonic_ns())
+            self.heartbeat_ns = time.monotonic_ns()
+            if data:
+                self._reads += 1
+                self._bytes_in += len(data)
+                self._bytes_since_good += len(data)
+            return data, now
         if fd is not None:
             poll = self._poll
             if poll is None:
@@ -225,6 +243,8 @@ class DeviceSession(abc.ABC):
 
     def discard_input(self) -> None:
         self._port().reset_input_buffer()
+        if self._tap is not None:
+            self._tap.discard()
 
     def sleep(self, seconds: float) -> None:
         """Wait, but wake for a stop request (handshake pauses)."""
@@ -280,6 +300,11 @@ class DeviceSession(abc.ABC):
         """
         return 0
 
+    def frame_bytes(self) -> int:
+        """Size of the frames the device streams, as last seen (0: unknown or varying): a tap
+        sleeps through the rest of a frame once it has read its first bytes."""
+        return 0
+
     def shutdown(self) -> None:  # noqa: B027 (optional hook)
         """Leave the device as it would like to be found (best effort, port still open)."""
 
@@ -306,8 +331,20 @@ class DeviceSession(abc.ABC):
             self._fd = self._serial.fileno()
         except (AttributeError, NotImplementedError, serial.SerialException):
             self._fd = None  # a URL port (loop://, socket://): read through pyserial
+        if self.tapped and self._fd is not None:
+            try:
+                self._tap = Tap(self._fd, self.name)
+                self._tap_frame = 0
+            except OSError as exc:
+                self._close()
+                raise DeviceError(
+                    f"cannot start the reader process for {self.path}: {exc}"
+                ) from exc
 
     def _close(self) -> None:
+        tap, self._tap = self._tap, None
+        if tap is not None:
+            tap.close()
         port, self._serial = self._serial, None
         self._fd = None
         self._poll = None
@@ -385,7 +422,15 @@ class DeviceSession(abc.ABC):
             data, read_ns = self.read()
             if data:
                 self.handle(data, read_ns)
-                pause_ns = self.read_pause_ns()
+                tap = self._tap
+                if tap is not None:  # the tap stamps, and pauses through frames, itself
+                    frame = self.frame_bytes()
+                    if frame != self._tap_frame:
+                        tap.expect(frame)
+                        self._tap_frame = frame
+                    pause_ns = 0
+                else:
+                    pause_ns = self.read_pause_ns()
                 if pause_ns > 0:
                     pause_ns += READ_PAUSE_OVERSHOOT_NS - (time.monotonic_ns() - read_ns)
                     if pause_ns > 0:
