@@ -54,10 +54,10 @@ FLUSHED: Final = -1
 #: Requests from the daemon: drop what is held and answer FLUSHED; a frame's size in bytes.
 FLUSH_REQUEST: Final = b"F"
 EXPECT: Final = struct.Struct("<cI")
-#: Bytes are handed over after this long without more (a 500 kbaud scan is ~7 ms of unbroken
-#: line, the gap to the next 6 ms; at 9600 baud a byte is 1 ms, and a USB adapter's packets
-#: come every 1 ms while a frame lasts).
-QUIET_MS: Final = 2
+#: Bytes are handed over after this long without more, and the next start a frame: longer than
+#: the pauses within a frame (a USB adapter's packets come every 1 ms, the twins' every 2 ms, a
+#: 9600 baud byte takes 1 ms), shorter than the gap between a 500 kbaud laser's scans (6 ms).
+QUIET_MS: Final = 4
 #: The tap's SCHED_FIFO priority, when its limits allow one (the unit's ``LimitRTPRIO=``).
 PRIORITY: Final = 10
 #: Longest wait when idle: the tap checks that its daemon is still there.
@@ -94,16 +94,15 @@ def serve(port: int, out: int, control: int) -> int:
     held = 0  # bytes read and not yet forwarded
 
     def forward() -> None:
-        nonlocal held
         os.write(out, b"".join(pending))  # a blocking pipe takes it all
         pending.clear()
-        held = 0
 
     while True:
         events = poll.poll(QUIET_MS if pending else IDLE_MS)
         if not events:
             if pending:
                 forward()
+                held = 0  # the line went quiet: the next bytes start a frame
             elif os.getppid() != parent:
                 return 0
             continue
@@ -136,6 +135,7 @@ def serve(port: int, out: int, control: int) -> int:
             held += len(data)
             if frame and held >= frame:
                 forward()  # a frame's worth: the daemon need not wait for the line to go quiet
+                held %= frame  # what came of the next frame already
 
 
 def realtime() -> bool:
