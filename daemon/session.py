@@ -302,7 +302,7 @@ class DeviceSession(abc.ABC):
 
     def frame_bytes(self) -> int:
         """Size of the frames the device streams, as last seen (0: unknown or varying): a tap
-        sleeps through the rest of a frame once it has read its first bytes."""
+        hands a frame over as soon as it has read a frame's worth of bytes."""
         return 0
 
     def shutdown(self) -> None:  # noqa: B027 (optional hook)
