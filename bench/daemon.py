@@ -77,20 +77,38 @@ def _free_port() -> int:
         return int(sock.getsockname()[1])
 
 
+def _children(pid: int) -> list[int]:
+    """The running child processes of ``pid`` (the daemon's taps, ``daemon.tap``)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            if int(stat.read_text().rpartition(")")[2].split()[1]) == pid:
+                out.append(int(stat.parent.name))
+        except (OSError, ValueError, IndexError):
+            continue
+    return out
+
+
 def _cpu_s(pid: int) -> float:
-    """User + system CPU of a running process so far (all its threads)."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
-    except OSError:
-        return 0.0
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    """User + system CPU of a running process so far (all its threads), with its children's
+    (running, and ended ones it waited for)."""
+    total = 0.0
+    for i, proc in enumerate([pid, *_children(pid)]):
+        try:
+            fields = Path(f"/proc/{proc}/stat").read_text().rpartition(")")[2].split()
+        except OSError:
+            continue
+        total += sum(int(f) for f in fields[11 : 15 if i == 0 else 13])
+    return total / os.sysconf("SC_CLK_TCK")
 
 
 def _threads_cpu(pid: int) -> dict[str, float]:
-    """CPU seconds of a running process by thread name (Python's threads all carry the
-    interpreter's name; the Zenoh and MCAP runtimes name theirs)."""
+    """CPU seconds of a running process and its children by thread name (Python's threads all
+    carry the interpreter's name; the Zenoh and MCAP runtimes name theirs)."""
     out: dict[str, float] = {}
-    for stat in Path(f"/proc/{pid}/task").glob("*/stat"):
+    for stat in [
+        p for proc in (pid, *_children(pid)) for p in Path(f"/proc/{proc}/task").glob("*/stat")
+    ]:
         try:
             text = stat.read_text()
         except OSError:
@@ -115,6 +133,14 @@ def _renice(pid: int, niceness: int) -> None:
     for task in Path(f"/proc/{pid}/task").iterdir():
         with contextlib.suppress(OSError):
             os.setpriority(os.PRIO_PROCESS, int(task.name), niceness)
+
+
+def _realtime(pid: int, priority: int) -> None:
+    """Every thread of ``pid`` SCHED_FIFO at ``priority``, as the unit's
+    ``CPUSchedulingPolicy=fifo`` would start it (threads started later inherit it)."""
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(OSError):
+            os.sched_setscheduler(int(task.name), os.SCHED_FIFO, os.sched_param(priority))
 
 
 def _twins_realtime(priority: int = 20) -> str:
@@ -163,6 +189,16 @@ def main() -> int:
     parser.add_argument("--load", type=int, default=0, help="busy processes beside the daemon")
     parser.add_argument("--twins-rt", action="store_true", help="twins' threads SCHED_FIFO")
     parser.add_argument("--daemon-nice", type=int, default=None, help="the daemon's niceness")
+    parser.add_argument(
+        "--tap-fifo",
+        type=int,
+        default=None,
+        help="run the daemon's tap processes SCHED_FIFO at this priority (as the unit's "
+        "LimitRTPRIO= lets them; a container's root may not raise that limit)",
+    )
+    parser.add_argument(
+        "--daemon-fifo", type=int, default=None, help="run the daemon SCHED_FIFO at this priority"
+    )
     parser.add_argument("--compression", default="zstd", choices=["zstd", "lz4", "none"])
     parser.add_argument("--no-zenoh", action="store_true", help="no live publisher")
     parser.add_argument("--warm-up", type=float, default=10.0, help="s before steady-state CPU")
@@ -203,17 +239,26 @@ def main() -> int:
                 )
                 if daemon_nice is not None:
                     _renice(proc.pid, daemon_nice)  # before its threads start: they inherit it
-                peak_kb = 0
+                if args.daemon_fifo is not None:
+                    _realtime(proc.pid, args.daemon_fifo)
+                peak_kb = taps_kb = 0
                 deadline = started + args.minutes * 60
                 warm = (started + args.warm_up, 0.0)
                 warm_cpu: tuple[float, float] | None = None
                 while time.monotonic() < deadline:
                     time.sleep(min(1.0, max(0.0, deadline - time.monotonic())))
                     peak_kb = max(peak_kb, _hwm_kb(proc.pid))
+                    taps = _children(proc.pid)
+                    taps_kb = max(taps_kb, sum(_hwm_kb(c) for c in taps))
+                    if args.tap_fifo is not None:
+                        for tap in taps:
+                            _realtime(tap, args.tap_fifo)
                     if warm_cpu is None and time.monotonic() >= warm[0]:
                         warm_cpu = (time.monotonic(), _cpu_s(proc.pid))
                         if daemon_nice is not None:
                             _renice(proc.pid, daemon_nice)  # every thread, surely
+                        if args.daemon_fifo is not None:
+                            _realtime(proc.pid, args.daemon_fifo)
                 end_cpu = (time.monotonic(), _cpu_s(proc.pid))
                 threads_cpu = _threads_cpu(proc.pid)
                 load_end = os.getloadavg()[0]
@@ -260,7 +305,9 @@ def main() -> int:
     )
     print(f"  set-up: {args.load} busy processes beside it at the bench's niceness "
           f"({os.getpriority(os.PRIO_PROCESS, 0)}), daemon niceness "
-          f"{os.getpriority(os.PRIO_PROCESS, 0) if daemon_nice is None else daemon_nice}, "
+          f"{os.getpriority(os.PRIO_PROCESS, 0) if daemon_nice is None else daemon_nice}"
+          f"{'' if args.daemon_fifo is None else f' and SCHED_FIFO {args.daemon_fifo}'}, "
+          f"the laser's tap {'normal' if args.tap_fifo is None else 'SCHED_FIFO'}, "
           f"{twins_note}, compression {args.compression}, "
           f"Zenoh publisher {'off' if args.no_zenoh else 'on'}")  # fmt: skip
     print(
@@ -290,7 +337,8 @@ def main() -> int:
     groups = sorted(threads_cpu.items(), key=lambda kv: -kv[1])
     print("  by thread name over the whole run: " + ", ".join(
         f"{name} {100 * cpu / run_s:.2f} %" for name, cpu in groups if cpu > 0))  # fmt: skip
-    print(f"  daemon peak RSS: {peak_kb / 1024:.0f} MB (target <= 150 MB)")
+    print(f"  daemon peak RSS: {peak_kb / 1024:.0f} MB, its tap processes {taps_kb / 1024:.0f} MB "
+          "(target <= 150 MB)")  # fmt: skip
     for topic in (topics.SCAN, topics.ODOM, topics.BARO):
         p50 = rec.get(f"latency_p50_us{topic}", 0) / 1000
         p99 = rec.get(f"latency_p99_us{topic}", 0) / 1000

@@ -72,36 +72,40 @@ def transmission_ns(byte_count: int, baud: int) -> int:
 class LinePosition:
     """When a decoded frame's last byte arrived, from the reads that brought it.
 
-    A read returns at ``read_ns`` with every byte that had arrived by then, so for a frame
-    that ended inside it, ``read_ns`` minus the line time of the bytes after the frame is a
-    time the frame had certainly ended by (an upper bound: the bytes after may have followed a
-    pause). When the frame began before the previous read, the previous read's time plus the
-    line time of the frame's remaining bytes is a second upper bound, and the tighter one when
-    this read came late (a busy machine): within a frame the line does not pause. Positions
-    count bytes fed and bytes the decoder accounted for; a resync (discarded bytes reported
-    late) can only make the bytes-after count too large, which the read's length caps.
+    Every read that returned bytes bounds the frame's end from above. A read at ``t`` that
+    brought the frame's end and ``n`` bytes after it: the end was at most ``t`` minus the line
+    time of those ``n`` bytes (they followed it, perhaps after a pause). A read at ``t`` that
+    ended inside the frame, ``r`` bytes short of its end: the end was at most ``t`` plus the
+    line time of those ``r`` bytes, because within a frame the line does not pause. A read that
+    came late (a busy machine, the GIL held elsewhere) gives a loose bound and a prompt one a
+    tight bound, so the stamp is the least of them: one prompt read anywhere in the frame is
+    enough. That is also what lets a reader sleep through the rest of a frame once it has seen
+    the frame's first bytes (``DeviceSession.read_pause_ns``): the read after the sleep is late
+    on purpose, the one woken by the frame's first bytes is not. Reads that ended before the
+    frame began say nothing (the line may have been idle). Positions count bytes fed and bytes
+    the decoder accounted for; a resync (discarded bytes reported late) can only make a
+    bytes-after count too large, which the read's length caps.
     """
 
+    #: Reads remembered for a frame in progress (a 9600 baud SIP in 1 ms packets is ~40).
+    READS_KEPT: Final = 64
+
     def __init__(self) -> None:
+        self._reads: deque[tuple[int, int, int]] = deque(maxlen=self.READS_KEPT)
         self.reset()
 
     def reset(self) -> None:
         self.fed = 0
         self.consumed = 0
-        self._before = 0
         self._read_ns = 0
-        self._chunk = 0
-        self._previous_ns: int | None = None
+        self._reads.clear()  # (bytes fed up to the read's end, its length, when it returned)
 
     def chunk(self, size: int, read_ns: int) -> None:
         """A read of ``size`` bytes returned at ``read_ns`` (call before decoding it)."""
-        if self._read_ns:
-            self._previous_ns = self._read_ns
         self.consumed = min(self.consumed, self.fed)
-        self._before = self.fed
         self.fed += size
-        self._chunk = size
         self._read_ns = read_ns
+        self._reads.append((self.fed, size, read_ns))
 
     @property
     def pending(self) -> int:
@@ -111,16 +115,31 @@ class LinePosition:
     def skip(self, size: int) -> None:
         """Bytes that were no frame (discarded, a lone ACK)."""
         self.consumed += size
+        self._forget_before(self.consumed)
 
     def end_ns(self, size: int, baud: int) -> int:
         """Arrival of the last byte of the next decoded frame, ``size`` bytes on the line."""
-        self.consumed += size
-        after = min(self._chunk, max(0, self.fed - self.consumed))
-        end = self._read_ns - transmission_ns(after, baud)
-        started = self.consumed - size
-        if self._previous_ns is not None and started < self._before < self.consumed:
-            end = min(end, self._previous_ns + transmission_ns(self.consumed - self._before, baud))
-        return end
+        started = self.consumed
+        end = self.consumed = started + size
+        best = self._read_ns
+        for fed, length, read_ns in self._reads:
+            if fed <= started:
+                continue  # ended before the frame began
+            if fed < end:
+                bound = read_ns + transmission_ns(end - fed, baud)
+            else:
+                bound = read_ns - transmission_ns(min(length, fed - end), baud)
+            best = min(best, bound)
+            if fed >= end:
+                break  # later reads only add bytes after the end: looser
+        self._forget_before(end)
+        return best
+
+    def _forget_before(self, position: int) -> None:
+        """Drop reads that ended at or before ``position``: no later frame can use them."""
+        reads = self._reads
+        while len(reads) > 1 and reads[0][0] <= position:
+            reads.popleft()
 
 
 class DeviceClockFit:

@@ -24,6 +24,9 @@ from daemon.fanout import QueueWorker
 log = structlog.get_logger(__name__)
 
 STATE_EVERY_NS: Final = NS_PER_S
+#: The detector decides a ride a second or more after the pressure settles: taking the samples
+#: in 0.1 s batches delays nothing that matters and spares a thread wake-up per sample.
+BATCH_S: Final = 0.1
 #: Marks a queued sample as the reference station's (no real receive time is negative).
 _REFERENCE: Final = -1
 
@@ -37,7 +40,7 @@ class FloorTracker(QueueWorker):
     def __init__(
         self, config: FloorDetectorConfig, publish: Callable[[Message], None], maxsize: int = 4096
     ) -> None:
-        super().__init__("floors", maxsize)
+        super().__init__("floors", maxsize, batch_s=BATCH_S)
         self.detector = OnlineFloorDetector(config)
         self._publish = publish
         self._last_state_ns: int | None = None

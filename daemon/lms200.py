@@ -56,6 +56,10 @@ def wire_size(message: lms200.LmsMessage) -> int:
 
 
 class Lms200Session(DeviceSession):
+    #: Scans are stamped from the host's clock alone, at 75 Hz to within a millisecond, and
+    #: 50 kB/s of line overflow a tty's buffer in a third of a second: read through a tap.
+    tapped = True
+
     def __init__(self, config: LaserConfig, **kwargs: Any) -> None:
         super().__init__("laser", port=config.port, baud=config.baud, retry=config.retry, **kwargs)
         self.config = config
@@ -234,6 +238,9 @@ class Lms200Session(DeviceSession):
         """The rest of a scan in progress, taken to be as long as the last one."""
         remaining = self._scan_bytes - self.line.pending
         return transmission_ns(remaining, self.baud) if self.line.pending and remaining > 0 else 0
+
+    def frame_bytes(self) -> int:
+        return self._scan_bytes
 
     def reinitialise_note(self, reason: str) -> str | None:
         """Scans stopped: a power cycle puts the sensor back at 9600 baud, where its power-on

@@ -41,6 +41,7 @@ from baromap.protocols.framing import BadFrame
 from daemon.clock import HostClock
 from daemon.config import Retry
 from daemon.osthread import name_os_thread
+from daemon.tap import Tap
 
 log = structlog.get_logger(__name__)
 
@@ -49,11 +50,13 @@ READ_TIMEOUT_S: Final = 0.05
 READ_TIMEOUT_MS: Final = round(READ_TIMEOUT_S * 1000)
 #: Longest sleep for the rest of a frame (a 9600 baud SIP is ~40 ms; a stop waits no longer).
 READ_PAUSE_MAX_NS: Final = 50_000_000
-#: The sleep for the rest of a frame ends this long before the frame does: the read that
-#: completes it must be a prompt one (woken by the bytes' arrival), because a frame's end is
-#: stamped from the reads around it. A line delivers in packets (a USB adapter's latency timer,
-#: 1 ms when set as the docs say; the twins' 2 ms tick) and a sleep overshoots under load.
-READ_PAUSE_MARGIN_NS: Final = 3_000_000
+#: The sleep for the rest of a frame ends this long after the frame should have: the read
+#: after it then takes the rest in one go. That read is late on purpose; the frame's stamp
+#: comes from the prompt read woken by its first bytes (``LinePosition``: within a frame the
+#: line does not pause). A USB adapter delivers the last bytes up to its latency timer after
+#: they arrived (1 ms when set as the docs say); a read that still comes too early only costs
+#: one more wake-up.
+READ_PAUSE_OVERSHOOT_NS: Final = 1_000_000
 #: Most bytes taken in one read (a second of the fastest line is 50 kB).
 READ_CHUNK: Final = 65536
 #: A bad frame this recent makes an UP device DEGRADED.
@@ -76,6 +79,11 @@ class DeviceRefused(DeviceError):
 
 class DeviceSession(abc.ABC):
     """A device on a serial port, served by its own reader thread."""
+
+    #: Read the port through a tap process (``daemon.tap``) that stamps every read without
+    #: waiting for the GIL: for a device whose frames are stamped with the host's clock alone
+    #: (the laser). A port without a file descriptor (``loop://``) is read directly.
+    tapped: bool = False
 
     def __init__(
         self,
@@ -117,6 +125,8 @@ class DeviceSession(abc.ABC):
         # and hundreds of those a second fragmented the reader thread's malloc arena, which
         # grew without end (0.2-0.6 MB a minute with the laser; bench/memory.py --old-read).
         self._read_buffer = memoryview(bytearray(READ_CHUNK))
+        self._tap: Tap | None = None
+        self._tap_frame = 0  # the frame size the tap was told
         self.identity: dict[str, str] = {}
         #: Further metadata records a reader needs to interpret this device's messages, by
         #: record name (the base's ``baromap.robot``: the factors its counters were read with).
@@ -194,6 +204,16 @@ class DeviceSession(abc.ABC):
         ``read(1)`` + ``in_waiting`` + ``read(n)`` costs three times the system calls.
         """
         fd = self._fd
+        tap = self._tap
+        if tap is not None:
+            record = tap.read(READ_TIMEOUT_MS)
+            data, now = record if record is not None else (b"", time.monotonic_ns())
+            self.heartbeat_ns = time.monotonic_ns()
+            if data:
+                self._reads += 1
+                self._bytes_in += len(data)
+                self._bytes_since_good += len(data)
+            return data, now
         if fd is not None:
             poll = self._poll
             if poll is None:
@@ -231,6 +251,8 @@ class DeviceSession(abc.ABC):
 
     def discard_input(self) -> None:
         self._port().reset_input_buffer()
+        if self._tap is not None:
+            self._tap.discard()
 
     def sleep(self, seconds: float) -> None:
         """Wait, but wake for a stop request (handshake pauses)."""
@@ -277,12 +299,18 @@ class DeviceSession(abc.ABC):
     def read_pause_ns(self) -> int:
         """How long the rest of a frame in progress takes on the line (0: none, read at once).
 
-        While streaming, the reader sleeps that long (less :data:`READ_PAUSE_MARGIN_NS`)
-        before its next read instead of waking for every chunk the port delivers meanwhile (a
-        500 kbaud scan comes in seven or eight 2 ms packets, a 9600 baud SIP in twenty). The
-        read that completes the frame still comes from a wake-up on arrival, so its stamp
-        (:class:`~daemon.clock.LinePosition`) is as good as without the pause.
+        While streaming, the reader sleeps that long (and :data:`READ_PAUSE_OVERSHOOT_NS`
+        more) before its next read instead of waking for every chunk the port delivers
+        meanwhile (a 500 kbaud scan comes in four 2 ms packets from the twins or eight 1 ms
+        packets from an adapter, a 9600 baud SIP in twenty or forty): two wake-ups a frame.
+        The read woken by the frame's first bytes was a prompt one, and it bounds the frame's
+        end as tightly as the last read would (:class:`~daemon.clock.LinePosition`).
         """
+        return 0
+
+    def frame_bytes(self) -> int:
+        """Size of the frames the device streams, as last seen (0: unknown or varying): a tap
+        hands a frame over as soon as it has read a frame's worth of bytes."""
         return 0
 
     def shutdown(self) -> None:  # noqa: B027 (optional hook)
@@ -311,8 +339,20 @@ class DeviceSession(abc.ABC):
             self._fd = self._serial.fileno()
         except (AttributeError, NotImplementedError, serial.SerialException):
             self._fd = None  # a URL port (loop://, socket://): read through pyserial
+        if self.tapped and self._fd is not None:
+            try:
+                self._tap = Tap(self._fd, self.name)
+                self._tap_frame = 0
+            except OSError as exc:
+                self._close()
+                raise DeviceError(
+                    f"cannot start the reader process for {self.path}: {exc}"
+                ) from exc
 
     def _close(self) -> None:
+        tap, self._tap = self._tap, None
+        if tap is not None:
+            tap.close()
         port, self._serial = self._serial, None
         self._fd = None
         self._poll = None
@@ -390,9 +430,19 @@ class DeviceSession(abc.ABC):
             data, read_ns = self.read()
             if data:
                 self.handle(data, read_ns)
-                pause_ns = self.read_pause_ns() - READ_PAUSE_MARGIN_NS
+                tap = self._tap
+                if tap is not None:  # the tap stamps, and pauses through frames, itself
+                    frame = self.frame_bytes()
+                    if frame != self._tap_frame:
+                        tap.expect(frame)
+                        self._tap_frame = frame
+                    pause_ns = 0
+                else:
+                    pause_ns = self.read_pause_ns()
                 if pause_ns > 0:
-                    time.sleep(min(pause_ns, READ_PAUSE_MAX_NS) / 1e9)
+                    pause_ns += READ_PAUSE_OVERSHOOT_NS - (time.monotonic_ns() - read_ns)
+                    if pause_ns > 0:
+                        time.sleep(min(pause_ns, READ_PAUSE_MAX_NS) / 1e9)
             self.keepalive()
             quiet_s = (read_ns - self._last_good_ns) / 1e9
             if quiet_s > retry.garbage_s and self._bytes_since_good > 0:

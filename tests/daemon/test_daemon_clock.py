@@ -9,7 +9,7 @@ from baromap.protocols import lms200
 from daemon.clock import DeviceClockFit, HostClock, LinePosition, transmission_ns
 from daemon.config import parse_config
 from daemon.lms200 import Lms200Session
-from daemon.session import READ_PAUSE_MARGIN_NS
+from daemon.session import READ_PAUSE_OVERSHOOT_NS
 
 
 def test_a_wall_clock_step_after_start_changes_nothing() -> None:
@@ -79,6 +79,30 @@ def test_a_late_read_does_not_make_a_frame_late() -> None:
     assert end == 2_000_000 + transmission_ns(272, 500_000) == 7_440_000
 
 
+def test_one_prompt_read_anywhere_in_a_frame_stamps_it() -> None:
+    """A 372-byte telegram at 500 kbaud from t=0 in four reads: the first came 1.2 ms late (the
+    GIL held elsewhere), the second was prompt (its 200th byte arrived at 4 ms), the third and
+    the last came late. The end is what the prompt read says, whichever read it was."""
+    line = LinePosition()
+    line.chunk(40, 2_000_000)  # late: byte 40 arrived at 0.8 ms
+    line.chunk(160, 4_000_000)  # prompt: byte 200 arrived at 4 ms
+    line.chunk(100, 7_500_000)  # late: byte 300 arrived at 6 ms
+    line.chunk(72 + 30, 12_000_000)  # late, with 30 bytes of what followed
+    assert line.end_ns(372, 500_000) == 4_000_000 + transmission_ns(172, 500_000) == 7_440_000
+    # The next frame starts in the last read: only that read and later ones can bound it.
+    line.chunk(342, 13_000_000)
+    assert line.end_ns(372, 500_000) == 13_000_000
+
+
+def test_a_read_before_a_frame_began_does_not_bound_it() -> None:
+    """The line may idle between frames: a read that ended where a frame starts says nothing."""
+    line = LinePosition()
+    line.chunk(10, 1_000_000)
+    assert line.end_ns(10, 500_000) == 1_000_000
+    line.chunk(10, 9_000_000)  # the next frame, 8 ms later, in one read
+    assert line.end_ns(10, 500_000) == 9_000_000
+
+
 def test_a_frame_within_one_read_ends_before_the_bytes_after_it() -> None:
     line = LinePosition()
     line.chunk(30, 5_000_000)
@@ -104,7 +128,7 @@ def test_a_laser_reader_sleeps_through_the_rest_of_a_scan_but_stamps_it_as_befor
     session.handle(telegram[:100], 20_000_000)  # the next one begins
     rest_ns = transmission_ns(size - 100, 500_000)
     assert session.read_pause_ns() == rest_ns
-    assert rest_ns > READ_PAUSE_MARGIN_NS  # worth a sleep at 500 kbaud
+    assert rest_ns > READ_PAUSE_OVERSHOOT_NS  # worth a sleep at 500 kbaud
     session.handle(telegram[100:], 20_000_000 + rest_ns + 2_000_000)  # read 2 ms late
     assert len(scans) == 2 and session.read_pause_ns() == 0
     start = session.clock.unix_ns(20_000_000 + rest_ns - transmission_ns(size, 500_000))
