@@ -92,6 +92,10 @@ def serve(port: int, out: int, control: int) -> int:
     requests = bytearray()
     frame = 0  # bytes in one of the device's frames, as the daemon last said (0: unknown)
     held = 0  # bytes read and not yet forwarded
+    # One reused read buffer, as the daemon's readers (daemon.session): os.read(port,
+    # READ_CHUNK) allocates READ_CHUNK bytes and shrinks them to what came, and holding the
+    # shrunk blocks while reading on fragments the heap (bench/memory.py --old-read).
+    chunk = memoryview(bytearray(READ_CHUNK))
 
     def forward() -> None:
         os.write(out, b"".join(pending))  # a blocking pipe takes it all
@@ -126,10 +130,11 @@ def serve(port: int, out: int, control: int) -> int:
                     else:
                         break
                 continue
-            data = os.read(port, READ_CHUNK)  # OSError (EIO: unplugged) ends the tap
+            size = os.readv(port, (chunk,))  # OSError (EIO: unplugged) ends the tap
             stamp = monotonic_ns()
-            if not data:
+            if not size:
                 return 0  # hang-up
+            data = bytes(chunk[:size])
             pending.append(pack(stamp, len(data)))
             pending.append(data)
             held += len(data)
@@ -194,6 +199,7 @@ class Tap:
         self._poll = select.poll()
         self._poll.register(self._out, select.POLLIN)
         self._buffer = bytearray()
+        self._pipe = memoryview(bytearray(PIPE_BYTES))  # reused: see serve()
         self._records: collections.deque[tuple[bytes, int]] = collections.deque()
 
     def read(self, timeout_ms: int) -> tuple[bytes, int] | None:
@@ -234,12 +240,12 @@ class Tap:
     def _take(self, until_flushed: bool = False) -> bool:
         """Read what the pipe holds into records; True if a flush answer was among it (and
         everything up to it dropped)."""
-        data = os.read(self._out, PIPE_BYTES)
-        if not data:
+        size = os.readv(self._out, (self._pipe,))
+        if not size:
             code = self._proc.poll()
             raise OSError(f"the port's tap ended (exit {code}): the port failed or hung up")
         buffer = self._buffer
-        buffer += data
+        buffer += self._pipe[:size]
         flushed = False
         offset = 0
         size = RECORD.size
