@@ -149,12 +149,18 @@ class DeviceClockFit:
     *sent* (receive time of its last byte minus its line time); it returns the host time of
     the device stamp, never later than the send time. A device clock that runs backwards is a
     device reset: the fit starts again (so does :meth:`reset`, for a HELLO after a reset).
+
+    Stamps always increase, across resets too: while the fit is young its line moves at every
+    new bucket, and a frame stamped at its send time (the line above it) can be followed by one
+    the lowered line puts earlier (seen with the demo's twins, whose clocks run at 6x). A later
+    frame is never stamped before an earlier one; it gets the earlier stamp plus 1 ns at least.
     """
 
     def __init__(self, window_s: float = 60.0, bucket_s: float = 1.0) -> None:
         self._bucket_us = max(1, round(bucket_s * 1e6))
         self._buckets: deque[tuple[int, int]] = deque(maxlen=max(2, round(window_s / bucket_s)))
         self.resets = 0
+        self._last_ns: int | None = None  # the last stamp given: the next is later
         self.reset()
         self.resets = 0
 
@@ -211,7 +217,11 @@ class DeviceClockFit:
         estimate = device_us * NS_PER_US + round(
             self._offset0 + self._slope * (device_us - self._x0)
         )
-        return min(estimate, sent_ns)
+        stamp = min(estimate, sent_ns)
+        if self._last_ns is not None and stamp <= self._last_ns:
+            stamp = self._last_ns + 1
+        self._last_ns = stamp
+        return stamp
 
     def _fit(self) -> None:
         points = list(self._buckets)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from baromap.messages import LaserScan
 from baromap.protocols import lms200
@@ -133,3 +134,27 @@ def test_a_laser_reader_sleeps_through_the_rest_of_a_scan_but_stamps_it_as_befor
     assert len(scans) == 2 and session.read_pause_ns() == 0
     start = session.clock.unix_ns(20_000_000 + rest_ns - transmission_ns(size, 500_000))
     assert scans[1].t_ns == start  # bounded by the prompt read at its start, not the late one
+
+
+@pytest.mark.parametrize("speed", [1.0, 6.0])
+def test_stamps_never_go_back_when_the_fit_learns_a_lower_envelope(speed: float) -> None:
+    """The first frames after the port opens sat in its buffer, some reads come late by more
+    than a frame's period (so a frame can seem sent after the next one), and the fit's line
+    moves at each new bucket while it is young (most of all when the device's clock runs at
+    another rate, as the demo's twins do at 6x): the stamps must still increase (a
+    recording's time order and the live detector's sample order depend on it)."""
+    rng = np.random.default_rng(3)
+    n = 1500
+    period_ns = int(20_000_000 / speed)  # 50 Hz of device time
+    device_us = np.arange(n) * 20_000 + 5_000_000
+    true_ns = np.arange(n) * period_ns + 7_000_000_000
+    late = rng.exponential(0.3e6, size=n)
+    late[:12] += np.linspace(40e6, 0.0, 12)  # a backlog read at once when the port opened
+    late[rng.random(n) < 0.02] += 5e6  # a read late by more than a period at 6x
+    sent = (true_ns + late).astype(np.int64)
+    fit = DeviceClockFit()
+    stamps = np.array([fit.update(int(d), int(t)) for d, t in zip(device_us, sent, strict=True)])
+    assert np.all(np.diff(stamps) > 0)
+    # never later than the latest send time seen yet (+1 ns a frame at most)
+    assert np.all(stamps <= np.maximum.accumulate(sent) + np.arange(n))
+    assert np.percentile(np.abs(stamps - true_ns)[500:], 99) < 3_000_000
