@@ -99,24 +99,13 @@ class QueueWorker:
 
     ``offer`` never blocks; a full queue drops the message and counts it by type. The worker
     calls :meth:`handle` per item and :meth:`idle` at least every ``idle_s``.
-
-    By default the thread wakes for every message (the recorder: its latency from the wire is
-    a target). A worker that needs no such promptness gives ``batch_s``: it then wakes that
-    often and takes everything queued meanwhile, so a reader's ``offer`` wakes no thread.
-    Every wake-up of a thread costs tens of microseconds of CPU on top of the work and takes
-    the GIL from the device readers, so a 50 Hz stream served in 0.1 s batches saves 45 of
-    them a second.
     """
 
-    def __init__(
-        self, name: str, maxsize: int, idle_s: float = 0.2, batch_s: float | None = None
-    ) -> None:
+    def __init__(self, name: str, maxsize: int, idle_s: float = 0.2) -> None:
         self.name = name
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._maxsize = maxsize
         self._idle_s = idle_s
-        self._batch_s = batch_s
-        self._closing = threading.Event()
         self._thread: threading.Thread | None = None
         self.dropped: Counter[str] = Counter()
         self.heartbeat_ns = time.monotonic_ns()
@@ -145,7 +134,6 @@ class QueueWorker:
         if self._thread is None:
             return
         self._queue.put(_STOP)
-        self._closing.set()  # a batching worker need not finish its wait
         self._thread.join(timeout)
         self._thread = None
 
@@ -161,44 +149,23 @@ class QueueWorker:
         name_os_thread()
         try:
             self.started()
-            if self._batch_s is None:
-                self._serve_each()
-            else:
-                self._serve_batches(self._batch_s)
+            while True:
+                try:
+                    item = self._queue.get(timeout=self._idle_s)
+                except queue.Empty:
+                    item = None
+                self.heartbeat_ns = time.monotonic_ns()
+                if item is _STOP:
+                    break
+                if item is not None:
+                    self.handle(*item)
+                self.idle()
         except Exception as exc:
             self.error = f"{type(exc).__name__}: {exc}"
             log.exception("consumer failed", consumer=self.name)
             raise
         finally:
             self.finished()
-
-    def _serve_each(self) -> None:
-        while True:
-            try:
-                item = self._queue.get(timeout=self._idle_s)
-            except queue.Empty:
-                item = None
-            self.heartbeat_ns = time.monotonic_ns()
-            if item is _STOP:
-                return
-            if item is not None:
-                self.handle(*item)
-            self.idle()
-
-    def _serve_batches(self, batch_s: float) -> None:
-        get = self._queue.get_nowait
-        while True:
-            self._closing.wait(batch_s)
-            self.heartbeat_ns = time.monotonic_ns()
-            while True:
-                try:
-                    item = get()
-                except queue.Empty:
-                    break
-                if item is _STOP:
-                    return
-                self.handle(*item)
-            self.idle()
 
     def started(self) -> None:
         """In the worker thread, before the first item."""

@@ -24,10 +24,6 @@ from daemon.fanout import QueueWorker
 log = structlog.get_logger(__name__)
 
 STATE_EVERY_NS: Final = NS_PER_S
-#: Samples are taken as they come, not in batches: a floor event must leave within a few ms of
-#: the sample that decided it (bench/zenoh_latency.py, p99 <= 5 ms). Batches of 0.1 s saved
-#: 0.15 % of a core (bench/daemon.py) and put 48 ms (p50) to 99 ms (p99) into every event.
-BATCH_S: Final[float | None] = None
 #: Marks a queued sample as the reference station's (no real receive time is negative).
 _REFERENCE: Final = -1
 
@@ -41,7 +37,10 @@ class FloorTracker(QueueWorker):
     def __init__(
         self, config: FloorDetectorConfig, publish: Callable[[Message], None], maxsize: int = 4096
     ) -> None:
-        super().__init__("floors", maxsize, batch_s=BATCH_S)
+        # Samples are taken as they come, not in batches: a floor event must leave within a few
+        # ms of the sample that decided it (bench/zenoh_latency.py, p99 <= 5 ms); 0.1 s batches
+        # saved 0.15 % of a core and put 48 ms (p50) to 99 ms (p99) into every event.
+        super().__init__("floors", maxsize)
         self.detector = OnlineFloorDetector(config)
         self._publish = publish
         self._last_state_ns: int | None = None
