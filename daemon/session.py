@@ -205,16 +205,11 @@ class DeviceSession(abc.ABC):
         """
         fd = self._fd
         tap = self._tap
+        read_ns: int | None = None  # a tap's record carries its own read time
         if tap is not None:
             record = tap.read(READ_TIMEOUT_MS)
-            data, now = record if record is not None else (b"", time.monotonic_ns())
-            self.heartbeat_ns = time.monotonic_ns()
-            if data:
-                self._reads += 1
-                self._bytes_in += len(data)
-                self._bytes_since_good += len(data)
-            return data, now
-        if fd is not None:
+            data, read_ns = record if record is not None else (b"", None)
+        elif fd is not None:
             poll = self._poll
             if poll is None:
                 poll = self._poll = select.poll()
@@ -239,7 +234,7 @@ class DeviceSession(abc.ABC):
             self._reads += 1
             self._bytes_in += len(data)
             self._bytes_since_good += len(data)
-        return data, now
+        return data, now if read_ns is None else read_ns
 
     def write(self, data: bytes) -> None:
         self._port().write(data)
