@@ -2,8 +2,8 @@
 timed against issue 14's bar.
 
     .venv/bin/python bench/mapping.py [--logs intel,fr079,acapulco] [--log-seeds 0,1,2,3,4]
-                                      [--sim-seeds 0,1,2] [--minutes M] [--skip-logs]
-                                      [--skip-sim] [--keep DIR]
+                                      [--odometry default|strong] [--sim-seeds 0,1,2]
+                                      [--minutes M] [--skip-logs] [--skip-sim] [--keep DIR]
 
 Public logs (../shared/data/laser, or $BAROMAP_SHARED_DATA/laser): for each seed, odometry
 synthesised from the GMapping-corrected poses (5 % scale, 2 deg/m heading drift, seeded noise),
@@ -11,6 +11,13 @@ SLAM over every scan, and beside it odometry alone: Kuemmerle relation errors wh
 relations (Intel, Freiburg 079), absolute trajectory error against the corrected poses after a
 rigid 2D alignment (all three). Bar: Intel relations <= 0.025 m and <= 0.4 deg, ATE <= 0.05 m
 on Freiburg 079 and <= 0.10 m on Acapulco, for every seed.
+
+Harder inputs, so the front end is not tuned to three logs (the logs kept outside the
+repository are sparse: about one scan per metre, turns of up to 80 degrees between scans):
+``NAME/N`` keeps every N-th scan of a log (``fr079/10``: about one scan per metre), with
+odometry synthesised over those steps; ``--odometry strong`` uses a worse error model of other
+signs (laser_logs.STRONG_ODOMETRY). Their figures are printed without a verdict: the bar is
+issue 14's, on the logs as published with the default model.
 
 Simulated run: for each seed, records it (``baromap sim record``), then runs ``build-maps`` in
 a child process (its own peak memory, ru_maxrss, plus that of the build's painter process) and
@@ -165,16 +172,22 @@ def bench_sim(seed: int, minutes: float, keep: Path | None) -> bool:
     return bool(data["passed_building"]) and fast
 
 
-def bench_logs(names: list[str], seeds: list[int]) -> bool:
+def bench_logs(specs: list[str], seeds: list[int], odometry: str = "default") -> bool:
     _quiet()
-    from baromap.evaluation.laser_logs import run_log
+    from baromap.evaluation.laser_logs import ODOMETRY_MODELS, run_log
 
+    model = ODOMETRY_MODELS[odometry]
     ok = True
-    for name in names:
-        print(f"{name}: {'seed':>4}  {'odometry alone':>34}  {'SLAM':>34}  {'time':>6}")
+    for spec in specs:
+        name, _, every = spec.partition("/")
+        stride = int(every or 1)
+        # the bar applies to the logs as published, with the default odometry model
+        judged = stride == 1 and odometry == "default"
+        name_shown = spec if odometry == "default" else f"{spec} ({odometry} odometry)"
+        print(f"{name_shown}: {'seed':>4}  {'odometry alone':>34}  {'SLAM':>34}  {'time':>6}")
         rel_t, rel_r, ates = [], [], []
         for seed in seeds:
-            rep = run_log(LASER, name, seed)
+            rep = run_log(LASER, name, seed, stride=stride, odometry=model)
             cells = []
             for label, rel, ate in (
                 ("odometry", rep.odometry_relations, rep.odometry_ate),
@@ -190,22 +203,23 @@ def bench_logs(names: list[str], seeds: list[int]) -> bool:
                         rel_t.append(rel.trans_mean)
                         rel_r.append(rel.rot_mean)
             print(
-                f"{'':{len(name)}}  {seed:>4}  {cells[0]:>34}  {cells[1]:>34}  {rep.seconds:5.1f} s"
+                f"{'':{len(name_shown)}}  {seed:>4}  {cells[0]:>34}  {cells[1]:>34}  "
+                f"{rep.seconds:5.1f} s"
             )
         verdict = []
-        if name == "intel":
+        if name == "intel" and judged:
             met = max(rel_t) <= INTEL_TRANS_M and max(rel_r) <= INTEL_ROT_DEG
             verdict.append(
                 f"relations worst {max(rel_t):.4f} m, {max(rel_r):.3f} deg (bar {INTEL_TRANS_M} m,"
                 f" {INTEL_ROT_DEG} deg: {'met' if met else 'NOT met'})"
             )
             ok &= met
-        if name in ATE_BAR_M:
+        if name in ATE_BAR_M and judged:
             met = max(ates) <= ATE_BAR_M[name]
             state = "met" if met else "NOT met"
             verdict.append(f"ATE worst {max(ates):.3f} m (bar {ATE_BAR_M[name]} m: {state})")
             ok &= met
-        if rel_t and name != "intel":
+        if rel_t and not (name == "intel" and judged):
             verdict.append(f"relations mean {np.mean(rel_t):.4f} m, {np.mean(rel_r):.3f} deg")
         if rep.reference_relations is not None:
             ref = rep.reference_relations
@@ -213,8 +227,10 @@ def bench_logs(names: list[str], seeds: list[int]) -> bool:
                 f"the ATE's reference (corrected poses) itself on the relations "
                 f"{ref.trans_mean:.4f} m, {ref.rot_mean:.3f} deg"
             )
+        if not judged:
+            verdict.append(f"ATE worst {max(ates):.3f} m (no bar: a harder input)")
         verdict.append(f"ATE mean {np.mean(ates):.3f} m")
-        print(f"{'':{len(name)}}  " + "; ".join(verdict) + f"; {_load()}")
+        print(f"{'':{len(name_shown)}}  " + "; ".join(verdict) + f"; {_load()}")
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"logs' peak memory {peak_mb:.0f} MB (this process: imports plus the runs above)")
     return ok
@@ -228,6 +244,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--logs", default="intel,fr079,acapulco")
     parser.add_argument("--log-seeds", default="0,1,2,3,4")
+    parser.add_argument("--odometry", default="default", choices=("default", "strong"))
     parser.add_argument("--sim-seeds", default="0,1,2")
     parser.add_argument("--minutes", type=float, default=46.0)
     parser.add_argument("--skip-logs", action="store_true")
@@ -244,7 +261,7 @@ def main() -> int:
             ok &= bench_sim(seed, args.minutes, args.keep)
     if not args.skip_logs:
         if LASER.is_dir():
-            ok &= bench_logs(args.logs.split(","), _ints(args.log_seeds))
+            ok &= bench_logs(args.logs.split(","), _ints(args.log_seeds), args.odometry)
         else:
             print(f"laser logs not found at {LASER}: skipped")
     # figures are printed either way; the exit status says whether every target was met
