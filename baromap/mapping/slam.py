@@ -192,6 +192,8 @@ LOOP_MIN_SEPARATION = 30
 #: half metre ties a pass to the map as well as one per keyframe does.
 LOOP_RETRY_M = 1.0
 LOOP_TARGETS = 2
+#: A loop target holds at least this many keyframes (see :meth:`_Slam._loop_target`).
+LOOP_MIN_KEYFRAMES = 5
 #: Cauchy scale of loop closures, in sigmas.
 LOOP_ROBUST_C = 3.0
 #: Solve the graph when a new closure disagrees with it (squared Mahalanobis error over three
@@ -914,14 +916,13 @@ class _Slam:
             _angle_step(self.clouds.typical_range[k], config.resolution_m),
             config.resolution_m,
         )
-        anchor = poses[sub.anchor]
+        target, fld, coarse = self._loop_target(sub, nearest_kf, k, window.coarse_step_cells)
+        anchor = poses[target]
         local_guess = se2.between(anchor, poses[k])
-        self.cache.use(sub)
-        coarse = sub.coarse(window.coarse_step_cells) if window.coarse_step_cells > 1 else None
         prior = Prior(local_guess, LOOP_PRIOR_SIGMA_M, LOOP_PRIOR_SIGMA_RAD, PRIOR_WEIGHT)
         self.stats["loop_attempts"] += 1
         result = match(
-            sub.field, self.clouds.points[k], local_guess, window, coarse_field=coarse, prior=prior
+            fld, self.clouds.points[k], local_guess, window, coarse_field=coarse, prior=prior
         )
         if result.score < config.loop_min_score:
             return
@@ -935,11 +936,42 @@ class _Slam:
         if result.runner_up >= LOOP_MAX_AMBIGUITY * result.score:
             self.stats["loop_ambiguous"] += 1
             return
-        index = self.graph.add_edge(self._match_edge(sub.anchor, k, result, kind="loop"))
+        index = self.graph.add_edge(self._match_edge(target, k, result, kind="loop"))
         self.unsolved.append(index)
-        self.loops.append((sub.anchor, k))
+        self.loops.append((target, k))
         self.last_closure = k
-        log.debug("loop closure", frm=sub.anchor, to=k, score=round(result.score, 3))
+        log.debug("loop closure", frm=target, to=k, score=round(result.score, 3))
+
+    def _loop_target(
+        self, sub: Submap, nearest_kf: int, k: int, coarse_step: int
+    ) -> tuple[int, LikelihoodField, LikelihoodField | None]:
+        """What a loop closure matches against: the finished submap, or, when it holds fewer
+        than LOOP_MIN_KEYFRAMES keyframes (a sparse log's submap of a scan every 2-3 m holds
+        two), the keyframes of the run around the revisited one fused into one field in its
+        frame: a revisit scores against a place seen from several scans, as on a dense log.
+        Returns the anchor keyframe, the field and its coarse copy."""
+        if len(sub.keyframes) >= LOOP_MIN_KEYFRAMES:
+            self.cache.use(sub)
+            coarse = sub.coarse(coarse_step) if coarse_step > 1 else None
+            return sub.anchor, sub.field, coarse
+        poses = self.graph.poses
+        last = min(int(self.finished_index.last_keyframe.max()), k - LOOP_MIN_SEPARATION)
+        near = [
+            j
+            for j in range(nearest_kf - LOOP_MIN_KEYFRAMES // 2, last + 1)
+            if j >= 0 and self.kf_floor[j] == self.kf_floor[nearest_kf]
+        ][:LOOP_MIN_KEYFRAMES]
+        points = np.concatenate(
+            [
+                se2.transform_points(
+                    se2.between(poses[nearest_kf], poses[j]), self.clouds.surfaces[j]
+                )
+                for j in near
+            ]
+        )
+        res = self.config.resolution_m
+        fld = LikelihoodField.from_points(points, res, res)
+        return nearest_kf, fld, fld.pooled(coarse_step) if coarse_step > 1 else None
 
     def _solve_if_needed(self) -> None:
         if not self.unsolved:
