@@ -22,10 +22,12 @@ odometry alone decides, a 2 % scale error would otherwise stretch the map.
 Loop closures: each keyframe looks for finished submaps of the *same floor* (the barometer's
 verdict) that it sees from near where they were built, and matches against each with a
 window as wide as the front end can have drifted since it was last tied to the map (the path
-since the submap, or since the last closure, whichever is shorter). Ambiguous matches and
-corrections larger than that drift are refused, and accepted closures carry a Cauchy kernel,
-so the few wrong ones that pass cannot bend the map. Different floors never close against
-each other: stacked floors can look identical, and only the barometer tells them apart.
+since the submap, or since the last closure, whichever is shorter); a submap of a sparse log,
+a scan every few metres, holds too few scans to score a revisit, and the keyframes around the
+revisited one stand in for it. Ambiguous matches and corrections larger than that drift are
+refused, and accepted closures carry a Cauchy kernel, so the few wrong ones that pass cannot
+bend the map. Different floors never close against each other: stacked floors can look
+identical, and only the barometer tells them apart.
 
 Floors: the elevator car, the one place seen on every floor, joins them. The car travels with
 the robot and stands in the same shaft on every floor, so every pair of car keyframes (the
