@@ -14,7 +14,7 @@ Odometry alone is scored beside the SLAM, so a reader sees what the SLAM correct
 
 Harder inputs than the logs as published, so a front end is not tuned to three logs: every
 ``stride``-th scan only (Freiburg 079 every 10th is about one scan per metre with turns of
-up to 80 degrees between scans, as the sparse logs the project has not seen), with odometry
+up to 90 degrees between scans, like the sparse logs the project has not seen), with odometry
 synthesised over those longer steps; and :data:`STRONG_ODOMETRY`, a worse error model of
 other signs.
 """
