@@ -400,3 +400,33 @@ def test_odometry_calibration_learns_the_systematic_errors_where_scans_pin_the_m
     assert math.degrees(b) == pytest.approx(-1.0 / 1.04, abs=0.1)
     step = cal.correct(np.array([1.03, 0.0, 1.04 * 0.3 + math.radians(1.0) * 1.03]))
     assert step == pytest.approx([1.0, 0.0, 0.3], abs=0.01)
+
+
+def test_odometry_noise_is_what_the_matched_steps_show_not_the_wrong_matches() -> None:
+    """Residuals of corrected odometry that grow as a random walk in distance and in turn
+    (1 cm per square-root metre, 1 deg per square-root radian, a 0.1 deg floor), and 5 % of
+    wrong matches 20 cm and 5 degrees off: the fit finds the walk, not the outliers."""
+    from baromap.mapping.odometry_calibration import fit_noise
+
+    rng = np.random.default_rng(3)
+    n = 3000
+    travel = rng.uniform(0.0, 0.6, n)
+    turn = np.where(rng.random(n) < 0.3, rng.uniform(-0.5, 0.5, n), 0.0)
+    var_xy = 0.01**2 * travel
+    var_theta = math.radians(0.1) ** 2 + math.radians(1.0) ** 2 * np.abs(turn)
+    residuals = np.stack(
+        [
+            rng.normal(0.0, np.sqrt(var_xy)),
+            rng.normal(0.0, np.sqrt(var_xy)),
+            rng.normal(0.0, np.sqrt(var_theta)),
+        ],
+        axis=1,
+    )
+    wrong = rng.random(n) < 0.05
+    residuals[wrong] += [0.2, 0.0, math.radians(5.0)]
+    noise = fit_noise(residuals, travel, turn)
+    xy, theta = noise.sigmas(0.5, 0.0)
+    assert xy == pytest.approx(0.01 * math.sqrt(0.5), rel=0.15)
+    assert math.degrees(theta) == pytest.approx(0.1, rel=0.2)
+    _, theta = noise.sigmas(0.0, 0.4)
+    assert math.degrees(theta) == pytest.approx(math.sqrt(0.1**2 + 0.4), rel=0.15)
