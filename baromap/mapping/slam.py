@@ -224,15 +224,16 @@ REFINE_PASSES = 3
 #: Fewest steps matched at both ends to fit odometry's noise from (three parameters each for
 #: position and heading, and a trimmed tail).
 MIN_NOISE_STEPS = 30
-#: ... and the last solve's odometry sigmas are that fit times this. The fit mixes the matches'
-#: errors into odometry's (it cannot tell them apart), and the graph's match edges carry
-#: covariances several times their real error (MATCH_COV_SCALE and the floors above); at the
-#: fit itself (factor 1) odometry outweighs good matches where they are right: the Intel
-#: relations lose a quarter (0.023 -> 0.030 m, seed 0) while the simulated building gains
-#: most (0.067 -> 0.040 m RMS, seed 0). 3 is the least of 1, 2, 3 that keeps the Intel
-#: relations of seeds 0-4 where they were; weighing both kinds of edge by their real errors
-#: is what would remove this factor.
-ODOMETRY_NOISE_INFLATION = 3.0
+#: In the refinement (each keyframe against its floor's finished map) odometry's sigmas are that
+#: fit times this; in the graph solve before it, against the front end's matches and the loop
+#: closures, they are the fit itself. The fit mixes the matches' errors into odometry's (it
+#: cannot tell them apart), and the map fits carry covariances several times their real error
+#: (MATCH_COV_SCALE and the floors above); at the fit itself in the refinement too, odometry
+#: outweighs good fits: the Intel relations lose a quarter (0.023 -> 0.030 m, seed 0). Found by
+#: trying the fit itself, 2 and 3 in both solves and then in one of them (3 in the refinement
+#: only: Intel seeds 0-4 at 0.021-0.024 m, the simulated building 0.035-0.056 m RMS over seeds
+#: 0-4); weighing the fits by their real error as well is what would remove this factor.
+REFINE_ODOMETRY_INFLATION = 3.0
 
 
 @dataclass(slots=True)
@@ -436,8 +437,11 @@ class _Slam:
     def finish(self) -> SlamResult:
         self._end_visit()
         self._car_to_car()
-        self._odometry_as_learnt()
+        noise = self._odometry_noise()
+        self._odometry_as_learnt(noise, 1.0)
         self.graph.optimize(iterations=FINAL_ITERATIONS)
+        if REFINE_PASSES:
+            self._odometry_as_learnt(noise, REFINE_ODOMETRY_INFLATION)
         for _ in range(REFINE_PASSES):
             self._refine()
         self.stats["keyframes"] = len(self.kf_scan)
@@ -467,7 +471,7 @@ class _Slam:
             (scale, turn, creep),
         )
 
-    def _odometry_as_learnt(self) -> None:
+    def _odometry_as_learnt(self, noise: OdometryNoise | None, inflation: float) -> None:
         """Every odometry edge with what the whole run taught about odometry: its systematic
         errors taken out, and the information of the noise that corrected odometry showed
         against the steps the front end matched at both ends.
@@ -479,9 +483,8 @@ class _Slam:
         (a doorway into a room, an open hall, a turn in the car), and they bend rooms and
         turn floors by fractions of a degree. The fitted noise includes the matches' own
         errors, so it is an upper bound of odometry's, never a guess below what the run shows
-        (and it is inflated, see ODOMETRY_NOISE_INFLATION).
+        (in the refinement it is inflated, see REFINE_ODOMETRY_INFLATION).
         """
-        noise = self._odometry_noise()
         edges = self.graph.edges
         for e in edges:
             if e.kind != "odometry":
@@ -490,9 +493,7 @@ class _Slam:
             e.z = self.calibration.correct(read)
             if noise is not None:
                 sigma_xy, sigma_theta = noise.sigmas(math.hypot(read[0], read[1]), read[2])
-                e.information = _info(
-                    ODOMETRY_NOISE_INFLATION * sigma_xy, ODOMETRY_NOISE_INFLATION * sigma_theta
-                )
+                e.information = _info(inflation * sigma_xy, inflation * sigma_theta)
         self.graph = _graph(self.graph.poses, edges)
 
     def _odometry_noise(self) -> OdometryNoise | None:
