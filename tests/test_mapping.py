@@ -415,3 +415,33 @@ def test_front_end_holds_on_a_sparse_log(shared_data: Path) -> None:
     # centimetres, not metres: the map agrees with GMapping's (which saw every scan)
     assert report.slam_ate.rms_m < 0.15
     assert report.odometry_ate.rms_m > 50 * report.slam_ate.rms_m
+
+
+def test_odometry_noise_is_what_the_matched_steps_show_not_the_wrong_matches() -> None:
+    """Residuals of corrected odometry that grow as a random walk in distance and in turn
+    (1 cm per square-root metre, 1 deg per square-root radian, a 0.1 deg floor), and 5 % of
+    wrong matches 20 cm and 5 degrees off: the fit finds the walk, not the outliers."""
+    from baromap.mapping.odometry_calibration import fit_noise
+
+    rng = np.random.default_rng(3)
+    n = 3000
+    travel = rng.uniform(0.0, 0.6, n)
+    turn = np.where(rng.random(n) < 0.3, rng.uniform(-0.5, 0.5, n), 0.0)
+    var_xy = 0.01**2 * travel
+    var_theta = math.radians(0.1) ** 2 + math.radians(1.0) ** 2 * np.abs(turn)
+    residuals = np.stack(
+        [
+            rng.normal(0.0, np.sqrt(var_xy)),
+            rng.normal(0.0, np.sqrt(var_xy)),
+            rng.normal(0.0, np.sqrt(var_theta)),
+        ],
+        axis=1,
+    )
+    wrong = rng.random(n) < 0.05
+    residuals[wrong] += [0.2, 0.0, math.radians(5.0)]
+    noise = fit_noise(residuals, travel, turn)
+    xy, theta = noise.sigmas(0.5, 0.0)
+    assert xy == pytest.approx(0.01 * math.sqrt(0.5), rel=0.15)
+    assert math.degrees(theta) == pytest.approx(0.1, rel=0.2)
+    _, theta = noise.sigmas(0.0, 0.4)
+    assert math.degrees(theta) == pytest.approx(math.sqrt(0.1**2 + 0.4), rel=0.15)

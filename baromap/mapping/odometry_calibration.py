@@ -19,14 +19,19 @@ Each sample is weighted by the inverse variance of the matched quantity (both en
 covariances added), so steps in corridors, where the match is weak along the travel, hardly
 count. A correction is applied only once its own uncertainty is well below the error it
 corrects, and within bounds no working odometry exceeds; until then odometry is used as read.
+
+What is left once the systematic part is out is noise, and its size is measured on the same
+steps (:func:`fit_noise`): the graph's last solve weighs odometry by it.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from scipy.optimize import nnls
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -142,3 +147,57 @@ class OdometryCalibration:
             return np.zeros(2)
         fit: FloatArray = np.asarray(np.linalg.solve(h, self._rot_g), dtype=np.float64)
         return fit
+
+
+#: A step whose residual is beyond this many sigmas of the noise fitted so far is a wrong
+#: match, not odometry: it is left out and the noise fitted again (a few rounds, starting from
+#: all steps but the largest 2 % of residuals).
+NOISE_OUTLIER_SIGMAS = 4.0
+NOISE_START_TRIM = 0.02
+NOISE_ROUNDS = 3
+#: The noise fit's floor: a step is never known better than this (a standing robot's jitter).
+NOISE_FLOOR_M = 0.002
+NOISE_FLOOR_RAD = math.radians(0.05)
+
+
+@dataclass(frozen=True, slots=True)
+class OdometryNoise:
+    """Variance of a corrected odometric step, as ``c + per_m * travel + per_rad * |turn|``
+    (random slip grows with the distance driven and the angle turned), for position (per
+    axis) and heading."""
+
+    xy: tuple[float, float, float]
+    theta: tuple[float, float, float]
+
+    def sigmas(self, travel: float, turn: float) -> tuple[float, float]:
+        features = np.array([1.0, travel, abs(turn)])
+        var_xy = float(features @ np.array(self.xy))
+        var_theta = float(features @ np.array(self.theta))
+        return max(NOISE_FLOOR_M, math.sqrt(max(var_xy, 0.0))), max(
+            NOISE_FLOOR_RAD, math.sqrt(max(var_theta, 0.0))
+        )
+
+
+def fit_noise(residuals: FloatArray, travel: FloatArray, turn: FloatArray) -> OdometryNoise:
+    """What corrected odometry still gets wrong per step, from steps that matching measured
+    at both ends: ``residuals`` (N, 3) matched minus corrected odometric step (its frame).
+
+    The squared residuals are fitted by non-negative least squares on (1, travel, |turn|),
+    again without the steps the fit so far calls wrong matches. They hold the matches' own
+    errors too, so this is an upper bound of odometry's noise: it is what the steps show, not
+    what a robot's data sheet promises.
+    """
+    x = np.stack([np.ones_like(travel), travel, np.abs(turn)], axis=1)
+
+    def fit(y: FloatArray, features: FloatArray) -> tuple[float, float, float]:
+        keep = y <= np.quantile(y, 1.0 - NOISE_START_TRIM)
+        coef = np.zeros(3)
+        for _ in range(NOISE_ROUNDS):
+            coef, _ = nnls(features[keep], y[keep])
+            var = np.maximum(features @ coef, 1e-12)
+            keep = y <= NOISE_OUTLIER_SIGMAS**2 * var
+        return float(coef[0]), float(coef[1]), float(coef[2])
+
+    xy = fit(np.concatenate([residuals[:, 0] ** 2, residuals[:, 1] ** 2]), np.vstack([x, x]))
+    theta = fit(residuals[:, 2] ** 2, x)
+    return OdometryNoise(xy, theta)
