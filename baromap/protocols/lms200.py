@@ -446,7 +446,11 @@ class ScanTelegram:
             codes = np.where(errors, ranges_raw, first_error) - first_error
             flags = flags | np.where(errors, _ERROR_FLAG_LUT[codes], 0)
             ranges[errors] = np.nan
-        return ranges, flags.astype(np.uint16)
+        flags = flags.astype(np.uint16)
+        # Read-only, and nobody else holds them: a LaserScan keeps them without a copy.
+        ranges.setflags(write=False)
+        flags.setflags(write=False)
+        return ranges, flags
 
     def to_laser_scan(
         self, t_ns: int, field_deg: float | None = None, bits: int = DEFAULT_RANGE_BITS
@@ -1081,8 +1085,12 @@ def _decode_scan(frame: bytes, reply: int, data: bytes, status: int) -> ScanTele
     values_end = values_start + 2 * n
     if values_end > len(data) or (count_word >> 14) not in _UNIT_CODES:
         return BadFrame.of("format", frame)
-    words = np.frombuffer(data, dtype="<u2", count=n, offset=values_start).astype(np.uint16)
-    words.setflags(write=False)
+    # A read-only view of the telegram's own (immutable) bytes: no copy on a little-endian
+    # host, where the line's word order is the native one.
+    words = np.frombuffer(data, dtype="<u2", count=n, offset=values_start)
+    if words.dtype != np.uint16:  # a big-endian host
+        words = words.astype(np.uint16)
+        words.setflags(write=False)
     return ScanTelegram(
         count_word,
         words,
