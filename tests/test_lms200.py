@@ -474,7 +474,6 @@ def test_intel_lab_scans_survive_the_wire(shared_data) -> None:
     assert decoder.stats.bytes_discarded + acks == sum(len(p) for p in parts[0::2])
 
 
-
 @pytest.mark.parametrize("units", ["cm", "mm"])
 @pytest.mark.parametrize("bits", sorted(set(L.RANGE_BITS.values())))
 def test_scans_read_every_word_as_the_element_wise_definition_says(

@@ -376,9 +376,7 @@ def _words_to_ranges_and_flags(
 
 
 @functools.cache
-def _word_tables(
-    units: Units, bits: int
-) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint16]]:
+def _word_tables(units: Units, bits: int) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint16]]:
     """Range and flags of every 16-bit word, for one unit and range width (384 kB).
 
     A scan then costs two table look-ups instead of a dozen numpy operations: at 75 scans a
