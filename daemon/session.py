@@ -48,6 +48,12 @@ log = structlog.get_logger(__name__)
 #: Longest a read blocks: bounds how late a keepalive or a stop request is noticed.
 READ_TIMEOUT_S: Final = 0.05
 READ_TIMEOUT_MS: Final = round(READ_TIMEOUT_S * 1000)
+#: Longest a read blocks while the device streams: a handshake's waits must end on time, a
+#: stream only needs its keepalive (the base's PULSE, due every 500 ms) and a stop noticed.
+#: A device whose frames come further apart than this wakes for its frames only, not also at
+#: a timeout between them (at 50 ms the base's thread polled 3 times a 10 Hz SIP, strace: one
+#: of them a timeout).
+STREAM_READ_TIMEOUT_MS: Final = 200
 #: Longest sleep for the rest of a frame (a 9600 baud SIP is ~40 ms; a stop waits no longer).
 READ_PAUSE_MAX_NS: Final = 50_000_000
 #: The sleep for the rest of a frame ends this long after the frame should have: the read
@@ -196,8 +202,8 @@ class DeviceSession(abc.ABC):
             self.counters[key] = value
 
     # ---- raw operations for drivers -----------------------------------------------------------
-    def read(self) -> tuple[bytes, int]:
-        """What arrived within the read timeout, and the monotonic ns when the read returned.
+    def read(self, timeout_ms: int = READ_TIMEOUT_MS) -> tuple[bytes, int]:
+        """What arrived within ``timeout_ms``, and the monotonic ns when the read returned.
 
         A port with a file descriptor is read with one ``poll`` and one ``read``: at
         500 kbaud the bytes come in hundreds of small chunks a second, and pyserial's
@@ -207,14 +213,14 @@ class DeviceSession(abc.ABC):
         tap = self._tap
         read_ns: int | None = None  # a tap's record carries its own read time
         if tap is not None:
-            record = tap.read(READ_TIMEOUT_MS)
+            record = tap.read(timeout_ms)
             data, read_ns = record if record is not None else (b"", None)
         elif fd is not None:
             poll = self._poll
             if poll is None:
                 poll = self._poll = select.poll()
                 poll.register(fd, select.POLLIN)
-            ready = poll.poll(READ_TIMEOUT_MS)
+            ready = poll.poll(timeout_ms)
             data = b""
             if ready:
                 size = os.readv(fd, (self._read_buffer,))
@@ -237,9 +243,10 @@ class DeviceSession(abc.ABC):
         return data, now if read_ns is None else read_ns
 
     def _read_tap(self, tap: Tap) -> tuple[list[tuple[bytes, int]], int]:
-        """Every record the tap has handed over (waiting up to the read timeout for one), and
+        """Every record the tap has handed over (waiting up to the stream's read timeout for
+        one), and
         the monotonic ns now; the same accounting as :meth:`read` (a record is a read)."""
-        reads = tap.read_all(READ_TIMEOUT_MS)
+        reads = tap.read_all(STREAM_READ_TIMEOUT_MS)
         now = time.monotonic_ns()
         self.heartbeat_ns = now
         if reads:
@@ -455,7 +462,7 @@ class DeviceSession(abc.ABC):
                         tap.expect(frame)
                         self._tap_frame = frame
             else:
-                data, read_ns = self.read()
+                data, read_ns = self.read(STREAM_READ_TIMEOUT_MS)
                 if data:
                     self.handle(data, read_ns)
                     pause_ns = self.read_pause_ns()
