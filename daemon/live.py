@@ -10,9 +10,9 @@ fills and further messages are dropped and counted, and acquisition and recordin
 Floor events and states have their own small queue ahead of the bulk of pressure and health,
 so a backlog of pressure never costs an event. Pressure alone does not wake the worker (it has
 no latency target and is published as block means): the worker takes it within
-:data:`PRESSURE_HOLD_S`, which saves a thread wake-up per barometer sample. A session that cannot be opened is retried
-with capped backoff; messages that arrive meanwhile still update what the queryable will
-answer, and their publications are counted as unsent.
+:data:`PRESSURE_HOLD_S`, which saves a thread wake-up per barometer sample. A session that
+cannot be opened is retried with capped backoff; messages that arrive meanwhile still update
+what the queryable will answer, and their publications are counted as unsent.
 """
 
 from __future__ import annotations

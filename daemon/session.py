@@ -244,8 +244,8 @@ class DeviceSession(abc.ABC):
 
     def _read_tap(self, tap: Tap) -> tuple[list[tuple[bytes, int]], int]:
         """Every record the tap has handed over (waiting up to the stream's read timeout for
-        one), and
-        the monotonic ns now; the same accounting as :meth:`read` (a record is a read)."""
+        one), and the monotonic ns now; the same accounting as :meth:`read` (a record is a
+        read)."""
         reads = tap.read_all(STREAM_READ_TIMEOUT_MS)
         now = time.monotonic_ns()
         self.heartbeat_ns = now
