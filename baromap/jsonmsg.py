@@ -73,7 +73,8 @@ def _field_names(cls: type) -> tuple[str, ...]:
 def to_dict(message: Any) -> dict[str, Any]:
     """A message as a JSON-ready dict (enums by value, mappings as objects)."""
     out: dict[str, Any] = {"schema": SCHEMA_VERSION}
-    for name in _field_names(type(message)):
+    cls: type = type(message)
+    for name in _field_names(cls):
         value = getattr(message, name)
         if isinstance(value, enum.Enum):
             value = value.value
