@@ -308,8 +308,7 @@ class DeviceSession(abc.ABC):
         """Several reads in a row, (bytes, read ns) each: what a tap handed over at once.
 
         One :meth:`handle` each unless a driver does better (the laser decodes a scan's
-        reads in one go: a loop turn, a decoder call and a dispatch per read cost more than
-        the decoding, measured).
+        reads in one decoder call).
         """
         for data, read_ns in reads:
             self.handle(data, read_ns)
