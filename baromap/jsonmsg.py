@@ -65,18 +65,24 @@ def _base_type(annotation: Any) -> tuple[Any, bool]:
     return annotation, False
 
 
+@functools.cache
+def _field_names(cls: type) -> tuple[str, ...]:
+    return tuple(f.name for f in dataclasses.fields(cls))
+
+
 def to_dict(message: Any) -> dict[str, Any]:
     """A message as a JSON-ready dict (enums by value, mappings as objects)."""
     out: dict[str, Any] = {"schema": SCHEMA_VERSION}
-    for f in dataclasses.fields(message):
-        value = getattr(message, f.name)
+    cls: type = type(message)
+    for name in _field_names(cls):
+        value = getattr(message, name)
         if isinstance(value, enum.Enum):
             value = value.value
         elif isinstance(value, Mapping):
             value = dict(value)
         elif isinstance(value, float) and not math.isfinite(value):
             value = None
-        out[f.name] = value
+        out[name] = value
     return out
 
 
@@ -120,8 +126,13 @@ def from_dict(cls: type, data: Mapping[str, Any]) -> Any:
         raise InputFormatError(f"{cls.__name__}: {exc}") from exc
 
 
+#: One encoder for every payload: ``json.dumps`` with any non-default option builds a new
+#: ``JSONEncoder`` per call (the recorder encodes a hundred messages a second).
+_ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
+
+
 def dumps(message: Any) -> bytes:
-    return json.dumps(to_dict(message), separators=(",", ":"), allow_nan=False).encode()
+    return _ENCODER.encode(to_dict(message)).encode()
 
 
 def loads(cls: type, payload: bytes | str) -> Any:

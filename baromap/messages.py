@@ -85,6 +85,16 @@ def usable_beams(
 
 
 def _frozen_array(values: npt.ArrayLike, dtype: type[np.generic]) -> npt.NDArray[np.generic]:
+    """A read-only array of ``dtype`` nobody else can write to: ``values`` itself if it is one
+    already (read-only, of that type, owning its memory: a decoder that froze what it made),
+    else a frozen copy. The laser makes 75 scans a second; two copies each are not free."""
+    if (
+        isinstance(values, np.ndarray)
+        and values.dtype == dtype
+        and not values.flags.writeable
+        and values.flags.owndata
+    ):
+        return values
     array = np.array(values, dtype=dtype, copy=True)
     array.setflags(write=False)
     return array

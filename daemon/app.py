@@ -39,8 +39,9 @@ log = structlog.get_logger(__name__)
 
 TICK_S: Final = 0.5
 HEALTH_EVERY_NS: Final = NS_PER_S
-#: A part whose heartbeat is older than this is stuck (reads time out every 50 ms, the
-#: recorder wakes every 200 ms; a handshake write may block for its 1 s timeout).
+#: A part whose heartbeat is older than this is stuck (reads time out every 50 ms in a
+#: handshake and every 200 ms while streaming, the recorder wakes every 200 ms; a handshake
+#: write may block for its 1 s timeout).
 STUCK_NS: Final = 10 * NS_PER_S
 
 

@@ -8,9 +8,11 @@ subscriber that stops reading and fills the socket) stalls at most that worker; 
 fills and further messages are dropped and counted, and acquisition and recording never wait.
 
 Floor events and states have their own small queue ahead of the bulk of pressure and health,
-so a backlog of pressure never costs an event. A session that cannot be opened is retried
-with capped backoff; messages that arrive meanwhile still update what the queryable will
-answer, and their publications are counted as unsent.
+so a backlog of pressure never costs an event. Pressure alone does not wake the worker (it has
+no latency target and is published as block means): the worker takes it within
+:data:`PRESSURE_HOLD_S`, which saves a thread wake-up per barometer sample. A session that
+cannot be opened is retried with capped backoff; messages that arrive meanwhile still update
+what the queryable will answer, and their publications are counted as unsent.
 """
 
 from __future__ import annotations
@@ -49,6 +51,10 @@ log = structlog.get_logger(__name__)
 URGENT_QUEUE = 256
 #: First wait before opening a session again after a failure, s (doubled up to retry_max_s).
 RETRY_FIRST_S = 0.25
+#: Longest a pressure sample waits in the queue: pressure does not wake the worker (at 50 Hz
+#: that was a wake-up per sample, each to add the sample to a block mean published every
+#: 0.2 s by default); the worker looks at least this often instead.
+PRESSURE_HOLD_S = 0.2
 #: The publisher's state as a device state (anything else, like "connecting", is degraded).
 _DEVICE_STATES = {
     "open": DeviceState.UP,
@@ -139,6 +145,8 @@ class LivePublisher:
                     counters.dropped_bulk += 1
                     return
                 self._bulk.append(message)
+                if isinstance(message, PressureSample):
+                    return  # no latency target: taken within PRESSURE_HOLD_S
             self._wake.notify()
 
     def stop(self) -> None:
@@ -288,10 +296,9 @@ class LivePublisher:
         with self._lock:
             if not (self._urgent or self._bulk or self._stop.is_set()):
                 due = schedule.next_due_ns()
-                wait = timeout
+                wait = PRESSURE_HOLD_S if timeout is None else min(timeout, PRESSURE_HOLD_S)
                 if due is not None:
-                    until_due = max(0.0, (due - time.monotonic_ns()) / 1e9)
-                    wait = until_due if wait is None else min(wait, until_due)
+                    wait = min(wait, max(0.0, (due - time.monotonic_ns()) / 1e9))
                 self._wake.wait(wait)
             batch = list(self._urgent)
             batch.extend(self._bulk)

@@ -42,6 +42,9 @@ BAUD_SETTLE_S: Final = 0.25
 #: Re-initialisations in place after scans stopped, before the port is closed and retried.
 MAX_IN_PLACE: Final = 2
 HEADER_AND_CRC: Final = lms200.HEADER_BYTES + lms200.CRC_BYTES
+#: Most of a tap's records decoded in one call: a scan is a few packets (eight from a USB
+#: adapter), and ``LinePosition`` keeps the last 64 reads for a frame in progress.
+READS_PER_FEED: Final = LinePosition.READS_KEPT // 2
 
 
 def wire_size(message: lms200.LmsMessage) -> int:
@@ -205,6 +208,26 @@ class Lms200Session(DeviceSession):
     # ---- streaming ----------------------------------------------------------------------------
     def handle(self, data: bytes, read_ns: int) -> None:
         self.line.chunk(len(data), read_ns)
+        self._decode(data, read_ns)
+
+    def handle_reads(self, reads: list[tuple[bytes, int]]) -> None:
+        """A tap's records (a scan's packets, handed over together) in one decoder call.
+
+        Each read still bounds the frames' ends (``LinePosition`` is told of all of them
+        before the bytes are decoded, which gives the same stamps as one at a time). At most
+        :data:`READS_PER_FEED` reads go into one call: a backlog (a daemon held up for
+        seconds) must not push a frame's reads out of what ``LinePosition`` keeps.
+        """
+        line = self.line
+        for start in range(0, len(reads), READS_PER_FEED):
+            part = reads[start : start + READS_PER_FEED]
+            for data, read_ns in part:
+                line.chunk(len(data), read_ns)
+            # the last read brought the bytes that completed the batch: a tap hands over as
+            # soon as it has a frame's worth, so that is the read of the scan's last bytes
+            self._decode(part[0][0] if len(part) == 1 else b"".join(d for d, _ in part), read_ns)
+
+    def _decode(self, data: bytes, read_ns: int) -> None:
         for message in self.decoder.feed(data):
             if isinstance(message, lms200.ScanTelegram):
                 self._scan(message, read_ns)

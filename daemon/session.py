@@ -48,6 +48,12 @@ log = structlog.get_logger(__name__)
 #: Longest a read blocks: bounds how late a keepalive or a stop request is noticed.
 READ_TIMEOUT_S: Final = 0.05
 READ_TIMEOUT_MS: Final = round(READ_TIMEOUT_S * 1000)
+#: Longest a read blocks while the device streams: a handshake's waits must end on time, a
+#: stream only needs its keepalive (the base's PULSE, due every 500 ms) and a stop noticed.
+#: A device whose frames come further apart than this wakes for its frames only, not also at
+#: a timeout between them (at 50 ms the base's thread polled 3 times a 10 Hz SIP, strace: one
+#: of them a timeout).
+STREAM_READ_TIMEOUT_MS: Final = 200
 #: Longest sleep for the rest of a frame (a 9600 baud SIP is ~40 ms; a stop waits no longer).
 READ_PAUSE_MAX_NS: Final = 50_000_000
 #: The sleep for the rest of a frame ends this long after the frame should have: the read
@@ -196,8 +202,8 @@ class DeviceSession(abc.ABC):
             self.counters[key] = value
 
     # ---- raw operations for drivers -----------------------------------------------------------
-    def read(self) -> tuple[bytes, int]:
-        """What arrived within the read timeout, and the monotonic ns when the read returned.
+    def read(self, timeout_ms: int = READ_TIMEOUT_MS) -> tuple[bytes, int]:
+        """What arrived within ``timeout_ms``, and the monotonic ns when the read returned.
 
         A port with a file descriptor is read with one ``poll`` and one ``read``: at
         500 kbaud the bytes come in hundreds of small chunks a second, and pyserial's
@@ -207,14 +213,14 @@ class DeviceSession(abc.ABC):
         tap = self._tap
         read_ns: int | None = None  # a tap's record carries its own read time
         if tap is not None:
-            record = tap.read(READ_TIMEOUT_MS)
+            record = tap.read(timeout_ms)
             data, read_ns = record if record is not None else (b"", None)
         elif fd is not None:
             poll = self._poll
             if poll is None:
                 poll = self._poll = select.poll()
                 poll.register(fd, select.POLLIN)
-            ready = poll.poll(READ_TIMEOUT_MS)
+            ready = poll.poll(timeout_ms)
             data = b""
             if ready:
                 size = os.readv(fd, (self._read_buffer,))
@@ -235,6 +241,20 @@ class DeviceSession(abc.ABC):
             self._bytes_in += len(data)
             self._bytes_since_good += len(data)
         return data, now if read_ns is None else read_ns
+
+    def _read_tap(self, tap: Tap) -> tuple[list[tuple[bytes, int]], int]:
+        """Every record the tap has handed over (waiting up to the stream's read timeout for
+        one), and the monotonic ns now; the same accounting as :meth:`read` (a record is a
+        read)."""
+        reads = tap.read_all(STREAM_READ_TIMEOUT_MS)
+        now = time.monotonic_ns()
+        self.heartbeat_ns = now
+        if reads:
+            size = sum(len(data) for data, _ in reads)
+            self._reads += len(reads)
+            self._bytes_in += size
+            self._bytes_since_good += size
+        return reads, now
 
     def write(self, data: bytes) -> None:
         self._port().write(data)
@@ -283,6 +303,15 @@ class DeviceSession(abc.ABC):
     @abc.abstractmethod
     def handle(self, data: bytes, read_ns: int) -> None:
         """Decode bytes read at ``read_ns``; publish messages; may raise DeviceRestarted."""
+
+    def handle_reads(self, reads: list[tuple[bytes, int]]) -> None:
+        """Several reads in a row, (bytes, read ns) each: what a tap handed over at once.
+
+        One :meth:`handle` each unless a driver does better (the laser decodes a scan's
+        reads in one decoder call).
+        """
+        for data, read_ns in reads:
+            self.handle(data, read_ns)
 
     def up_detail(self) -> str:
         """What health says while the device streams."""
@@ -422,22 +451,24 @@ class DeviceSession(abc.ABC):
     def _stream(self) -> None:
         retry = self.retry
         while not self._stop.is_set():
-            data, read_ns = self.read()
-            if data:
-                self.handle(data, read_ns)
-                tap = self._tap
-                if tap is not None:  # the tap stamps, and pauses through frames, itself
+            tap = self._tap
+            if tap is not None:  # the tap stamps, and pauses through frames, itself
+                reads, read_ns = self._read_tap(tap)
+                if reads:
+                    self.handle_reads(reads)
                     frame = self.frame_bytes()
                     if frame != self._tap_frame:
                         tap.expect(frame)
                         self._tap_frame = frame
-                    pause_ns = 0
-                else:
+            else:
+                data, read_ns = self.read(STREAM_READ_TIMEOUT_MS)
+                if data:
+                    self.handle(data, read_ns)
                     pause_ns = self.read_pause_ns()
-                if pause_ns > 0:
-                    pause_ns += READ_PAUSE_OVERSHOOT_NS - (time.monotonic_ns() - read_ns)
                     if pause_ns > 0:
-                        time.sleep(min(pause_ns, READ_PAUSE_MAX_NS) / 1e9)
+                        pause_ns += READ_PAUSE_OVERSHOOT_NS - (time.monotonic_ns() - read_ns)
+                        if pause_ns > 0:
+                            time.sleep(min(pause_ns, READ_PAUSE_MAX_NS) / 1e9)
             self.keepalive()
             quiet_s = (read_ns - self._last_good_ns) / 1e9
             if quiet_s > retry.garbage_s and self._bytes_since_good > 0:

@@ -183,7 +183,8 @@ def main(argv: list[str] | None = None) -> int:
 
 # ---- the daemon's side -------------------------------------------------------------------------
 class Tap:
-    """The daemon's end of a tap on an open port: (bytes, stamp) records, one at a time."""
+    """The daemon's end of a tap on an open port: (bytes, stamp) records, one at a time
+    (:meth:`read`, for a handshake's replies) or all that came (:meth:`read_all`)."""
 
     def __init__(self, port: int, name: str) -> None:
         self._proc = subprocess.Popen(
@@ -208,6 +209,19 @@ class Tap:
         if not records and self._poll.poll(timeout_ms):
             self._take()
         return records.popleft() if records else None
+
+    def read_all(self, timeout_ms: int) -> list[tuple[bytes, int]]:
+        """Every record the pipe holds (waiting up to ``timeout_ms`` for one), in order.
+
+        A scan comes as one write of several records (one per packet the tap read); taking
+        them together lets the daemon decode them in one go instead of one loop turn each.
+        """
+        records = self._records
+        if not records and self._poll.poll(timeout_ms):
+            self._take()
+        out = list(records)
+        records.clear()
+        return out
 
     def discard(self) -> None:
         """Drop everything the tap read so far (the daemon has just flushed the port)."""

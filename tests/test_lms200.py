@@ -472,3 +472,23 @@ def test_intel_lab_scans_survive_the_wire(shared_data) -> None:
     # noise right after a telegram that happens to be 0x06/0x15 reads as ACK/NAK, by design
     acks = sum(isinstance(m, (L.Ack, L.Nak)) for m in out)
     assert decoder.stats.bytes_discarded + acks == sum(len(p) for p in parts[0::2])
+
+
+@pytest.mark.parametrize("units", ["cm", "mm"])
+@pytest.mark.parametrize("bits", sorted(set(L.RANGE_BITS.values())))
+def test_scans_read_every_word_as_the_element_wise_definition_says(
+    units: L.Units, bits: int
+) -> None:
+    """Scans look their words up in tables built per unit and range width: every word of
+    every mode reads as the definition computes it on the scan's own words."""
+    words = np.arange(1 << 16, dtype=np.uint16)
+    words.setflags(write=False)
+    for start in range(0, 1 << 16, 1023):  # scans of 1023 words (the 10-bit count's limit)
+        chunk = words[start : start + 1023]
+        scan = L.ScanTelegram(L.scan_count_word(len(chunk), units), chunk)
+        ranges, flags = scan.ranges_and_flags(bits)
+        expected_ranges, expected_flags = L._words_to_ranges_and_flags(chunk, units, bits)
+        assert np.array_equal(ranges, expected_ranges, equal_nan=True)
+        assert np.array_equal(flags, expected_flags)
+        assert ranges.dtype == np.float32 and flags.dtype == np.uint16
+        assert not ranges.flags.writeable and not flags.flags.writeable

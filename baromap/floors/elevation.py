@@ -17,8 +17,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from baromap.messages import NS_PER_S
 
@@ -113,6 +111,11 @@ def solve_levels(steps: Sequence[Step], n_floors: int, value: str) -> npt.NDArra
 def _reachable(steps: Sequence[Step], n_floors: int) -> npt.NDArray[np.bool_]:
     """Floors joined to floor 0 by a chain of steps (the others cannot be placed)."""
     ends = np.array([(step.from_id, step.to_id) for step in steps], dtype=np.int64).reshape(-1, 2)
+    # scipy here, not at the top: the daemon imports the floors package for its online
+    # detector, which never solves levels, and importing scipy cost it 0.2 s of CPU at start
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     graph = coo_matrix((np.ones(len(ends)), (ends[:, 0], ends[:, 1])), shape=(n_floors, n_floors))
     _, labels = connected_components(graph, directed=False)
     reached: npt.NDArray[np.bool_] = labels == labels[0]
