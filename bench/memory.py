@@ -12,8 +12,15 @@ minute, per wall minute and per hour of running: the twins stream at their real 
 which allocates 64 KiB per read and shrinks it, its result handed on as it is (a name or two
 in ``daemon.session`` swapped, not a copy of the reader), to show the growth that read caused.
 
+``rotations`` is the recorder's rotation alone, in this process: ``--files`` recordings opened,
+given the daemon's JSON messages (pressure and health), closed, deleted; printed every fifth of
+the way: resident and anonymous memory, Python's blocks, and the ``foxglove.Channel`` objects
+still alive (the SDK kept every one in a registry of its own: the files' channels piled up).
+
     python bench/memory.py [--minutes 5] [--devices laser,base,barometer] [--zenoh]
                            [--compression zstd|lz4|none] [--old-read] [--warm-up 120]
+                           [--every 5] [--trace-at S] [--keep FILE]
+    python bench/memory.py rotations [--files 1000]
 """
 
 from __future__ import annotations
@@ -180,7 +187,52 @@ def _free_port() -> int:
         return int(sock.getsockname()[1])
 
 
+def _own_memory_mb() -> tuple[float, float]:
+    kb = {}
+    for line in Path("/proc/self/smaps_rollup").read_text().splitlines():
+        key, _, rest = line.partition(":")
+        if key in ("Rss", "Anonymous"):
+            kb[key] = int(rest.split()[0])
+    return kb["Rss"] / 1024, kb["Anonymous"] / 1024
+
+
+def rotations(files: int) -> int:
+    import gc
+
+    import foxglove
+
+    from baromap import logs
+    from baromap.messages import DeviceHealth, DeviceState, PressureSample
+    from baromap.recording import RecordingWriter
+
+    logs.configure("console", "WARNING")
+    t0 = 1_763_700_000_000_000_000
+    print(f"{files} recordings opened, written to and closed in one process; "
+          f"load {os.getloadavg()[0]:.1f}")  # fmt: skip
+    print("  files  RSS MB  anonymous MB  Python blocks  foxglove.Channel alive")
+    with tempfile.TemporaryDirectory(prefix="baromap-rotations-") as tmp:
+        for part in range(files):
+            path = Path(tmp) / f"run_{part:05d}.mcap"
+            with RecordingWriter(path, robot="r", fsync=False) as writer:
+                for k in range(20):
+                    t = t0 + k * 20_000_000
+                    writer.write(PressureSample(t, 101325.0 + k, 21.0, seq=k))
+                    writer.write(DeviceHealth(t, "barometer", DeviceState.UP, "/dev/x", "", {}))
+            path.unlink()
+            if part % max(1, files // 5) == 0 or part == files - 1:
+                gc.collect()
+                alive = sum(isinstance(o, foxglove.Channel) for o in gc.get_objects())
+                rss, anonymous = _own_memory_mb()
+                print(f"  {part + 1:5d}  {rss:6.2f}  {anonymous:12.2f}  "
+                      f"{sys.getallocatedblocks():13d}  {alive:5d}")  # fmt: skip
+    return 0
+
+
 def main() -> int:
+    if sys.argv[1:2] == ["rotations"]:
+        parser = argparse.ArgumentParser(description="the recorder's rotation alone")
+        parser.add_argument("--files", type=int, default=1000)
+        return rotations(parser.parse_args(sys.argv[2:]).files)
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--minutes", type=float, default=5.0, help="wall minutes")
     parser.add_argument("--speed", type=float, default=6.0, help="the mission's speed")
