@@ -93,6 +93,22 @@ class _FormerOs:
 
 _SNAPSHOT = []
 
+def _mallocstats():
+    # sys._debugmallocstats() writes to the C stderr: pymalloc's blocks by size class and the
+    # objects the free lists keep. Lines others write meanwhile land in the file too.
+    import tempfile
+    with tempfile.TemporaryFile("w+") as f:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        try:
+            os.dup2(f.fileno(), 2)
+            sys._debugmallocstats()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        f.seek(0)
+        return f.read()
+
 def _traced():
     # what grew since the last snapshot, by where it was allocated (file:line, innermost
     # first; no source text: linecache would grow in the snapshot it is measuring)
@@ -133,6 +149,7 @@ def _sample():
                 [n, i, type(o).__name__, repr(next(iter(o), None))[:80] if n else ""]
                 for n, i, o in sized[:40]]
             del objects, sized
+            record["mallocstats"] = _mallocstats()
         if 0 <= _TRACE_AT <= now - start:
             if not tracemalloc.is_tracing():
                 tracemalloc.start(8)
