@@ -40,9 +40,8 @@ class Outgoing:
 def _significant(state: FloorState) -> tuple[object, ...]:
     """What must differ for a state to count as changed: every field but stamps and floats.
 
-    Built from a list, whose tuple is made at its size: a tuple made from a generator is
-    shrunk to size, and CPython keeps every one freed on a free list (see
-    ``jsonmsg.field_names``)."""
+    The names come from a cache and the tuple from a list, at its size: a tuple built from a
+    generator for every state fed CPython's free lists (see ``jsonmsg.field_names``)."""
     return tuple(
         [
             value

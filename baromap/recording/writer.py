@@ -305,9 +305,10 @@ class RecordingWriter:
         The SDK keeps every ``foxglove.Channel`` ever made in a module-level registry (by id,
         for ``foxglove.log``) and never removes one, closed or not: each file's channels, with
         their schemas, would live as long as the process. A daemon that rotates every minute
-        made four a minute, 1.4 kB each with the SDK's state (``bench/soak.py --probe``, and a
-        thousand writers opened and closed in one process). Dropping the registry's reference
-        frees them; the SDK's typed channels (scans, odometry, transforms) are not in it.
+        made four a minute, 1.5 kB each with the SDK's state (``bench/soak.py --probe``;
+        ``bench/memory.py rotations``: a thousand files in one process). Dropping the
+        registry's reference frees them; the SDK's typed channels (scans, odometry,
+        transforms) are not in it.
         """
         registry: dict[int, object] | None = getattr(foxglove.channel, "_channels_by_id", None)
         for channel in self._json_channels.values():
