@@ -12,11 +12,12 @@ Printed, each against what it must be:
   was up and no fault was under way is in the recording; barometer samples by sequence number,
   scans and SIPs (which carry none) by count over each healthy stretch, where a stamp near a
   stretch's end can put one frame on either side;
-- memory: the daemon's RSS sampled every second; its steady growth after warm-up per hour of
-  running and per 8-hour shift (the twins stream at least at their real rates: the laser at
-  its line rate, the base and the barometer at the mission's speed, so a wall minute here
-  carries at least a minute of a robot's data), flat below ``MEMORY_MAX_MB_PER_H``; and apart
-  from it the steps at events (a rotation, the router's restart);
+- memory: the daemon's RSS and its anonymous part sampled every second; the steady growth of
+  the anonymous memory's high-water after warm-up per hour of running and per 8-hour shift
+  (the twins stream at least at their real rates: the laser at its line rate, the base and
+  the barometer at the mission's speed, so a wall minute here carries at least a minute of a
+  robot's data), flat below ``MEMORY_MAX_MB_PER_H``; and apart from it the steps at events
+  (the router's restart) with what part of them was anonymous;
 - rotation: files, sizes and spans against the configured limits, nothing lost or repeated at a
   split (barometer sequence continuous across files);
 - live: floor events the watcher printed against those recorded, apart from those decided
