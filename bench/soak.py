@@ -12,24 +12,32 @@ Printed, each against what it must be:
   was up and no fault was under way is in the recording; barometer samples by sequence number,
   scans and SIPs (which carry none) by count over each healthy stretch, where a stamp near a
   stretch's end can put one frame on either side;
-- memory: the daemon's RSS sampled every second; its steady growth after warm-up per hour of
-  running and per 8-hour shift (the twins stream at least at their real rates: the laser at
-  its line rate, the base and the barometer at the mission's speed, so a wall minute here
-  carries at least a minute of a robot's data), flat below ``MEMORY_MAX_MB_PER_H``; and apart
-  from it the steps at events (a rotation, the router's restart);
+- memory: the daemon's RSS and its anonymous part sampled every second; the steady growth of
+  the anonymous memory's high-water after warm-up per hour of running and per 8-hour shift
+  (the twins stream at least at their real rates: the laser at its line rate, the base and
+  the barometer at the mission's speed, so a wall minute here carries at least a minute of a
+  robot's data), flat below ``MEMORY_MAX_MB_PER_H``; and apart from it the steps at events
+  (the router's restart) with what part of them was anonymous;
 - rotation: files, sizes and spans against the configured limits, nothing lost or repeated at a
   split (barometer sequence continuous across files);
 - live: floor events the watcher printed against those recorded, apart from those decided
   while the router was down (Zenoh keeps no history for a subscriber that cannot be reached).
 
-    python bench/soak.py [--minutes 30] [--speed 6] [--seed 1]
+    python bench/soak.py [--minutes 30] [--speed 6] [--seed 1] [--keep DIR]
+                         [--probe] [--census S] [--trace-at S]
     python bench/soak.py router ENDPOINT      (the Zenoh router it starts and restarts)
+
+``--probe`` loads bench/memory.py's probe into the daemon (its C heap, Python's blocks, its
+threads every second; ``--census`` the collector's objects by type every S s; ``--trace-at``
+tracemalloc from S s on) and prints what each memory step was made of; it costs the daemon
+CPU, so a probed run's loss figures are not the bench's.
 """
 
 from __future__ import annotations
 
 import argparse
 import itertools
+import json
 import os
 import re
 import signal
@@ -170,20 +178,25 @@ class RouterRestart:
 
 @dataclass
 class Memory:
-    """The daemon's resident set, sampled: (wall s, MB)."""
+    """The daemon's resident set and the anonymous part of it, sampled: (wall s, MB, MB)."""
 
-    samples: list[tuple[float, float]] = field(default_factory=list)
+    samples: list[tuple[float, float, float]] = field(default_factory=list)
     started_unix: float | None = None  # Unix time of the first sample (events are in Unix s)
+    steps: list[tuple[float, float]] = field(default_factory=list)  # (wall s, MB), as printed
 
     def sample(self, pid: int) -> None:
         if self.started_unix is None:
             self.started_unix = time.time()
+        kb: dict[str, int] = {}
         try:
-            for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-                if line.startswith("VmRSS:"):
-                    self.samples.append((time.monotonic(), int(line.split()[1]) / 1024))
+            for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+                key, _, rest = line.partition(":")
+                if key in ("Rss", "Anonymous"):
+                    kb[key] = int(rest.split()[0])
         except OSError:
-            pass
+            return
+        if len(kb) == 2:
+            self.samples.append((time.monotonic(), kb["Rss"] / 1024, kb["Anonymous"] / 1024))
 
 
 def healthy_stretches(
@@ -414,57 +427,139 @@ def report(
 def memory_flat(memory: Memory, router: RouterRestart) -> bool:
     """Print the daemon's memory figures; whether it grows steadily after warm-up.
 
-    Growth is told apart from steps: the median of the RSS increments over ``MEMORY_LAG_S``
-    (one per second) is what the daemon gains all the time, a figure one event cannot move
-    (a step lifts only ``MEMORY_LAG_S`` of them); the steps, one-off rises at events (a file's
-    first rotation, the router's restart), are printed beside it with the events' times.
+    What is judged is the daemon's anonymous memory: what it allocated (heaps, Python's
+    arenas, thread stacks), where a leak grows. The rest of its resident set is pages of its
+    libraries' files, read in when code runs for the first time (a Zenoh reconnection runs
+    a megabyte of the library's code that nothing ran before: a step at the router's
+    restart); they cannot grow past the libraries' size and the kernel may drop them at any
+    time. Both are printed.
+
+    Growth is told apart from steps: the median of the increments over ``MEMORY_LAG_S`` (one
+    per second) is what the daemon gains all the time, a figure one event cannot move (a step
+    lifts only ``MEMORY_LAG_S`` of them); the steps, one-off rises to a new high at events
+    (the first run of a code path, a buffer that moves into the heap), are printed beside it
+    with the events' times. What is judged is the high-water mark (the highest level so far,
+    on the running median of 5 samples): memory the daemon takes back after it gave some to
+    the system (glibc unmaps a megabyte when a file closes, and the heap fills the hole again
+    over the next minute) is not growth, and a leak cannot hide from it, as it raises the
+    high-water all the time. The increments of the level itself are printed beside it.
     """
     t = np.array([s[0] for s in memory.samples]) - memory.samples[0][0]
     rss = np.array([s[1] for s in memory.samples])
+    anon = np.array([s[2] for s in memory.samples])
     warm = t >= MEMORY_WARM_UP_S
     print(f"memory: daemon RSS {rss[0]:.1f} MB at start, {rss[warm][0]:.1f} MB after "
           f"{MEMORY_WARM_UP_S:.0f} s of warm-up, {rss[-1]:.1f} MB at the end, peak "
-          f"{rss.max():.1f} MB; {len(rss)} samples")  # fmt: skip
+          f"{rss.max():.1f} MB; of it anonymous {anon[0]:.1f}, {anon[warm][0]:.1f}, "
+          f"{anon[-1]:.1f} MB (the rest: pages of library files); {len(rss)} samples")  # fmt: skip
     grid = np.arange(MEMORY_WARM_UP_S, t[-1] + 1e-9, 1.0)
     lag = round(MEMORY_LAG_S)
     if len(grid) < 3 * lag:
         print(f"  {t[-1]:.0f} s sampled: too short to judge after the warm-up (NOT FLAT)")
         return False
-    on_grid = np.interp(grid, t, rss)
-    increments = on_grid[lag:] - on_grid[:-lag]
-    per_min = float(np.median(increments)) * 60 / MEMORY_LAG_S
+
+    def per_minute(y: np.ndarray, part: slice = slice(None)) -> float:
+        on_grid = np.interp(grid, t, y)
+        increments = (on_grid[lag:] - on_grid[:-lag])[part]
+        return float(np.median(increments)) * 60 / MEMORY_LAG_S
+
+    high = np.maximum.accumulate(_level(anon))
+    per_min = per_minute(high)
     per_h = per_min * 60
     flat = per_h < MEMORY_MAX_MB_PER_H
+    level_per_h = per_minute(anon) * 60
+    rss_per_h = per_minute(np.maximum.accumulate(_level(rss))) * 60
     fitted = float(np.polyfit(t[warm] / 60, rss[warm], 1)[0])
-    print(f"  steady growth after warm-up (median over {MEMORY_LAG_S:g} s): {per_min:+.3f} MB per "
-          f"wall minute = {per_h:+.1f} MB per hour of running = {per_h * 8:+.0f} MB per 8-hour "
-          f"shift (flat: under {MEMORY_MAX_MB_PER_H:g} MB per hour): "
-          f"{'flat' if flat else 'NOT FLAT'}")  # fmt: skip
-    steps = _steps(t, rss)
+    print(f"  steady growth of the anonymous memory's high-water after warm-up (median over "
+          f"{MEMORY_LAG_S:g} s): {per_min:+.3f} MB per wall minute = {per_h:+.1f} MB per hour "
+          f"of running = {per_h * 8:+.0f} MB per 8-hour shift (flat: under "
+          f"{MEMORY_MAX_MB_PER_H:g} MB per hour): {'flat' if flat else 'NOT FLAT'}; of the "
+          f"anonymous level itself {level_per_h:+.1f}, of the RSS's high-water "
+          f"{rss_per_h:+.1f} MB per hour")  # fmt: skip
+    # growth that slows down from third to third is the end of the warm-up, a leak does not
+    thirds = np.array_split(np.arange(len(grid) - lag), 3)
+    by_third = [per_minute(high, slice(p[0], p[-1] + 1)) * 60 for p in thirds]
+    print(f"  the same by thirds of the {grid[-1] - grid[0]:.0f} s judged: "
+          + ", ".join(f"{x:+.1f}" for x in by_third) + " MB per hour")  # fmt: skip
+    steps = memory.steps = _steps(t, rss)
     started = memory.started_unix
     events = [f"files rotate every {ROTATE_MINUTES * 60:.0f} s"]
     if started is not None and router.down_wall is not None and router.up_wall is not None:
         events.append(f"the router was down {router.down_wall - started:.0f}-"
                       f"{router.up_wall - started:.0f} s")  # fmt: skip
-    print(f"  steps over {MEMORY_STEP_MB:g} MB within {MEMORY_STEP_S:g} s: "
-          + (", ".join(f"{mb:+.2f} MB at {at:.0f} s" for at, mb in steps) or "none")
-          + f" ({'; '.join(events)}); a line fitted after warm-up, steps and all: "
+    level_anon = _level(anon)
+    described = []
+    for at, mb, since in steps:
+        i, j = int(np.searchsorted(t, since)), int(np.searchsorted(t, at))
+        gained = level_anon[j] - level_anon[i]
+        described.append(f"{mb:+.2f} MB at {at:.0f} s (anonymous {gained:+.2f})")
+    print(f"  RSS steps to a new high over {MEMORY_STEP_MB:g} MB within {MEMORY_STEP_S:g} s: "
+          + (", ".join(described) or "none")
+          + f" ({'; '.join(events)}); a line fitted to the RSS after warm-up, steps and all: "
           f"{fitted:+.3f} MB per wall minute")  # fmt: skip
     return flat
 
 
-def _steps(t: np.ndarray, rss: np.ndarray) -> list[tuple[float, float]]:
-    """(wall s it had risen by, MB) of each rise over ``MEMORY_STEP_MB`` within
-    ``MEMORY_STEP_S``, on the running median of 5 samples (a file's close dips RSS for one
-    sample)."""
-    padded = np.pad(rss, 2, mode="edge")
-    level = np.median(np.lib.stride_tricks.sliding_window_view(padded, 5), axis=1)
-    out: list[tuple[float, float]] = []
+def probe_report(path: Path, memory: Memory) -> None:
+    """What the daemon's memory was made of (bench/memory.py's probe), at start, after warm-up
+    and at the end, and what each step added: Python's blocks (a leak or a cache of Python
+    objects), malloc's memory in use (native allocations: the Rust libraries, buffers), free
+    but held (fragmentation), in mappings of its own, the rest of the anonymous memory
+    (pymalloc's arenas, thread stacks), and threads."""
+    records = [json.loads(line) for line in path.read_text().splitlines() if line]
+    if not records or not memory.samples:
+        print("probe: no samples")
+        return
+    t0 = memory.samples[0][0]
+    t = np.array([r["t"] for r in records]) - t0
+    keys = ["rss", "anonymous", "in_use", "free_held", "mmapped", "py_blocks", "threads"]
+    series = {k: np.array([float(r[k]) for r in records]) for k in keys}
+    print("probe (MB; Python's blocks in thousands): " + ", ".join(keys))
+
+    def at(when: float) -> str:
+        i = min(int(np.searchsorted(t, when)), len(t) - 1)
+        return " ".join(
+            f"{series[k][i] / (1000 if k == 'py_blocks' else 1):.{0 if k == 'threads' else 2}f}"
+            for k in keys
+        )
+
+    print(f"  start {at(0)}; after warm-up {at(MEMORY_WARM_UP_S)}; end {at(t[-1])}")
+    for when, mb, _ in memory.steps:
+        lo = max(0, int(np.searchsorted(t, when - MEMORY_STEP_S - 3)))
+        hi = min(int(np.searchsorted(t, when + 3)), len(t) - 1)
+        delta = {k: series[k][hi] - series[k][lo] for k in keys}
+        print(f"  step {mb:+.2f} MB at {when:.0f} s: "
+              + ", ".join(
+                  f"{k} {delta[k] / (1000 if k == 'py_blocks' else 1):+.2f}" for k in keys
+              ))  # fmt: skip
+    traced = [r for r in records if "traced" in r]
+    for before, after in itertools.pairwise(traced):
+        grown = after["traced"]
+        print(f"  tracemalloc {before['t'] - t0:.0f}-{after['t'] - t0:.0f} s: traced "
+              f"{grown['total_kb']:.0f} kB; grew most (outermost frame first):")  # fmt: skip
+        for entry in grown["grew"][:4]:
+            print(f"    {entry['kb']:+8.1f} kB {entry['n']:+6d} blocks: "
+                  + " < ".join(entry["where"][-4:]))  # fmt: skip
+
+
+def _level(y: np.ndarray) -> np.ndarray:
+    """The running median of 5 samples (a file's close dips the RSS for a sample or two)."""
+    padded = np.pad(y, 2, mode="edge")
+    return np.asarray(np.median(np.lib.stride_tricks.sliding_window_view(padded, 5), axis=1))
+
+
+def _steps(t: np.ndarray, rss: np.ndarray) -> list[tuple[float, float, float]]:
+    """(wall s it had risen by, MB, wall s it rose from) of each rise of the RSS to a new high
+    by over ``MEMORY_STEP_MB`` within ``MEMORY_STEP_S``. The highest level so far is what
+    rises: memory that comes back after a dip (a megabyte the allocator gave back and took
+    again, seconds later) is no step."""
+    high = np.maximum.accumulate(_level(rss))
+    out: list[tuple[float, float, float]] = []
     i = 0
     while i < len(t):
         j = int(np.searchsorted(t, t[i] + MEMORY_STEP_S, side="right")) - 1
-        if j > i and level[j] - level[i] > MEMORY_STEP_MB:
-            out.append((float(t[j]), float(level[j] - level[i])))
+        if j > i and high[j] - high[i] > MEMORY_STEP_MB:
+            out.append((float(t[j]), float(high[j] - high[i]), float(t[i])))
             i = j
         i += 1
     return out
@@ -482,6 +577,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--keep", help="keep the outputs in this directory (the daemon's RSS: daemon_rss.csv)"
     )
+    parser.add_argument("--probe", action="store_true", help="probe the daemon's memory")
+    parser.add_argument("--census", type=float, default=0.0, help="with --probe: s between "
+                        "censuses of Python objects by type")  # fmt: skip
+    parser.add_argument("--trace-at", type=float, default=-1.0, help="with --probe: wall s at "
+                        "which tracemalloc starts in the daemon")  # fmt: skip
     args = parser.parse_args(args_in)
     logs.configure("console", "WARNING")
     mission = Mission(
@@ -512,6 +612,21 @@ def main(argv: list[str] | None = None) -> int:
     print(f"faults: {scheduled}")
     with tempfile.TemporaryDirectory(prefix="baromap-soak-") as tmp:
         out = Path(args.keep) if args.keep else Path(tmp)
+        out.mkdir(parents=True, exist_ok=True)
+        probed = out / "memprobe.jsonl"
+        if args.probe:
+            from memory import PROBE  # bench/memory.py, beside this script
+
+            (out / "probe").mkdir(exist_ok=True)
+            (out / "probe" / "sitecustomize.py").write_text(PROBE)
+            probed.unlink(missing_ok=True)
+            os.environ["PYTHONPATH"] = os.pathsep.join(
+                [str(out / "probe"), *filter(None, [os.environ.get("PYTHONPATH")])]
+            )
+            os.environ["BAROMAP_MEMPROBE_OUT"] = str(probed)
+            os.environ["BAROMAP_MEMPROBE_EVERY"] = "1"
+            os.environ["BAROMAP_MEMPROBE_CENSUS"] = str(args.census)
+            os.environ["BAROMAP_MEMPROBE_TRACE_AT"] = str(args.trace_at)
         router.start()
         try:
             live = run_live(
@@ -534,9 +649,11 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             router.stop()
         code = report(live, mission, scheduled, router, memory)
+        if args.probe:
+            probe_report(probed, memory)
         t0 = memory.samples[0][0] if memory.samples else 0.0
-        rows = "".join(f"{t - t0:.1f},{mb:.3f}\n" for t, mb in memory.samples)
-        (out / "daemon_rss.csv").write_text("wall_s,rss_mb\n" + rows)
+        rows = "".join(f"{t - t0:.1f},{mb:.3f},{anon:.3f}\n" for t, mb, anon in memory.samples)
+        (out / "daemon_rss.csv").write_text("wall_s,rss_mb,anonymous_mb\n" + rows)
     print(f"machine: {os.cpu_count()} cores, load average {load:.1f} at start, "
           f"{os.getloadavg()[0]:.1f} at end")  # fmt: skip
     return code

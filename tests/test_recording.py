@@ -240,6 +240,28 @@ def test_flush_interval_writes_chunks_while_recording(tmp_path: Path) -> None:
         assert not writer.flush_if_due()  # nothing new since the last flush
 
 
+def test_closed_files_leave_no_channels_behind(tmp_path: Path) -> None:
+    """A daemon opens a file a minute for days: the JSON channels of a closed file must go
+    (the foxglove SDK keeps every ``foxglove.Channel`` in a registry of its own)."""
+    import gc
+
+    import foxglove
+
+    def channels() -> int:
+        gc.collect()
+        return sum(isinstance(o, foxglove.Channel) for o in gc.get_objects())
+
+    before = channels()
+    for part in range(5):
+        with RecordingWriter(tmp_path / f"run_{part}.mcap", robot="r1") as writer:
+            writer.write(m.PressureSample(T0, 100000.0, seq=part))
+            writer.write(m.DeviceHealth(T0, "barometer", m.DeviceState.UP, "/dev/x", "", {}))
+            assert channels() == before + 2
+    assert channels() == before
+    last = [r.message for r in read_messages(tmp_path / "run_4.mcap", [t.BARO])]
+    assert last == [m.PressureSample(T0, 100000.0, seq=4)]
+
+
 def test_clear_errors_for_bad_paths_and_inputs(tmp_path: Path) -> None:
     not_mcap = tmp_path / "x.mcap"
     not_mcap.write_text("time_s,pressure_pa\n")

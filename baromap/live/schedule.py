@@ -18,10 +18,10 @@ a replay of the same samples gives the same pressure publications.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
+from baromap.jsonmsg import field_names
 from baromap.live.keys import Channel
 from baromap.live.settings import LiveSettings
 from baromap.messages import NS_PER_S, DeviceHealth, FloorEvent, FloorState, PressureSample
@@ -38,11 +38,16 @@ class Outgoing:
 
 
 def _significant(state: FloorState) -> tuple[object, ...]:
-    """What must differ for a state to count as changed: every field but stamps and floats."""
+    """What must differ for a state to count as changed: every field but stamps and floats.
+
+    The names come from a cache and the tuple from a list, at its size: a tuple built from a
+    generator for every state fed CPython's free lists (see ``jsonmsg.field_names``)."""
     return tuple(
-        value
-        for f in dataclasses.fields(state)
-        if f.name != "t_ns" and not isinstance(value := getattr(state, f.name), float)
+        [
+            value
+            for name in field_names(FloorState)
+            if name != "t_ns" and not isinstance(value := getattr(state, name), float)
+        ]
     )
 
 

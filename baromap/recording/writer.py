@@ -296,7 +296,26 @@ class RecordingWriter:
             if self._sync_fd >= 0:
                 os.close(self._sync_fd)
                 self._sync_fd = -1
+            self._release_json_channels()
         log.info("recording closed", path=str(self.path), messages=sum(self.counts.values()))
+
+    def _release_json_channels(self) -> None:
+        """Let go of this file's JSON channels for good.
+
+        The SDK keeps every ``foxglove.Channel`` ever made in a module-level registry (by id,
+        for ``foxglove.log``) and never removes one, closed or not: each file's channels, with
+        their schemas, would live as long as the process. A daemon that rotates every minute
+        made four a minute, 1.5 kB each with the SDK's state (``bench/soak.py --probe``;
+        ``bench/memory.py rotations``: a thousand files in one process). Dropping the
+        registry's reference frees them; the SDK's typed channels (scans, odometry,
+        transforms) are not in it.
+        """
+        registry: dict[int, object] | None = getattr(foxglove.channel, "_channels_by_id", None)
+        for channel in self._json_channels.values():
+            channel.close()
+            if registry is not None:
+                registry.pop(channel.id(), None)
+        self._json_channels.clear()
 
     def _json_channel(self, topic: str, cls: type) -> foxglove.Channel:
         key = (topic, cls)
