@@ -234,12 +234,7 @@ class DeviceSession(abc.ABC):
                 waiting = port.in_waiting
                 if waiting:
                     data += port.read(waiting)
-        now = time.monotonic_ns()
-        self.heartbeat_ns = now
-        if data:
-            self._reads += 1
-            self._bytes_in += len(data)
-            self._bytes_since_good += len(data)
+        now = self._count_reads(1 if data else 0, len(data))
         return data, now if read_ns is None else read_ns
 
     def _read_tap(self, tap: Tap) -> tuple[list[tuple[bytes, int]], int]:
@@ -247,14 +242,16 @@ class DeviceSession(abc.ABC):
         one), and the monotonic ns now; the same accounting as :meth:`read` (a record is a
         read)."""
         reads = tap.read_all(STREAM_READ_TIMEOUT_MS)
+        return reads, self._count_reads(len(reads), sum(len(data) for data, _ in reads))
+
+    def _count_reads(self, reads: int, size: int) -> int:
+        """Account reads that returned ``size`` bytes in all; the heartbeat and its time."""
         now = time.monotonic_ns()
         self.heartbeat_ns = now
-        if reads:
-            size = sum(len(data) for data, _ in reads)
-            self._reads += len(reads)
-            self._bytes_in += size
-            self._bytes_since_good += size
-        return reads, now
+        self._reads += reads
+        self._bytes_in += size
+        self._bytes_since_good += size
+        return now
 
     def write(self, data: bytes) -> None:
         self._port().write(data)
