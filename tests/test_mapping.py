@@ -460,14 +460,14 @@ def test_edge_scatter_is_the_real_error_over_the_claimed_one() -> None:
         graph.add_node(pose)
     claims = {"odometry": (0.02, math.radians(0.5)), "match": (0.04, math.radians(1.0))}
     real = {"odometry": (0.02, math.radians(0.5)), "match": (0.01, math.radians(0.25))}
-    for kind, (sxy, st) in claims.items():
+    for kind, (sxy, stheta) in claims.items():
         rxy, rt = real[kind]
         for k in range(1, n):
             noise = rng.normal(0.0, [rxy, rxy, rt])
             if kind == "match" and rng.random() < 0.05:
                 noise[0] += 0.3
             z = se2.between(poses[k - 1], poses[k]) + noise
-            graph.add_edge(Edge(k - 1, k, z, np.diag([sxy**-2, sxy**-2, st**-2]), kind))
+            graph.add_edge(Edge(k - 1, k, z, np.diag([sxy**-2, sxy**-2, stheta**-2]), kind))
     count, odometry = graph.scatter("odometry")
     assert count == n - 1
     assert odometry == pytest.approx(1.0, rel=0.1)
