@@ -19,7 +19,9 @@ down at both ends (:mod:`baromap.mapping.odometry_calibration`), and taken out o
 odometric step and, at the end, of every odometry edge: along a featureless corridor, where
 odometry alone decides, a 2 % scale error would otherwise stretch the map. What corrected
 odometry still gets wrong per step is measured on the same matched steps, and the last solve
-weighs every odometry edge by it rather than by the front end's deliberately wide sigmas.
+weighs every odometry edge by it rather than by the front end's deliberately wide sigmas; then
+every kind of edge (odometry, matches, closures, the car) is scaled to how far it actually
+scatters against that solve, and the graph solved again.
 
 Loop closures: each keyframe looks for finished submaps of the *same floor* (the barometer's
 verdict) that it sees from near where they were built, and matches against each with a
