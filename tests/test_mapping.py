@@ -445,3 +445,35 @@ def test_odometry_noise_is_what_the_matched_steps_show_not_the_wrong_matches() -
     assert math.degrees(theta) == pytest.approx(0.1, rel=0.2)
     _, theta = noise.sigmas(0.0, 0.4)
     assert math.degrees(theta) == pytest.approx(math.sqrt(0.1**2 + 0.4), rel=0.15)
+
+
+def test_edge_scatter_is_the_real_error_over_the_claimed_one() -> None:
+    """Match edges that claim 4 cm and 1 deg but err 1 cm and 0.25 deg (a sixteenth of the
+    variance they claim), among odometry edges that claim their real error, with 5 % of the
+    matches wrong by 30 cm: the scatter of each kind is what its edges show against the
+    poses, and scaling by it makes the matches claim their real error."""
+    rng = np.random.default_rng(5)
+    n = 2000
+    poses = np.cumsum(rng.normal(0.0, [0.4, 0.4, 0.3], (n, 3)), axis=0)
+    graph = PoseGraph()
+    for pose in poses:
+        graph.add_node(pose)
+    claims = {"odometry": (0.02, math.radians(0.5)), "match": (0.04, math.radians(1.0))}
+    real = {"odometry": (0.02, math.radians(0.5)), "match": (0.01, math.radians(0.25))}
+    for kind, (sxy, stheta) in claims.items():
+        rxy, rt = real[kind]
+        for k in range(1, n):
+            noise = rng.normal(0.0, [rxy, rxy, rt])
+            if kind == "match" and rng.random() < 0.05:
+                noise[0] += 0.3
+            z = se2.between(poses[k - 1], poses[k]) + noise
+            graph.add_edge(Edge(k - 1, k, z, np.diag([sxy**-2, sxy**-2, stheta**-2]), kind))
+    count, odometry = graph.scatter("odometry")
+    assert count == n - 1
+    assert odometry == pytest.approx(1.0, rel=0.1)
+    _, matches = graph.scatter("match")
+    assert matches == pytest.approx(1 / 16, rel=0.15)
+    graph.scale_information("match", 1.0 / matches)
+    assert graph.scatter("match")[1] == pytest.approx(1.0, rel=1e-9)
+    assert graph.scatter("odometry")[1] == odometry
+    assert graph.scatter("loop") == (0, 1.0)
