@@ -273,9 +273,11 @@ def reading(health: list[DeviceHealth], lo: int, hi: int) -> tuple[int, float]:
     return damaged, idle
 
 
-def internal_drops(by_topic: dict[str, list[Any]]) -> dict[str, int]:
+def internal_drops(by_topic: dict[str, list[Any]]) -> tuple[dict[str, int], int]:
     """What the daemon itself dropped after reading: its recorder's queue and pauses, its
-    publisher's queues (last counters of each)."""
+    publisher's queues (last counters of each); and the recorder's backlog at that last
+    report, apart: messages still queued at that instant, which the recorder writes before
+    it stops (a queue's length, not a loss; the stretches' counts above would show a loss)."""
     last: dict[str, DeviceHealth] = {}
     for h in by_topic[topics.DIAGNOSTICS]:
         mine = isinstance(h, DeviceHealth) and h.device in ("recorder", "zenoh")
@@ -284,9 +286,10 @@ def internal_drops(by_topic: dict[str, list[Any]]) -> dict[str, int]:
     out: dict[str, int] = {}
     for device, h in sorted(last.items()):
         for k, v in h.counters.items():
-            if k.startswith("dropped") or k == "backlog":
+            if k.startswith("dropped"):
                 out[f"{device}.{k}"] = int(v)
-    return out
+    backlog = int(last["recorder"].counters.get("backlog", 0)) if "recorder" in last else 0
+    return out, backlog
 
 
 def report(
@@ -375,9 +378,10 @@ def report(
               f"{missing} missing; there (and {READ_LAG_S:g} s after) the daemon's decoder counted "
               f"{damaged} damaged frame(s) or sequence gap(s), and its reader took in no byte "
               f"for up to {idle:.1f} s")  # fmt: skip
-    drops = internal_drops(by_topic)
+    drops, backlog = internal_drops(by_topic)
     print(f"  dropped inside the daemon after reading (must be 0): {sum(drops.values())} "
-          f"({', '.join(f'{k} {v}' for k, v in drops.items()) or 'no counters'})")  # fmt: skip
+          f"({', '.join(f'{k} {v}' for k, v in drops.items()) or 'no counters'}); "
+          f"recorder's queue at its last report {backlog} (written before it stopped)")  # fmt: skip
     failures += sum(drops.values()) > 0
     seqs = [m.seq for m in by_topic[topics.BARO] if isinstance(m, PressureSample)]
     print("rotation (every", ROTATE_SIZE_MB, "MB or", ROTATE_MINUTES, "min):")
