@@ -225,7 +225,8 @@ class Lms200Session(DeviceSession):
                 line.chunk(len(data), read_ns)
             # the last read brought the bytes that completed the batch: a tap hands over as
             # soon as it has a frame's worth, so that is the read of the scan's last bytes
-            self._decode(part[0][0] if len(part) == 1 else b"".join(d for d, _ in part), read_ns)
+            # (joining one read returns it as it is: no copy)
+            self._decode(b"".join([d for d, _ in part]), read_ns)
 
     def _decode(self, data: bytes, read_ns: int) -> None:
         for message in self.decoder.feed(data):
