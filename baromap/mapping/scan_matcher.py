@@ -358,6 +358,113 @@ def correlative_search(
     return SearchResult(best_pose, best_score, max(runner_up, 0.0))
 
 
+#: Node sizes of the branch-and-bound search, in cells, coarsest first: a node of 16 cells
+#: (0.8 m at 5 cm) branches into nodes of 4, which branch into single cells.
+BNB_STEPS = (16, 4, 1)
+#: The search keeps looking for a runner-up until no node left can reach this share of the
+#: best: below it no caller's ambiguity test (0.95, 0.97) can be failed.
+RUNNER_UP_FLOOR = 0.9
+#: Most nodes one search splits.
+BNB_BUDGET = 300
+
+
+def _bound_field(field: LikelihoodField, step: int) -> LikelihoodField:
+    """The field's largest value within +-step/2 cells of each cell: what any point of a scan
+    can score anywhere in a node of ``step`` x ``step`` cells centred on its cell."""
+    if step <= 1:
+        return field
+    data = ndimage.maximum_filter(field.data, size=step + 1, mode="constant", cval=0.0)
+    return LikelihoodField(data=data, origin_xy=field.origin_xy, resolution=field.resolution)
+
+
+def branch_and_bound_search(
+    field: LikelihoodField,
+    points: FloatArray,
+    guess: FloatArray,
+    window: SearchWindow,
+    *,
+    prior: Prior | None = None,
+    budget: int | None = None,
+) -> SearchResult:
+    """Best pose of a wide window by depth-first branch and bound (Hess et al. 2016).
+
+    Every rotation of the window is scored on a lattice of 16-cell nodes against the field's
+    maximum over each node (an upper bound of every pose inside it); nodes are taken best
+    bound first and split into 4-cell nodes, then cells, and a node whose bound cannot beat
+    what was found is not split. For a loop closure after a long stretch without one, where
+    the drift is metres: a lattice of that size is millions of poses, most never scored.
+
+    ``budget`` bounds the nodes split (CPU; default ``BNB_BUDGET``); when it runs out, the
+    best cell found so far is returned. The runner-up is the best cell distinct from the best
+    (:func:`_distinct`), kept while no node left can reach ``RUNNER_UP_FLOOR`` of the best.
+    """
+    budget = BNB_BUDGET if budget is None else budget
+    res = field.resolution
+    half_angles = max(0, round(window.angular_rad / window.angle_step_rad))
+    angles = guess[2] + window.angle_step_rad * np.arange(-half_angles, half_angles + 1)
+    levels = [_bound_field(field, step) for step in BNB_STEPS]
+    half_cells = max(0, math.ceil(window.linear_m / res))
+    top = BNB_STEPS[0]
+    top_half = math.ceil(half_cells / top)
+    offsets = np.arange(-top_half, top_half + 1) * top
+    xs = guess[0] + offsets * res
+    ys = guess[1] + offsets * res
+    bounds = _score_grid(levels[0], points, guess, angles, offsets) - _prior_penalty(
+        prior, angles, xs, ys
+    )
+    flat_bounds = bounds.ravel()
+    order = np.argsort(flat_bounds)[::-1]
+    best: tuple[float, float, FloatArray] | None = None  # objective, score, pose
+    runner_up = -np.inf  # objective of the best cell distinct from the best
+    split = 0
+    # the top nodes best bound first, each searched depth first before the next
+    for top_node in order:
+        if split >= budget:
+            break
+        if best is not None and flat_bounds[top_node] <= max(runner_up, RUNNER_UP_FLOOR * best[0]):
+            break  # every remaining top node is bounded lower still
+        a, iy, ix = np.unravel_index(top_node, bounds.shape)
+        stack = [(float(flat_bounds[top_node]), 0, int(a), float(xs[ix]), float(ys[iy]))]
+        while stack and split < budget:
+            bound, level, a, x, y = stack.pop()
+            if best is not None and bound <= max(runner_up, RUNNER_UP_FLOOR * best[0]):
+                continue
+            split += 1
+            parent, child = BNB_STEPS[level], BNB_STEPS[level + 1]
+            child_offsets = np.arange(-(parent // 2), parent // 2 + 1, child)
+            cx: FloatArray = (x + child_offsets * res).astype(np.float64)
+            cy: FloatArray = (y + child_offsets * res).astype(np.float64)
+            scores = _score_grid(
+                levels[level + 1], points, np.array([x, y]), angles[a : a + 1], child_offsets
+            )[0]
+            objective = scores - np.asarray(_prior_penalty(prior, angles[a : a + 1], cx, cy))
+            objective = objective.reshape(scores.shape)
+            ranked = np.argsort(objective.ravel())  # worst first
+            if level + 1 < len(BNB_STEPS) - 1:
+                for flat in ranked:  # the best child ends on top of the stack
+                    jy, jx = divmod(int(flat), len(child_offsets))
+                    value = float(objective[jy, jx])
+                    stack.append((value, level + 1, a, float(cx[jx]), float(cy[jy])))
+                continue
+            # cells: exact values, best first
+            for flat in ranked[::-1]:
+                jy, jx = divmod(int(flat), len(child_offsets))
+                value = float(objective[jy, jx])
+                pose = np.array([cx[jx], cy[jy], angles[a]])
+                if best is None or value > best[0]:
+                    if best is not None and _distinct(pose, best[2]):
+                        runner_up = max(runner_up, best[0])
+                    best = (value, float(scores[jy, jx]), pose)
+                elif value <= runner_up:
+                    break  # the rest of this node's cells are lower still
+                elif _distinct(pose, best[2]):
+                    runner_up = value
+    if best is None:
+        return SearchResult(np.asarray(guess, dtype=np.float64).copy(), 0.0, 0.0)
+    runner = best[1] - (best[0] - runner_up) if np.isfinite(runner_up) else 0.0
+    return SearchResult(best[2], best[1], max(runner, 0.0))
+
+
 @dataclass(slots=True)
 class _Fit:
     """One evaluation of a pose: total cost and normal equations (scan plus prior), and the
@@ -464,8 +571,12 @@ def match(
     *,
     coarse_field: LikelihoodField | None = None,
     prior: Prior | None = None,
+    wide: bool = False,
 ) -> MatchResult:
     """Search the window, then refine; the refined pose is kept unless refinement went astray.
+
+    ``wide`` searches by branch and bound (:func:`branch_and_bound_search`), for windows of
+    metres; ``coarse_field`` is then not used.
 
     Astray: it slid more than two cells from the lattice optimum, or lost score. With a prior
     the refinement trades a little score for agreement with odometry, so it may lose up to
@@ -474,7 +585,12 @@ def match(
     # the lattice only has to find the optimum's basin: a few hundred points do that as well as
     # all of them, and refinement then uses every point
     sparse = points[:: max(1, math.ceil(len(points) / LATTICE_POINTS))]
-    found = correlative_search(field, sparse, guess, window, coarse_field=coarse_field, prior=prior)
+    if wide:
+        found = branch_and_bound_search(field, sparse, guess, window, prior=prior)
+    else:
+        found = correlative_search(
+            field, sparse, guess, window, coarse_field=coarse_field, prior=prior
+        )
     lattice_pose, runner_up = found.pose, found.runner_up
     # compare like with like: the interpolated score at the lattice pose, not the cell lookup
     at_lattice: list[Any] = []

@@ -191,6 +191,9 @@ LOOP_BASE_M = 0.1
 LOOP_BASE_RAD = math.radians(1.0)
 LOOP_MAX_M = 2.0
 LOOP_MAX_RAD = math.radians(20.0)
+#: When the drift since the last closure is beyond LOOP_MAX_M the window grows up to this,
+#: searched by branch and bound (scan_matcher.branch_and_bound_search).
+LOOP_WIDE_M = 8.0
 #: Keyframes closer than this along the run are the front end's business, not a loop.
 LOOP_MIN_SEPARATION = 30
 #: A submap is tried again as a loop target after this much travel, and a keyframe tries at
@@ -200,6 +203,11 @@ LOOP_RETRY_M = 1.0
 LOOP_TARGETS = 2
 #: A loop target holds at least this many keyframes (see :meth:`_Slam._loop_target`).
 LOOP_MIN_KEYFRAMES = 5
+#: A closure against a target of few scans (see :meth:`_Slam._loop_target`) scoring under the
+#: loop threshold but at least this is taken once another keyframe's closure, from at most
+#: this many keyframes before it, implies the same correction (:meth:`_Slam._propose`).
+LOOP_GROUP_MIN_SCORE = 0.2
+LOOP_GROUP_KEYFRAMES = 10
 #: Cauchy scale of loop closures, in sigmas.
 LOOP_ROBUST_C = 3.0
 #: Solve the graph when a new closure disagrees with it (squared Mahalanobis error over three
@@ -420,6 +428,8 @@ class _Slam:
         self.visit_start = 0
         self.last_closure = 0  # keyframe of the last accepted closure (or visit start)
         self.unsolved: list[int] = []  # loop edges added since the last solve
+        #: closures under the threshold waiting for another to agree (see _propose)
+        self.pending: list[tuple[Edge, float]] = []
         self.car_edges: list[tuple[int, int]] = []
         #: odometry's systematic errors, learnt from front-end matches (see the module)
         self.calibration = OdometryCalibration()
@@ -987,14 +997,14 @@ class _Slam:
         travelled = float(self.clouds.distance[k])
         since_closure = self.clouds.path_m(self.last_closure, k)
         reach = self.config.loop_radius_m + min(
-            LOOP_MAX_M, self.config.drift_m_per_m * since_closure
+            LOOP_WIDE_M, self.config.drift_m_per_m * since_closure
         )
         # a cheap first cut on each submap's bounding circle of keyframe positions
         anchors = poses[index.anchor]
         c, s = np.cos(anchors[:, 2]), np.sin(anchors[:, 2])
         cx = anchors[:, 0] + c * index.center[:, 0] - s * index.center[:, 1]
         cy = anchors[:, 1] + s * index.center[:, 0] + c * index.center[:, 1]
-        near = np.hypot(cx - here[0], cy - here[1]) < index.radius + LOOP_MAX_M + reach
+        near = np.hypot(cx - here[0], cy - here[1]) < index.radius + reach
         near &= index.floor == self.kf_floor[k]
         near &= index.last_keyframe <= k - LOOP_MIN_SEPARATION
         near &= travelled - index.tried_at >= LOOP_RETRY_M
@@ -1005,21 +1015,37 @@ class _Slam:
             dist = np.hypot(origins[:, 0] - here[0], origins[:, 1] - here[1])
             nearest = int(np.argmin(dist))
             drift = min(since_closure, self.clouds.path_m(sub.keyframes[nearest], k))
+            # a target of few scans is searched as wide as the drift (see _try_loop)
+            cap = LOOP_WIDE_M if len(sub.keyframes) < LOOP_MIN_KEYFRAMES else LOOP_MAX_M
             if dist[nearest] < self.config.loop_radius_m + min(
-                LOOP_MAX_M, self.config.drift_m_per_m * drift
+                cap, self.config.drift_m_per_m * drift
             ):
                 candidates.append((float(dist[nearest]), int(m), sub.keyframes[nearest]))
         candidates.sort(key=lambda c: c[0])
+        tried: set[int] = set()
         for _, n, nearest_kf in candidates[:LOOP_TARGETS]:
             index.tried_at[n] = travelled
-            self._try_loop(k, self.finished[n], nearest_kf, since_closure)
+            sub = self.finished[n]
+            if len(sub.keyframes) < LOOP_MIN_KEYFRAMES:
+                # two small submaps sharing the revisited keyframe stand for the same target
+                # (the keyframes around it): one match of it is enough
+                if nearest_kf in tried:
+                    continue
+                tried.add(nearest_kf)
+            self._try_loop(k, sub, nearest_kf, since_closure)
 
     def _try_loop(self, k: int, sub: Submap, nearest_kf: int, since_closure: float) -> None:
         config = self.config
         poses = self.graph.poses
         drift = min(since_closure, self.clouds.path_m(nearest_kf, k))
-        linear = min(LOOP_MAX_M, LOOP_BASE_M + config.drift_m_per_m * drift)
-        angular = min(LOOP_MAX_RAD, LOOP_BASE_RAD + math.radians(config.drift_deg_per_m) * drift)
+        bound_m = LOOP_BASE_M + config.drift_m_per_m * drift
+        bound_rad = LOOP_BASE_RAD + math.radians(config.drift_deg_per_m) * drift
+        # past LOOP_MAX_M the window is searched by branch and bound, and what it finds must
+        # agree with another keyframe's closure: a window of metres holds aliases
+        sparse_target = len(sub.keyframes) < LOOP_MIN_KEYFRAMES
+        wide = sparse_target and bound_m > LOOP_MAX_M
+        linear = min(LOOP_WIDE_M if wide else LOOP_MAX_M, bound_m)
+        angular = min(LOOP_MAX_RAD, bound_rad)
         window = _window(
             max(linear, MIN_WINDOW_M),
             max(angular, MIN_WINDOW_RAD),
@@ -1029,16 +1055,28 @@ class _Slam:
         target, fld, coarse = self._loop_target(sub, nearest_kf, k, window.coarse_step_cells)
         anchor = poses[target]
         local_guess = se2.between(anchor, poses[k])
-        prior = Prior(local_guess, LOOP_PRIOR_SIGMA_M, LOOP_PRIOR_SIGMA_RAD, PRIOR_WEIGHT)
+        # the pull towards the estimate costs as much at the wide window's edge as at the
+        # capped one's
+        prior_m = LOOP_PRIOR_SIGMA_M * max(1.0, linear / LOOP_MAX_M)
+        prior = Prior(local_guess, prior_m, LOOP_PRIOR_SIGMA_RAD, PRIOR_WEIGHT)
         self.stats["loop_attempts"] += 1
+        if wide:
+            self.stats["loop_wide_attempts"] += 1
         result = match(
-            fld, self.clouds.points[k], local_guess, window, coarse_field=coarse, prior=prior
+            fld,
+            self.clouds.points[k],
+            local_guess,
+            window,
+            coarse_field=coarse,
+            prior=prior,
+            wide=wide,
         )
-        if result.score < config.loop_min_score:
+        low = LOOP_GROUP_MIN_SCORE if sparse_target else config.loop_min_score
+        if result.score < low:
             return
         moved = math.hypot(result.pose[0] - local_guess[0], result.pose[1] - local_guess[1])
         turned = abs(float(se2.wrap(result.pose[2] - local_guess[2])))
-        if moved > linear + config.resolution_m or turned > angular + window.angle_step_rad:
+        if moved > bound_m + config.resolution_m or turned > bound_rad + window.angle_step_rad:
             # a correction larger than the front end can have drifted is an alias (a similar
             # room, the next door along), not a loop
             self.stats["loop_implausible"] += 1
@@ -1046,11 +1084,63 @@ class _Slam:
         if result.runner_up >= LOOP_MAX_AMBIGUITY * result.score:
             self.stats["loop_ambiguous"] += 1
             return
-        index = self.graph.add_edge(self._match_edge(target, k, result, kind="loop"))
+        edge = self._match_edge(target, k, result, kind="loop")
+        if result.score < config.loop_min_score or wide:
+            self._propose(edge, result.score)
+            return
+        self._accept_loop(edge, result.score)
+
+    def _accept_loop(self, edge: Edge, score: float) -> None:
+        index = self.graph.add_edge(edge)
         self.unsolved.append(index)
-        self.loops.append((target, k))
-        self.last_closure = k
-        log.debug("loop closure", frm=target, to=k, score=round(result.score, 3))
+        self.loops.append((edge.i, edge.j))
+        self.last_closure = max(self.last_closure, edge.j)
+        log.debug("loop closure", frm=edge.i, to=edge.j, score=round(score, 3))
+
+    def _propose(self, edge: Edge, score: float) -> None:
+        """A closure under the loop threshold, against a target of few scans: kept until
+        another keyframe's closure agrees with it, then both are taken.
+
+        A sparse log's revisit scores 0.3-0.55 against the handful of scans around the
+        revisited place (much of what the revisiting scan sees, they never saw), and there
+        so do wrong matches (a turned room, the next door along). One wrong match is as
+        likely as a right one at such a score; two matches of different scans that imply
+        the same correction are not, unless the world repeats. Agreement is judged on the
+        cycle the two closures make with the graph's chains between their keyframes and
+        between their targets, within what the front end can drift along those chains.
+        """
+        k = edge.j
+        self.pending = [p for p in self.pending if k - p[0].j <= LOOP_GROUP_KEYFRAMES]
+        poses = self.graph.poses
+        agreeing = []
+        for other, other_score in self.pending:
+            if other.j == k:
+                continue
+            if self._agree(other, edge, poses):
+                agreeing.append((other, other_score))
+        if not agreeing:
+            self.pending.append((edge, score))
+            self.stats["loop_proposed"] += 1
+            return
+        for other, other_score in agreeing:
+            self.pending.remove((other, other_score))
+            self._accept_loop(other, other_score)
+        self._accept_loop(edge, score)
+        self.stats["loop_groups"] += 1
+
+    def _agree(self, a: Edge, b: Edge, poses: FloatArray) -> bool:
+        """Whether two closures imply the same correction: the motion between their
+        keyframes as the closures put them, against the graph's, within the drift the front
+        end can have made along the chains joining them (keyframes, and targets)."""
+        chains = self.clouds.path_m(a.j, b.j) + self.clouds.path_m(a.i, b.i)
+        if self.clouds.path_m(a.i, b.i) > self.clouds.path_m(a.j, b.j) + 2 * self.config.submap_m:
+            return False  # targets far apart along the run: the chain between says little
+        via = se2.between(se2.compose(poses[a.i], a.z), se2.compose(poses[b.i], b.z))
+        graph = se2.between(poses[a.j], poses[b.j])
+        miss = se2.between(graph, via)
+        linear = LOOP_BASE_M + self.config.drift_m_per_m * chains
+        angular = LOOP_BASE_RAD + math.radians(self.config.drift_deg_per_m) * chains
+        return bool(math.hypot(miss[0], miss[1]) <= linear and abs(miss[2]) <= angular)
 
     def _loop_target(
         self, sub: Submap, nearest_kf: int, k: int, coarse_step: int
