@@ -30,7 +30,11 @@ since the submap, or since the last closure, whichever is shorter); a submap of 
 a scan every few metres, holds too few scans to score a revisit, and the keyframes around the
 revisited one stand in for it. Ambiguous matches and corrections larger than that drift are
 refused, and accepted closures carry a Cauchy kernel, so the few wrong ones that pass cannot
-bend the map. Different floors never close against each other: stacked floors can look
+bend the map. Against such a target of few scans a revisit scores low (what the revisiting
+scan sees, they mostly never saw) and may come back after long stretches without a closure,
+metres off: there a closure under the threshold, or from a window as wide as the drift
+(searched by branch and bound), is taken only once another keyframe's closure implies the
+same correction. Different floors never close against each other: stacked floors can look
 identical, and only the barometer tells them apart.
 
 Floors: the elevator car, the one place seen on every floor, joins them. The car travels with
