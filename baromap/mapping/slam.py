@@ -10,8 +10,11 @@ window follows the motion since the last keyframe: what odometry can have got wr
 so a sparse log's metre-long steps and 80-degree turns get a wide coarse-to-fine search and a
 dense log's centimetre steps a narrow one. A match that a clearly different pose explains
 almost as well (a door further along, the room turned) is ambiguous and refused: odometry
-alone carries that step. Both odometry and the match enter the pose graph, the match with the
-information of its own fit (weak along a corridor, strong across it).
+alone carries that step. After a turn of more than 90 degrees between keyframes (a sparse log
+turning round), a poor match is tried again against the keyframes of the last 20 m: looking
+back, the scan sees what the submap of the last metres, seen looking forward, hardly holds.
+Both odometry and the match enter the pose graph, the match with the information of its own
+fit (weak along a corridor, strong across it).
 
 Odometry's systematic errors (distance read long by the tyres, turns by a skid-steer's slip,
 heading creep per metre) are learnt from the front end's matches wherever they pin a step
