@@ -258,6 +258,14 @@ class SearchResult:
     runner_up: float  # score of the best clearly different pose less its prior handicap
 
 
+def _window_angles(guess: FloatArray, window: SearchWindow) -> FloatArray:
+    """The headings a search tries: the guess's, and steps of the window's angle step either
+    side of it out to its angular half-width."""
+    half = max(0, round(window.angular_rad / window.angle_step_rad))
+    angles: FloatArray = guess[2] + window.angle_step_rad * np.arange(-half, half + 1)
+    return angles
+
+
 def _distinct(a: FloatArray, b: FloatArray) -> bool:
     return bool(
         math.hypot(a[0] - b[0], a[1] - b[1]) > DISTINCT_M
@@ -286,8 +294,7 @@ def correlative_search(
     the same measure that chose the best.
     """
     res = field.resolution
-    half_angles = max(0, round(window.angular_rad / window.angle_step_rad))
-    angles = guess[2] + window.angle_step_rad * np.arange(-half_angles, half_angles + 1)
+    angles = _window_angles(guess, window)
     step = max(1, window.coarse_step_cells)
     half_cells = max(0, math.ceil(window.linear_m / res))
     if step == 1 or coarse_field is None:
@@ -400,8 +407,7 @@ def branch_and_bound_search(
     """
     budget = BNB_BUDGET if budget is None else budget
     res = field.resolution
-    half_angles = max(0, round(window.angular_rad / window.angle_step_rad))
-    angles = guess[2] + window.angle_step_rad * np.arange(-half_angles, half_angles + 1)
+    angles = _window_angles(guess, window)
     levels = [_bound_field(field, step) for step in BNB_STEPS]
     half_cells = max(0, math.ceil(window.linear_m / res))
     top = BNB_STEPS[0]

@@ -1202,9 +1202,11 @@ class _Slam:
         """Whether two closures imply the same correction: the motion between their
         keyframes as the closures put them, against the graph's, within the drift the front
         end can have made along the chains joining them (keyframes, and targets)."""
-        chains = self.clouds.path_m(a.j, b.j) + self.clouds.path_m(a.i, b.i)
-        if self.clouds.path_m(a.i, b.i) > self.clouds.path_m(a.j, b.j) + 2 * self.config.submap_m:
+        keyframes_m = self.clouds.path_m(a.j, b.j)
+        targets_m = self.clouds.path_m(a.i, b.i)
+        if targets_m > keyframes_m + 2 * self.config.submap_m:
             return False  # targets far apart along the run: the chain between says little
+        chains = keyframes_m + targets_m
         via = se2.between(se2.compose(poses[a.i], a.z), se2.compose(poses[b.i], b.z))
         graph = se2.between(poses[a.j], poses[b.j])
         miss = se2.between(graph, via)
