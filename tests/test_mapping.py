@@ -516,6 +516,60 @@ def test_odometry_noise_is_what_the_matched_steps_show_not_the_wrong_matches() -
     assert math.degrees(theta) == pytest.approx(math.sqrt(0.1**2 + 0.4), rel=0.15)
 
 
+def test_odometry_noise_of_many_steps_is_that_of_each() -> None:
+    """The vectorised sigmas (the registration's pull, one per scan) are the scalar ones."""
+    from baromap.mapping.odometry_calibration import OdometryNoise
+
+    noise = OdometryNoise(xy=(1e-6, 2e-4, 0.0), theta=(0.0, 1e-5, 3e-4))
+    travel = np.array([0.0, 0.1, 0.25, 0.0])
+    turn = np.array([0.0, 0.0, -0.2, 0.4])
+    many_xy, many_theta = noise.sigmas_many(travel, turn)
+    for k in range(len(travel)):
+        xy, theta = noise.sigmas(float(travel[k]), float(turn[k]))
+        assert many_xy[k] == pytest.approx(xy)
+        assert many_theta[k] == pytest.approx(theta)
+    assert many_theta[0] > 0  # the floor, where the fit says nothing
+
+
+def test_registration_pull_decides_along_a_corridor_and_weighs_as_its_sigmas_say() -> None:
+    """A scan between two long walls, started 6 cm along, 4 cm across and 1 degree off its
+    true pose: along the corridor only the pull decides, and the pose stays where it
+    started; across and in heading the scan and the pull meet as two Gaussians do, so odometry
+    with a 2 cm, 0.5 deg sigma leaves the scan within millimetres of the walls and a
+    quarter of its heading error, four times wider sigmas let the walls decide, and four times
+    narrower ones hold it near where it started."""
+    from baromap.mapping.refine import Pull, refine_batch
+
+    wall_x = np.arange(-10.0, 10.0, 0.02)
+    walls = np.concatenate(
+        [np.stack([wall_x, np.full_like(wall_x, y)], axis=1) for y in (-1.0, 1.0)]
+    )
+    field = LikelihoodField.from_points(walls, 0.05, 0.05)
+    beams = np.radians(np.arange(-90.0, 90.0, 3.0))
+    beams = beams[np.abs(np.sin(beams)) > 0.2]
+    r = 1.0 / np.abs(np.sin(beams))
+    scan = np.stack([r * np.cos(beams), r * np.sin(beams)], axis=1)
+    owner = np.zeros(len(scan), dtype=np.int64)
+    start = np.array([[0.06, 0.04, math.radians(1.0)]])
+
+    def refined(factor: float) -> np.ndarray:
+        pull = Pull(np.array([0.02 * factor]), np.array([math.radians(0.5) * factor]))
+        out = refine_batch(field, scan, owner, start, pull)
+        assert out.usable[0]
+        assert out.poses[0, 0] == pytest.approx(0.06, abs=0.005)
+        return out.poses[0]
+
+    pose = refined(1.0)
+    assert abs(pose[1]) < 0.005
+    assert abs(math.degrees(pose[2])) < 0.3
+    wide = refined(4.0)
+    assert abs(wide[1]) < 0.003
+    assert abs(math.degrees(wide[2])) < 0.1
+    narrow = refined(0.25)
+    assert narrow[1] > 0.02
+    assert math.degrees(narrow[2]) > 0.6
+
+
 def test_edge_scatter_is_the_real_error_over_the_claimed_one() -> None:
     """Match edges that claim 4 cm and 1 deg but err 1 cm and 0.25 deg (a sixteenth of the
     variance they claim), among odometry edges that claim their real error, with 5 % of the

@@ -177,6 +177,15 @@ class OdometryNoise:
             NOISE_FLOOR_RAD, math.sqrt(max(var_theta, 0.0))
         )
 
+    def sigmas_many(self, travel: FloatArray, turn: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """:meth:`sigmas` of many steps at once."""
+        features = np.stack([np.ones_like(travel), travel, np.abs(turn)], axis=1)
+        var_xy = np.maximum(features @ np.array(self.xy), 0.0)
+        var_theta = np.maximum(features @ np.array(self.theta), 0.0)
+        return np.maximum(NOISE_FLOOR_M, np.sqrt(var_xy)), np.maximum(
+            NOISE_FLOOR_RAD, np.sqrt(var_theta)
+        )
+
 
 def fit_noise(residuals: FloatArray, travel: FloatArray, turn: FloatArray) -> OdometryNoise:
     """What corrected odometry still gets wrong per step, from steps that matching measured

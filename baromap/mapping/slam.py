@@ -451,6 +451,8 @@ class _Slam:
         self.front_cov: dict[int, FloatArray] = {}
         #: steps matched at both ends, (odometric, matched): what odometry's noise is learnt from
         self.matched_steps: list[tuple[FloatArray, FloatArray]] = []
+        #: corrected odometry's noise as the run showed it (set by finish, when it can say)
+        self.noise: OdometryNoise | None = None
 
     # ------------------------------------------------------------------ the run
 
@@ -485,7 +487,7 @@ class _Slam:
     def finish(self) -> SlamResult:
         self._end_visit()
         self._car_to_car()
-        noise = self._odometry_noise()
+        noise = self.noise = self._odometry_noise()
         self._odometry_as_learnt(noise, 1.0)
         self.graph.optimize(iterations=FINAL_ITERATIONS)
         if self._weigh_by_scatter():
@@ -732,7 +734,13 @@ class _Slam:
         """Every scan's pose: keyframes as the graph has them; the scans between them
         interpolated (:func:`scan_poses`) and then matched against the finished map of their
         floor, pulled towards the interpolation as odometry would (a corridor cannot make a
-        scan slide). A scan that finds too little of the map keeps its interpolated pose."""
+        scan slide). A scan that finds too little of the map keeps its interpolated pose.
+
+        The pull's sigmas are corrected odometry's noise as the run showed it
+        (:meth:`_odometry_noise`) over the travel and turn to the nearer keyframe, where the
+        interpolation is pinned: what the interpolation can be wrong by. The front end's
+        search sigmas (2 cm + 7 %/m, wide on purpose to hold an uncalibrated robot) are used
+        only when the run matched too few steps to fit the noise."""
         config = self.config
         kf_poses = self.graph.poses
         poses = scan_poses(self.odom, self.kf_scan, kf_poses)
@@ -747,6 +755,12 @@ class _Slam:
         to_kf = np.minimum(
             np.abs(travelled - kf_travel[pos - 1]),
             np.abs(kf_travel[np.minimum(pos, len(kf_travel) - 1)] - travelled),
+        )
+        turned = np.concatenate([[0.0], np.cumsum(np.abs(se2.wrap(np.diff(self.odom[:, 2]))))])
+        kf_turned = turned[self.kf_scan]
+        turn_to_kf = np.minimum(
+            np.abs(turned - kf_turned[pos - 1]),
+            np.abs(kf_turned[np.minimum(pos, len(kf_turned) - 1)] - turned),
         )
         for f in np.unique(self.kf_floor):
             todo = np.flatnonzero((floor == f) & ~is_kf)
@@ -763,11 +777,13 @@ class _Slam:
             )
             points, owner = scans.sampled_endpoints(todo, config.max_range_m, REGISTER_BEAMS)
             d = to_kf[todo]
-            pull = Pull(
-                ODOMETRY_SIGMA_M + config.odometry_sigma_m_per_m * d,
-                ODOMETRY_SIGMA_RAD + math.radians(config.odometry_sigma_deg_per_m) * d,
-                PRIOR_WEIGHT,
-            )
+            if self.noise is not None:
+                pull = Pull(*self.noise.sigmas_many(d, turn_to_kf[todo]))
+            else:
+                pull = Pull(
+                    ODOMETRY_SIGMA_M + config.odometry_sigma_m_per_m * d,
+                    ODOMETRY_SIGMA_RAD + math.radians(config.odometry_sigma_deg_per_m) * d,
+                )
             out = refine_batch(fld, points, owner, poses[todo], pull)
             poses[todo[out.usable]] = out.poses[out.usable]
             self.stats["registered"] += int(out.usable.sum())
