@@ -752,16 +752,15 @@ class _Slam:
         )
         kf_travel = travelled[self.kf_scan]
         pos = np.clip(np.searchsorted(kf_travel, travelled), 1, max(len(kf_travel) - 1, 1))
-        to_kf = np.minimum(
-            np.abs(travelled - kf_travel[pos - 1]),
-            np.abs(kf_travel[np.minimum(pos, len(kf_travel) - 1)] - travelled),
-        )
+        after = np.minimum(pos, len(kf_travel) - 1)
+
+        def to_nearer_keyframe(along: FloatArray) -> FloatArray:
+            at_kf = along[self.kf_scan]
+            return np.minimum(np.abs(along - at_kf[pos - 1]), np.abs(at_kf[after] - along))
+
+        to_kf = to_nearer_keyframe(travelled)
         turned = np.concatenate([[0.0], np.cumsum(np.abs(se2.wrap(np.diff(self.odom[:, 2]))))])
-        kf_turned = turned[self.kf_scan]
-        turn_to_kf = np.minimum(
-            np.abs(turned - kf_turned[pos - 1]),
-            np.abs(kf_turned[np.minimum(pos, len(kf_turned) - 1)] - turned),
-        )
+        turn_to_kf = to_nearer_keyframe(turned)
         for f in np.unique(self.kf_floor):
             todo = np.flatnonzero((floor == f) & ~is_kf)
             if len(todo) == 0:
