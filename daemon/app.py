@@ -1,10 +1,12 @@
 """The daemon put together: sessions -> fanout -> recorder, floor tracker, live publisher.
 
-The main loop does little on purpose: twice a second it checks that every part is making
-progress (each thread updates a heartbeat), publishes health once a second (recorded on
-``/diagnostics``), tells systemd the device states in ``STATUS=``, and pings the watchdog only
-if every part made progress. A part that hangs therefore gets the service restarted by
-systemd instead of recording nothing while claiming to be fine.
+The main loop does little on purpose: once a second (or at half the watchdog interval, if
+that is shorter) it checks that every part is making progress (each thread updates a
+heartbeat), publishes health (recorded on ``/diagnostics``), tells systemd the device states in
+``STATUS=`` when they changed, and pings the watchdog only if every part made progress. A part
+that hangs therefore gets the service restarted by systemd instead of recording nothing while
+claiming to be fine. ``STATUS=`` is made from the health just published, not built a second
+time: each tick is one wake-up and one pass over the parts.
 """
 
 from __future__ import annotations
@@ -37,8 +39,9 @@ from daemon.session import DeviceSession
 
 log = structlog.get_logger(__name__)
 
-TICK_S: Final = 0.5
-HEALTH_EVERY_NS: Final = NS_PER_S
+#: The main loop's period: health is published once a second; the watchdog is pinged at
+#: every tick, so a shorter watchdog interval shortens it to half of that.
+TICK_S: Final = 1.0
 #: A part whose heartbeat is older than this is stuck (reads time out every 50 ms in a
 #: handshake and every 200 ms while streaming, the recorder wakes every 200 ms; a handshake
 #: write may block for its 1 s timeout).
@@ -100,7 +103,7 @@ class Daemon:
             self.sessions.append(PioneerSession(config.base, **common))
         if config.barometer is not None:
             self.sessions.append(BarometerSession(config.barometer, **common))
-        self._last_health_ns = 0
+        self._status = ""
         self.watchdog_pings = 0
         self.ready = threading.Event()
 
@@ -143,8 +146,11 @@ class Daemon:
 
     def run(self) -> int:
         self.start()
+        tick_s = TICK_S
+        if self.notifier.watchdog_s is not None:
+            tick_s = min(tick_s, self.notifier.watchdog_s / 2)
         try:
-            while not self._stop.wait(TICK_S):
+            while not self._stop.wait(tick_s):
                 self.tick()
         finally:
             self.shutdown()
@@ -158,11 +164,10 @@ class Daemon:
         gc.collect()
         gc.freeze()
         self.recorder.start()
-        if self.floors is not None:
-            self.floors.start()
         for session in self.sessions:
             session.start()
-        self.notifier.ready(self.status_line())
+        self._status = status_line(self.health())
+        self.notifier.ready(self._status)
         self.ready.set()
         log.info("baromapd running", run=self.name, devices=[s.name for s in self.sessions])
 
@@ -183,10 +188,11 @@ class Daemon:
     # ---- the main loop --------------------------------------------------------------------------
     def tick(self) -> None:
         now = time.monotonic_ns()
-        if now - self._last_health_ns >= HEALTH_EVERY_NS:
-            self._last_health_ns = now
-            self._publish_health()
-        self.notifier.status(self.status_line())
+        health = self._publish_health()
+        status = status_line(health)
+        if status != self._status:  # systemd keeps the last STATUS= until a new one
+            self._status = status
+            self.notifier.status(status)
         stuck = self.stuck_parts(now)
         if stuck:
             log.error("parts are not making progress: no watchdog ping", parts=stuck)
@@ -195,8 +201,11 @@ class Daemon:
 
     def stuck_parts(self, now_ns: int) -> list[str]:
         stuck = [s.name for s in self.sessions if not s.alive or now_ns - s.heartbeat_ns > STUCK_NS]
-        workers = [self.recorder] + ([self.floors] if self.floors is not None else [])
-        stuck += [w.name for w in workers if not w.alive or now_ns - w.heartbeat_ns > STUCK_NS]
+        recorder = self.recorder
+        if not recorder.alive or now_ns - recorder.heartbeat_ns > STUCK_NS:
+            stuck.append(recorder.name)
+        if self.floors is not None and self.floors.error is not None:
+            stuck.append(self.floors.name)  # its detector failed: no floor events any more
         return stuck
 
     def health(self) -> list[DeviceHealth]:
@@ -207,18 +216,22 @@ class Daemon:
             out.append(live_health(t))
         return out
 
-    def _publish_health(self) -> None:
-        for health in self.health():
-            self.fanout.publish(health)
-
-    def status_line(self) -> str:
-        parts = []
-        for health in self.health():
-            text = f"{health.device} {health.state.value}"
-            if health.state in (DeviceState.DOWN, DeviceState.DEGRADED):
-                text += f" ({health.detail[:60]})"
-            parts.append(text)
-        return "; ".join(parts)
+    def _publish_health(self) -> list[DeviceHealth]:
+        health = self.health()
+        for device in health:
+            self.fanout.publish(device)
+        return health
 
     def publish(self, message: Message) -> None:
         self.fanout.publish(message)
+
+
+def status_line(health: list[DeviceHealth]) -> str:
+    """Each part's state, and why for one that is down or degraded: systemd's ``STATUS=``."""
+    parts = []
+    for device in health:
+        text = f"{device.device} {device.state.value}"
+        if device.state in (DeviceState.DOWN, DeviceState.DEGRADED):
+            text += f" ({device.detail[:60]})"
+        parts.append(text)
+    return "; ".join(parts)

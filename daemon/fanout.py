@@ -1,8 +1,11 @@
 """The one place every message goes through: readers publish, consumers are offered it.
 
 A consumer (the recorder, the floor detector, the live Zenoh publisher) implements
-``offer(message)``, which must never block: each keeps its own bounded queue and counts what
-it had to drop, so a slow disk or a slow network can never stall a device's reader thread.
+``offer(message)``, which must never block: the recorder and the publisher each keep their
+own bounded queue and count what they had to drop, so a slow disk or a slow network can never
+stall a device's reader thread. The floor detector is the one consumer that does its work in
+``offer``, on the reader's thread (``daemon/floors.py`` says why): a few microseconds of
+arithmetic per sample, where a queue and a thread of its own cost a wake-up per sample.
 A consumer that measures latency from the wire may also implement
 ``offer_received(message, received_ns)`` (host monotonic ns at which the frame's last byte
 was read); the fanout then calls that instead. A consumer that wants only some message types

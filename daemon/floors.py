@@ -3,91 +3,121 @@
 Odometry tells the detector whether the robot drove off at a stop, which makes the stop a
 visit to that floor (``OnlineFloorDetector.update_odometry``).
 
-It runs on its own thread behind a bounded queue like every consumer, so a burst of work in
-the detector can never hold up the barometer's reader. Its events are published back through
-the fanout (recorded on ``/floor/event``, offered to the live publisher); the state goes out
-at every event and once a second of sample time, so a late reader of the recording or a late
+It runs in place, on the thread that offers it a message (a synchronous consumer of the
+fanout: the barometer's reader for pressure, the base's for odometry, a Zenoh thread for a
+reference station), under a lock, so the detector sees one message at a time in the order
+they came, as a queue would give them. It used to be a thread behind its own queue, like the
+recorder; that cost a thread wake-up per pressure sample (50 a second, on a VM where a wake-up
+costs more CPU than the detector's work on the sample) and a queue hop in every floor event.
+The detector's work per sample is a few arithmetic steps (no level solve: that is post-run);
+an event adds a registry look-up and the messages it publishes. What it delays is the
+barometer's next read, by that much, and a late read bends nothing: the samples are stamped
+from the board's clock through a lower-envelope fit that only prompt reads move, and the
+tty buffers the bytes meanwhile. Its events are published back through the fanout (recorded
+on ``/floor/event``, offered to the live publisher, both queues); the state goes out at
+every event and once a second of sample time, so a late reader of the recording or a late
 subscriber always has a recent answer.
+
+A detector that raises is not fed again: the error is logged and kept, and the daemon's main
+loop then stops pinging the watchdog (as it did for a consumer thread that died), so systemd
+restarts the service instead of it recording on without floors.
 """
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from typing import Final
 
 import structlog
 
 from baromap.floors import FloorDetectorConfig, OnlineFloorDetector
-from baromap.messages import NS_PER_S, FloorState, Message, Odometry, PressureSample
-from daemon.fanout import QueueWorker
+from baromap.messages import NS_PER_S, FloorEvent, FloorState, Message, Odometry, PressureSample
 
 log = structlog.get_logger(__name__)
 
 STATE_EVERY_NS: Final = NS_PER_S
-#: Marks a queued sample as the reference station's (no real receive time is negative).
-_REFERENCE: Final = -1
 
 
-class FloorTracker(QueueWorker):
+class FloorTracker:
     """Feeds the detector with pressure samples; publishes what it decides."""
 
+    name = "floors"
     #: What the fanout offers it (everything else never reaches :meth:`offer`).
     accepts = (PressureSample, Odometry)
 
-    def __init__(
-        self, config: FloorDetectorConfig, publish: Callable[[Message], None], maxsize: int = 4096
-    ) -> None:
-        # Samples are taken as they come, not in batches: a floor event must leave within a few
-        # ms of the sample that decided it (bench/zenoh_latency.py, p99 <= 5 ms); 0.1 s batches
-        # saved 0.15 % of a core and put 48 ms (p50) to 99 ms (p99) into every event.
-        super().__init__("floors", maxsize)
+    def __init__(self, config: FloorDetectorConfig, publish: Callable[[Message], None]) -> None:
         self.detector = OnlineFloorDetector(config)
         self._publish = publish
+        self._lock = threading.Lock()
         self._last_state_ns: int | None = None
+        self._closed = False
         self.events = 0
+        self.error: str | None = None
 
     def offer(self, message: Message) -> None:
-        if isinstance(message, PressureSample | Odometry):
-            super().offer(message)
-
-    def offer_received(self, message: Message, received_ns: int) -> None:
-        self.offer(message)
+        """Run the detector on a robot's pressure sample or odometry, here and now."""
+        with self._lock:
+            if self.error is not None or self._closed:
+                return
+            try:
+                if isinstance(message, PressureSample):
+                    self._sample(message)
+                elif isinstance(message, Odometry):  # did the robot drive off at a stop?
+                    self.detector.update_odometry(message)
+            except Exception as exc:
+                self._failed(exc)
 
     def offer_reference(self, sample: PressureSample) -> None:
-        """A reference station's reading (from a Zenoh thread): queued like the robot's own,
-        so the detector only ever runs on this worker's thread."""
-        self._put((sample, _REFERENCE))
+        """A reference station's reading (from a Zenoh thread), in turn with the robot's own."""
+        with self._lock:
+            if self.error is not None or self._closed:
+                return
+            try:
+                self.detector.update_reference(sample)
+            except Exception as exc:
+                self._failed(exc)
 
-    def handle(self, message: Message, received_ns: int | None) -> None:
-        if isinstance(message, Odometry):  # did the robot drive off at a stop? (a visit)
-            self.detector.update_odometry(message)
-            return
-        assert isinstance(message, PressureSample)
-        if received_ns == _REFERENCE:
-            self.detector.update_reference(message)
-            return
-        events = self.detector.update(message)
-        for event in events:
-            self.events += 1
-            log.info(
-                "floor event",
-                event_id=event.event_id,
-                kind=event.kind.value,
-                replaces=event.replaces,
-                from_floor=event.from_name,
-                to_floor=event.to_name,
-                delta_m=round(event.delta_m, 2),
-            )
-            self._publish(event)
-        due = self._last_state_ns is None or message.t_ns - self._last_state_ns >= STATE_EVERY_NS
-        if events or due:
-            self._last_state_ns = message.t_ns
-            self._publish(self.detector.state())
-
-    def finished(self) -> None:
-        for event in self.detector.finish():
-            self.events += 1
-            self._publish(event)
+    def close(self) -> None:
+        """The stream ended (the readers have stopped): decide what was in progress."""
+        with self._lock:
+            if self.error is not None or self._closed:
+                return
+            self._closed = True
+            try:
+                events = self.detector.finish()
+            except Exception as exc:
+                self._failed(exc)
+                return
+            for event in events:
+                self._event(event)
 
     def state(self) -> FloorState:
-        return self.detector.state()
+        with self._lock:
+            return self.detector.state()
+
+    def _sample(self, sample: PressureSample) -> None:
+        events = self.detector.update(sample)
+        for event in events:
+            self._event(event)
+        due = self._last_state_ns is None or sample.t_ns - self._last_state_ns >= STATE_EVERY_NS
+        if events or due:
+            self._last_state_ns = sample.t_ns
+            self._publish(self.detector.state())
+
+    def _event(self, event: FloorEvent) -> None:
+        self.events += 1
+        log.info(
+            "floor event",
+            event_id=event.event_id,
+            kind=event.kind.value,
+            replaces=event.replaces,
+            from_floor=event.from_name,
+            to_floor=event.to_name,
+            delta_m=round(event.delta_m, 2),
+        )
+        self._publish(event)
+
+    def _failed(self, exc: Exception) -> None:
+        self.error = f"{type(exc).__name__}: {exc}"
+        log.exception("floor detector failed: no more floor events", consumer=self.name)

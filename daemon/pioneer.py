@@ -188,7 +188,7 @@ class PioneerSession(DeviceSession):
                 self.line.skip(message.size)
                 self.bad_frame(message)
                 continue
-            size = P2OS_OVERHEAD + _body(message)
+            size = _wire_size(message)
             self.good_frame()
             out.append(message)
             if not isinstance(message, p2os.StandardSip):
@@ -233,9 +233,12 @@ class PioneerSession(DeviceSession):
         self._session_open = False
 
 
-def _body(message: Any) -> int:
-    """Data bytes of a decoded robot packet (for the byte position of its end)."""
+def _wire_size(message: Any) -> int:
+    """Bytes a decoded robot packet took on the line (for the byte position of its end): a SIP
+    says so itself; the handshake's few other packets are encoded again to know."""
+    if isinstance(message, p2os.StandardSip):
+        return message.wire_size
     try:
-        return len(message.encode()) - P2OS_OVERHEAD
+        return len(message.encode())
     except Exception:
-        return 0
+        return P2OS_OVERHEAD

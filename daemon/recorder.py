@@ -42,6 +42,10 @@ RESUME_HEADROOM: Final = 1.2
 _REFERENCE: Final = -1
 #: How often (at most) the current file's size is checked for rotation.
 SIZE_CHECK_NS: Final = 250_000_000
+#: How often (at most) the idle work runs while messages flow: the fsync request, the disk
+#: guard, the flush of a quiet writer. It runs after each message, so it starts with a clock
+#: read and a comparison and is done (the writer flushes on its own as it writes).
+IDLE_CHECK_NS: Final = 50_000_000
 #: Latency histogram: 20 us bins up to 200 ms, then one overflow bin.
 LATENCY_BIN_NS: Final = 20_000
 LATENCY_BINS: Final = 10_000
@@ -98,8 +102,12 @@ class Recorder(QueueWorker):
         self._writer: RecordingWriter | None = None
         self._opened_ns = 0
         self._size_checked_ns = 0
-        self._size_check_ns = min(SIZE_CHECK_NS, round(config.flush_interval_s * 1e9))
+        self._flush_ns = round(config.flush_interval_s * 1e9)
+        self._size_check_ns = min(SIZE_CHECK_NS, self._flush_ns)
+        self._idle_check_ns = min(IDLE_CHECK_NS, self._flush_ns // 10)
+        self._rotate_ns = round(config.rotate_minutes * 60e9)
         self._last_flush_ns = 0
+        self._idle_due_ns = 0
         self._devices: dict[str, dict[str, str]] = {}
         self._pending_devices: dict[str, dict[str, str]] = {}
         self._lock = threading.Lock()
@@ -157,7 +165,7 @@ class Recorder(QueueWorker):
         if received_ns == _REFERENCE:
             topic, received_ns = topics.REFERENCE_PRESSURE, None
         else:
-            topic = _topic(message)
+            topic = DEFAULT_TOPICS.get(type(message)) or type(message).__name__
         if received_ns is not None:
             hist = self.latency.get(topic)
             if hist is None:
@@ -177,12 +185,15 @@ class Recorder(QueueWorker):
             self._pause(f"write failed: {exc}")
 
     def idle(self) -> None:
+        now = time.monotonic_ns()
+        if now < self._idle_due_ns and not self._pending_devices:
+            return
+        self._idle_due_ns = now + self._idle_check_ns
         if self._pending_devices:
             self._write_pending_devices()
         if self._writer is not None:
             self._flush_if_due()
-        now = time.monotonic_ns()
-        if now - self._last_flush_ns >= self.config.flush_interval_s * 1e9:
+        if now - self._last_flush_ns >= self._flush_ns:
             self._last_flush_ns = now
             if self._writer is not None and self._syncer is not None:
                 # The writer flushes inside write() too; make whatever it handed over durable.
@@ -241,7 +252,7 @@ class Recorder(QueueWorker):
         self._open()
 
     def _rotation_due(self, now_ns: int) -> bool:
-        if now_ns - self._opened_ns >= self.config.rotate_minutes * 60e9:
+        if now_ns - self._opened_ns >= self._rotate_ns:
             return True
         # The file grows by the flushed chunks: its size is looked at (a stat) about once a
         # flush, not for every message.
@@ -340,7 +351,3 @@ class Syncer:
             except OSError as exc:  # the file may have been finished and moved meanwhile
                 self.errors += 1
                 log.warning("fsync failed", path=str(path), error=str(exc))
-
-
-def _topic(message: messages.Message) -> str:
-    return DEFAULT_TOPICS.get(type(message), type(message).__name__)

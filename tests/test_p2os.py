@@ -195,6 +195,12 @@ def test_every_robot_packet_type_round_trips(message) -> None:
     assert decode(message.encode()) == [message]
 
 
+@settings(max_examples=100, deadline=None)
+@given(sips())
+def test_a_sips_wire_size_is_its_encoded_length(sip: P.StandardSip) -> None:
+    assert sip.wire_size == len(sip.encode())
+
+
 @settings(max_examples=80, deadline=None)
 @given(commands)
 def test_every_command_round_trips(command: P.CommandPacket) -> None:

@@ -48,7 +48,6 @@ def wait(what: object, timeout: float = 10.0) -> None:
 def run_robot(with_station: bool) -> list[Message]:
     published: list[Message] = []
     tracker = FloorTracker(FloorDetectorConfig(), published.append)
-    tracker.start()
     station = robot = None
     try:
         station_ep = endpoint(free_port())
