@@ -1,0 +1,297 @@
+"""Revisit consistency (baromap.evaluation.consistency) of several trajectories on the public
+laser logs, beside their ground-truth relation errors and their ATE against GMapping.
+
+    .venv/bin/python bench/consistency.py [--logs intel,fr079,acapulco] [--seeds 0,1,2,3,4]
+                                          [--poses DIR] [--extra LABEL=DIR ...]
+                                          [--no-loops] [--stretches N] [--window W]
+                                          [--figures DIR] [--min-travel M] [--radius-scale F]
+                                          [--truncate M]
+
+Trajectories scored on each log: GMapping's corrected poses (the ATE's reference), odometry
+alone (the synthesised odometry of each seed), ours (``run_log``, each seed; ``--poses DIR``
+keeps them as ``DIR/NAME_SEED.npy`` and reuses them), ours without loop closures
+(``--no-loops``, seeds 0-1: a SLAM of the same kind with revisits left open), and any
+``--extra LABEL=DIR`` of saved poses (``bench/mrpt_logs.py --save-poses DIR``: MRPT's
+icp-slam). The revisit partners are chosen once per log from GMapping's poses, so every
+trajectory is scored on the same pairs of scans.
+
+Validation (logs with relations): the trajectories' order by consistency against their order by
+relation error, all relations and the revisits only (ends more than 200 scans apart), as
+Kendall's tau over the trajectories.
+
+``--stretches N``: on each log, for each of our seeds, the N stretches of ``--window`` scans
+(disjoint) where our poses and GMapping's disagree most after the rigid alignment of the ATE,
+with both trajectories' consistency over the scans of each stretch; ``--figures DIR`` draws, for
+seed 0's stretches, the stretch's scans and their revisit partners' scans under each trajectory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import logging
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import structlog
+from scipy.stats import kendalltau
+
+from baromap.evaluation.consistency import (
+    MIN_TRAVEL_M,
+    TRUNCATE_M,
+    Consistency,
+    ScanGeometry,
+    consistency,
+    revisit_partners,
+)
+from baromap.evaluation.laser_logs import LOGS, run_log
+from baromap.evaluation.trajectory import trajectory_error
+from baromap.mapping import se2
+from baromap.mapping.relations import Relations, read_relations, relation_errors
+from baromap.mapping.scans import ScanBlock
+from baromap.mapping.slam import SlamConfig
+from baromap.odometry.synthesis import synthesize_odometry
+from baromap.recording.carmen import read_carmen
+from baromap.recording.carmen_import import to_laser_scan
+
+REPO = Path(__file__).resolve().parent.parent
+LASER = Path(os.environ.get("BAROMAP_SHARED_DATA", REPO.parent / "shared" / "data")) / "laser"
+
+#: Relations whose ends are more than this many scans apart are revisits (the split of
+#: docs/mapping.md: 634 of Freiburg 079's 1615).
+REVISIT_SCANS = 200
+#: Pairs of trajectories are counted as ordered alike or not when their relation errors differ
+#: by more than these shares: how large a difference the consistency resolves.
+MARGINS = (0.05, 0.1, 0.2)
+#: A loop closure needs a match scoring this (a mean likelihood, below 1): never.
+NO_LOOPS = SlamConfig(loop_min_score=0.999)
+
+
+def _load() -> str:
+    one, five, _ = os.getloadavg()
+    return f"load {one:.1f} (5 min {five:.1f})"
+
+
+def _revisits(times: np.ndarray, rel: Relations) -> Relations:
+    i1 = np.clip(np.searchsorted(times, rel.t1_ns), 0, len(times) - 1)
+    i2 = np.clip(np.searchsorted(times, rel.t2_ns), 0, len(times) - 1)
+    far = np.abs(i2 - i1) > REVISIT_SCANS
+    return Relations(rel.t1_ns[far], rel.t2_ns[far], rel.motion[far])
+
+
+def _ours(name: str, seed: int, store: Path | None, no_loops: bool) -> np.ndarray:
+    tag = f"{name}_{seed}.npy"
+    path = None if store is None else store / ("noloops" if no_loops else "ours") / tag
+    if path is not None and path.exists():
+        return np.load(path)
+    poses = run_log(LASER, name, seed, config=NO_LOOPS if no_loops else None).result.scan_poses
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.save(path, poses)
+    return poses
+
+
+def trajectories(
+    name: str, reference: np.ndarray, args: argparse.Namespace
+) -> dict[str, np.ndarray]:
+    seeds = [int(s) for s in args.seeds.split(",")]
+    out: dict[str, np.ndarray] = {"gmapping": reference}
+    for seed in seeds:
+        out[f"odometry {seed}"] = synthesize_odometry(reference, seed)
+    for seed in seeds:
+        out[f"ours {seed}"] = _ours(name, seed, args.poses, no_loops=False)
+    if args.no_loops:
+        for seed in seeds[:2]:
+            out[f"ours, no loops {seed}"] = _ours(name, seed, args.poses, no_loops=True)
+    for extra in args.extra:
+        label, _, directory = extra.partition("=")
+        for seed in seeds:
+            path = Path(directory) / f"{name}_{seed}.npy"
+            if path.exists():
+                out[f"{label} {seed}"] = np.load(path)
+    return out
+
+
+def bench_log(name: str, args: argparse.Namespace) -> None:
+    spec = LOGS[name]
+    carmen = read_carmen(LASER / spec.log_file)
+    times = carmen.scan_times_ns()
+    reference = carmen.reference_poses()
+    block = ScanBlock.from_messages([to_laser_scan(s, n) for n, s in enumerate(carmen.scans)])
+    geometry = ScanGeometry(block)
+    partners = revisit_partners(
+        reference, geometry.radius_m * args.radius_scale, min_travel_m=args.min_travel
+    )
+    with_partners = sum(len(p) > 0 for p in partners)
+    print(f"{name}: {len(times)} scans, {with_partners} with revisit partners; {_load()}")
+    relations = None if spec.relations_file is None else read_relations(LASER / spec.relations_file)
+    rows: list[dict[str, Any]] = []
+    for label, poses in trajectories(name, reference, args).items():
+        start = time.process_time()
+        score = consistency(geometry, poses, partners, truncate_m=args.truncate)
+        cpu = time.process_time() - start
+        row: dict[str, Any] = {"label": label, "score": score, "poses": poses}
+        text = (
+            f"  {label:<22} consistency {score.mean_m * 1000:6.2f} mm "
+            f"(overlap {score.overlap_mean:.3f})"
+        )
+        if relations is not None:
+            rel = relation_errors(times, poses, relations)
+            far = relation_errors(times, poses, _revisits(times, relations))
+            row["rel"], row["far"] = rel.trans_mean, far.trans_mean
+            text += (
+                f"  relations {rel.trans_mean:7.4f} m {rel.rot_mean:6.3f} deg,"
+                f" revisits {far.trans_mean:7.4f} m {far.rot_mean:6.3f} deg"
+            )
+        text += f"  ATE vs GMapping {trajectory_error(poses, reference).rms_m:6.3f} m"
+        print(text + f"  ({cpu:.1f} s cpu)", flush=True)
+        rows.append(row)
+    if relations is not None:
+        scores = [r["score"].mean_m for r in rows]
+        for key, what in (("rel", "all relations"), ("far", "revisit relations")):
+            tau = kendalltau(scores, [r[key] for r in rows]).statistic
+            print(f"  Kendall tau, consistency against {what}: {tau:.3f} over {len(rows)}")
+        good = [r for r in rows if not r["label"].startswith("odometry")]
+        tau = kendalltau([r["score"].mean_m for r in good], [r["rel"] for r in good]).statistic
+        print(f"  the same without odometry alone (all relations): {tau:.3f} over {len(good)}")
+        for margin in MARGINS:
+            alike = pairs = 0
+            for a, b in itertools.combinations(good, 2):
+                if max(a["rel"], b["rel"]) > (1 + margin) * min(a["rel"], b["rel"]):
+                    pairs += 1
+                    alike += (a["rel"] < b["rel"]) == (a["score"].mean_m < b["score"].mean_m)
+            print(
+                f"  pairs (odometry alone left out) whose relation errors differ by more than "
+                f"{margin:.0%}: {alike} of {pairs} in the same order by consistency"
+            )
+    if args.stretches:
+        stretches(name, rows, geometry, partners, block, args)
+
+
+def _worst_windows(errors: np.ndarray, window: int, count: int) -> list[int]:
+    """Starts of the ``count`` disjoint windows of ``window`` scans with the largest mean."""
+    means = np.convolve(errors, np.ones(window) / window, mode="valid")
+    taken: list[int] = []
+    for start in np.argsort(-means, kind="stable"):
+        if all(abs(int(start) - t) >= window for t in taken):
+            taken.append(int(start))
+        if len(taken) == count:
+            break
+    return taken
+
+
+def stretches(
+    name: str,
+    rows: list[dict[str, Any]],
+    geometry: ScanGeometry,
+    partners: list[np.ndarray],
+    block: ScanBlock,
+    args: argparse.Namespace,
+) -> None:
+    reference = rows[0]["poses"]
+    ref_score: Consistency = rows[0]["score"]
+    print(
+        f"  stretches of {args.window} scans where ours and GMapping's disagree most "
+        f"(after the ATE's alignment); consistency over the stretch's scans, ours / GMapping's:"
+    )
+    totals = np.zeros(2)
+    for row in rows:
+        if not row["label"].startswith("ours ") or "no loops" in row["label"]:
+            continue
+        ate = trajectory_error(row["poses"], reference)
+        for start in _worst_windows(ate.errors_m, args.window, args.stretches):
+            part = np.zeros(len(reference), dtype=bool)
+            part[start : start + args.window] = True
+            ours, theirs = row["score"].mean_over(part), ref_score.mean_over(part)
+            scored = int(np.count_nonzero(part & np.isfinite(ref_score.per_scan_m)))
+            if scored:
+                totals += (ours < theirs, 1)
+            print(
+                f"    {row['label']}: scans {start}-{start + args.window - 1}, disagreement "
+                f"{ate.errors_m[part].mean():.3f} m (mean), {scored} scans with partners: "
+                f"{ours * 1000:6.2f} / {theirs * 1000:6.2f} mm"
+            )
+            if args.figures is not None and row["label"] == "ours 0":
+                figure(name, start, args.window, row["poses"], ate.alignment, reference,
+                       geometry, partners, block, args.figures, (ours, theirs))
+    print(f"  ours the more consistent on {int(totals[0])} of {int(totals[1])} stretches")
+
+
+def figure(
+    name: str,
+    start: int,
+    window: int,
+    ours: np.ndarray,
+    alignment: np.ndarray,
+    reference: np.ndarray,
+    geometry: ScanGeometry,
+    partners: list[np.ndarray],
+    block: ScanBlock,
+    directory: Path,
+    scores: tuple[float, float],
+) -> None:
+    """The stretch's scans (red) and their partners' (blue) under each trajectory, ours
+    moved into GMapping's frame by the ATE's alignment."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    stretch = np.arange(start, start + window)
+    mates = np.unique(np.concatenate([partners[i] for i in stretch] + [np.zeros(0, np.int64)]))
+    placed = se2.compose(alignment, ours)
+    fig, axes = plt.subplots(1, 2, figsize=(14, 7), sharex=True, sharey=True)
+    for ax, poses, title, score in (
+        (axes[0], placed, "ours (seed 0), aligned", scores[0]),
+        (axes[1], reference, "GMapping's corrected poses", scores[1]),
+    ):
+        for group, colour in ((mates, "tab:blue"), (stretch, "tab:red")):
+            pts = [se2.transform_points(poses[k], geometry.outlines[k]) for k in group]
+            if pts:
+                cloud = np.concatenate(pts)
+                ax.scatter(cloud[:, 0], cloud[:, 1], s=0.2, c=colour, linewidths=0)
+        ax.plot(poses[stretch, 0], poses[stretch, 1], "r-", lw=1)
+        if len(mates):
+            ax.plot(poses[mates, 0], poses[mates, 1], "b.", ms=2)
+        ax.set_title(f"{title}: consistency {score * 1000:.1f} mm")
+        ax.set_aspect("equal")
+    lo = np.minimum(placed[stretch, :2].min(axis=0), reference[stretch, :2].min(axis=0)) - 8
+    hi = np.maximum(placed[stretch, :2].max(axis=0), reference[stretch, :2].max(axis=0)) + 8
+    axes[0].set_xlim(lo[0], hi[0])
+    axes[0].set_ylim(lo[1], hi[1])
+    fig.suptitle(
+        f"{name}, scans {start}-{start + window - 1} (red) and the scans revisiting them (blue)"
+    )
+    fig.tight_layout()
+    directory.mkdir(parents=True, exist_ok=True)
+    out = directory / f"{name}_stretch_{start}.png"
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    print(f"      figure: {out}")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--logs", default="intel,fr079,acapulco")
+    parser.add_argument("--seeds", default="0,1,2,3,4")
+    parser.add_argument("--poses", type=Path, default=None, help="keep/reuse our SLAM's poses")
+    parser.add_argument("--extra", action="append", default=[], metavar="LABEL=DIR")
+    parser.add_argument("--no-loops", action="store_true", help="ours without loop closures")
+    parser.add_argument("--stretches", type=int, default=0)
+    parser.add_argument("--window", type=int, default=25)
+    parser.add_argument("--figures", type=Path, default=None)
+    parser.add_argument("--min-travel", type=float, default=MIN_TRAVEL_M, help="a revisit's")
+    parser.add_argument("--radius-scale", type=float, default=1.0, help="of a revisit's radius")
+    parser.add_argument("--truncate", type=float, default=TRUNCATE_M, help="a point's distance")
+    args = parser.parse_args()
+    structlog.configure(wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING))
+    for name in args.logs.split(","):
+        bench_log(name, args)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
