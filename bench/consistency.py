@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 import structlog
+from scipy.spatial import cKDTree
 from scipy.stats import kendalltau
 
 from baromap.evaluation.consistency import (
@@ -45,6 +46,7 @@ from baromap.evaluation.consistency import (
     Consistency,
     ScanGeometry,
     consistency,
+    revisit_corrections,
     revisit_partners,
 )
 from baromap.evaluation.laser_logs import LOGS, run_log
@@ -132,11 +134,16 @@ def bench_log(name: str, args: argparse.Namespace) -> None:
     for label, poses in trajectories(name, reference, args).items():
         start = time.process_time()
         score = consistency(geometry, poses, partners, truncate_m=args.truncate)
+        moves = revisit_corrections(geometry, poses, partners, truncate_m=args.truncate)
         cpu = time.process_time() - start
-        row: dict[str, Any] = {"label": label, "score": score, "poses": poses}
+        row: dict[str, Any] = {"label": label, "score": score, "poses": poses, "moves": moves}
+        ok = ~np.isnan(moves[:, 0])
+        row["move"] = float(np.median(moves[ok, 0]))
         text = (
             f"  {label:<22} consistency {score.mean_m * 1000:6.2f} mm "
-            f"(overlap {score.overlap_mean:.3f})"
+            f"(overlap {score.overlap_mean:.3f}), revisit moves (median) "
+            f"{row['move'] * 1000:7.1f} mm {np.degrees(np.median(moves[ok, 1])):5.2f} deg, "
+            f"{np.mean(np.isinf(moves[ok, 0])):.0%} beyond reach"
         )
         if relations is not None:
             rel = relation_errors(times, poses, relations)
@@ -158,17 +165,19 @@ def bench_log(name: str, args: argparse.Namespace) -> None:
         tau = kendalltau([r["score"].mean_m for r in good], [r["rel"] for r in good]).statistic
         print(f"  the same without odometry alone (all relations): {tau:.3f} over {len(good)}")
         for margin in MARGINS:
-            alike = pairs = 0
+            alike, moved, pairs = 0, 0, 0
             for a, b in itertools.combinations(good, 2):
                 if max(a["rel"], b["rel"]) > (1 + margin) * min(a["rel"], b["rel"]):
                     pairs += 1
                     alike += (a["rel"] < b["rel"]) == (a["score"].mean_m < b["score"].mean_m)
+                    moved += (a["rel"] < b["rel"]) == (a["move"] < b["move"])
             print(
                 f"  pairs (odometry alone left out) whose relation errors differ by more than "
-                f"{margin:.0%}: {alike} of {pairs} in the same order by consistency"
+                f"{margin:.0%}: {alike} of {pairs} in the same order by consistency, "
+                f"{moved} by revisit moves"
             )
     if args.stretches:
-        stretches(name, rows, geometry, partners, block, args)
+        stretches(name, rows, geometry, partners, args)
 
 
 def _worst_windows(errors: np.ndarray, window: int, count: int) -> list[int]:
@@ -188,7 +197,6 @@ def stretches(
     rows: list[dict[str, Any]],
     geometry: ScanGeometry,
     partners: list[np.ndarray],
-    block: ScanBlock,
     args: argparse.Namespace,
 ) -> None:
     reference = rows[0]["poses"]
@@ -197,30 +205,57 @@ def stretches(
         f"  stretches of {args.window} scans where ours and GMapping's disagree most "
         f"(after the ATE's alignment); consistency over the stretch's scans, ours / GMapping's:"
     )
-    totals = np.zeros(2)
+    totals = np.zeros(3)
+    ref_moves = rows[0]["moves"]
     for row in rows:
         if not row["label"].startswith("ours ") or "no loops" in row["label"]:
             continue
         ate = trajectory_error(row["poses"], reference)
+        both = np.isfinite(row["moves"][:, 0]) & np.isfinite(ref_moves[:, 0])
+        smaller = row["moves"][both, 0] < ref_moves[both, 0]
+        print(
+            f"    {row['label']}: over the {int(both.sum())} scans both place within reach, ours "
+            f"needs the smaller move on {smaller.mean():.0%}; median move "
+            f"{np.median(row['moves'][both, 0]) * 1000:.1f} / "
+            f"{np.median(ref_moves[both, 0]) * 1000:.1f} mm, "
+            f"{np.degrees(np.median(row['moves'][both, 1])):.2f} / "
+            f"{np.degrees(np.median(ref_moves[both, 1])):.2f} deg"
+        )
         for start in _worst_windows(ate.errors_m, args.window, args.stretches):
             part = np.zeros(len(reference), dtype=bool)
             part[start : start + args.window] = True
             ours, theirs = row["score"].mean_over(part), ref_score.mean_over(part)
-            scored = int(np.count_nonzero(part & np.isfinite(ref_score.per_scan_m)))
-            if scored:
-                totals += (ours < theirs, 1)
+            scored = part & np.isfinite(ref_score.per_scan_m)
+            ours_move = np.median(row["moves"][scored, 0]) if scored.any() else np.nan
+            ref_move = np.median(ref_moves[scored, 0]) if scored.any() else np.nan
+            if scored.any():
+                totals += (ours < theirs, ours_move < ref_move, 1)
             print(
                 f"    {row['label']}: scans {start}-{start + args.window - 1}, disagreement "
-                f"{ate.errors_m[part].mean():.3f} m (mean), {scored} scans with partners: "
-                f"{ours * 1000:6.2f} / {theirs * 1000:6.2f} mm"
+                f"{ate.errors_m[part].mean():.3f} m (mean), {int(scored.sum())} scans with "
+                f"partners: consistency {ours * 1000:6.2f} / {theirs * 1000:6.2f} mm, revisit "
+                f"moves {ours_move * 1000:5.1f} / {ref_move * 1000:5.1f} mm"
             )
             if args.figures is not None and row["label"] == "ours 0":
-                figure(name, start, args.window, row["poses"], ate.alignment, reference,
-                       geometry, partners, block, args.figures, (ours, theirs))
-    print(f"  ours the more consistent on {int(totals[0])} of {int(totals[1])} stretches")
+                figure(
+                    name,
+                    start,
+                    args.window,
+                    row["poses"],
+                    ate.alignment,
+                    reference,
+                    geometry,
+                    partners,
+                    args.figures,
+                    (row["moves"], ref_moves),
+                )
+    print(
+        f"  ours the more consistent on {int(totals[0])} of {int(totals[2])} stretches, "
+        f"with the smaller revisit moves on {int(totals[1])}"
+    )
 
 
-def figure(
+def figure(  # noqa: PLR0917 - one call site, a bench's drawing
     name: str,
     start: int,
     window: int,
@@ -229,46 +264,90 @@ def figure(
     reference: np.ndarray,
     geometry: ScanGeometry,
     partners: list[np.ndarray],
-    block: ScanBlock,
     directory: Path,
-    scores: tuple[float, float],
+    moves: tuple[np.ndarray, np.ndarray],
 ) -> None:
-    """The stretch's scans (red) and their partners' (blue) under each trajectory, ours
-    moved into GMapping's frame by the ATE's alignment."""
+    """Left: the whole run under GMapping's poses (grey), both trajectories and, every few
+    scans, ours minus GMapping's after the ATE's alignment, drawn 20 times longer, the
+    stretch in red. Middle and right, 4 m across: the stretch's scan whose revisit moves
+    differ most between the two trajectories (red) and its partners (blue), under ours and
+    under GMapping's poses, where the red scan's placements differ most."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    stretch = np.arange(start, start + window)
-    mates = np.unique(np.concatenate([partners[i] for i in stretch] + [np.zeros(0, np.int64)]))
     placed = se2.compose(alignment, ours)
-    fig, axes = plt.subplots(1, 2, figsize=(14, 7), sharex=True, sharey=True)
-    for ax, poses, title, score in (
-        (axes[0], placed, "ours (seed 0), aligned", scores[0]),
-        (axes[1], reference, "GMapping's corrected poses", scores[1]),
-    ):
-        for group, colour in ((mates, "tab:blue"), (stretch, "tab:red")):
-            pts = [se2.transform_points(poses[k], geometry.outlines[k]) for k in group]
-            if pts:
-                cloud = np.concatenate(pts)
-                ax.scatter(cloud[:, 0], cloud[:, 1], s=0.2, c=colour, linewidths=0)
-        ax.plot(poses[stretch, 0], poses[stretch, 1], "r-", lw=1)
-        if len(mates):
-            ax.plot(poses[mates, 0], poses[mates, 1], "b.", ms=2)
-        ax.set_title(f"{title}: consistency {score * 1000:.1f} mm")
-        ax.set_aspect("equal")
-    lo = np.minimum(placed[stretch, :2].min(axis=0), reference[stretch, :2].min(axis=0)) - 8
-    hi = np.maximum(placed[stretch, :2].max(axis=0), reference[stretch, :2].max(axis=0)) + 8
-    axes[0].set_xlim(lo[0], hi[0])
-    axes[0].set_ylim(lo[1], hi[1])
-    fig.suptitle(
-        f"{name}, scans {start}-{start + window - 1} (red) and the scans revisiting them (blue)"
+    stretch = np.arange(start, start + window)
+    fig, axes = plt.subplots(1, 3, figsize=(21, 7))
+    ax = axes[0]
+    every = max(1, len(reference) // 3000)
+    cloud = np.concatenate(
+        [
+            se2.transform_points(reference[k], geometry.queries[k])
+            for k in range(0, len(reference), every)
+        ]
     )
+    ax.scatter(cloud[:, 0], cloud[:, 1], s=0.05, c="0.75", linewidths=0)
+    ax.plot(reference[:, 0], reference[:, 1], "-", c="tab:green", lw=0.6, label="GMapping")
+    ax.plot(placed[:, 0], placed[:, 1], "-", c="tab:purple", lw=0.6, label="ours, aligned")
+    arrows = np.arange(0, len(reference), max(1, len(reference) // 150))
+    d = placed[arrows, :2] - reference[arrows, :2]
+    ax.quiver(
+        reference[arrows, 0],
+        reference[arrows, 1],
+        d[:, 0] * 20,
+        d[:, 1] * 20,
+        angles="xy",
+        scale_units="xy",
+        scale=1,
+        width=0.002,
+        color="k",
+    )
+    ax.plot(reference[stretch, 0], reference[stretch, 1], "r-", lw=2, label="the stretch")
+    ax.set_aspect("equal")
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(f"{name}: ours minus GMapping's, x20 (arrows); scans {start}-{start + window - 1}")
+    both = [k for k in stretch if np.isfinite(moves[0][k, 0]) and np.isfinite(moves[1][k, 0])]
+    if both:
+        # the scan whose two placements its partners judge most differently
+        k = max(both, key=lambda j: abs(moves[0][j, 0] - moves[1][j, 0]))
+        mates = partners[k]
+        # centred where the two placements differ most among the red scan's points that lie
+        # on a blue outline under either
+        views = []
+        for poses in (placed, reference):
+            cloud = np.concatenate(
+                [se2.transform_points(poses[j], geometry.outlines[j]) for j in mates]
+            )
+            mine = se2.transform_points(poses[k], geometry.queries[k])
+            views.append((mine, cKDTree(cloud).query(mine)[0]))
+        shared = (views[0][1] < 0.2) | (views[1][1] < 0.2)
+        shift = np.abs(views[0][1] - views[1][1]) * shared
+        at = int(np.argmax(shift))
+        reach = 2.0
+        for ax, poses, title, move, view in (
+            (axes[1], placed, "ours (seed 0), aligned", moves[0][k], views[0]),
+            (axes[2], reference, "GMapping's corrected poses", moves[1][k], views[1]),
+        ):
+            centre = view[0][at]  # the same point of the red scan, as each places it
+            for group, colour, size in ((mates, "tab:blue", 2.0), (np.array([k]), "tab:red", 4.0)):
+                pts = np.concatenate(
+                    [se2.transform_points(poses[j], geometry.outlines[j]) for j in group]
+                )
+                ax.scatter(pts[:, 0], pts[:, 1], s=size, c=colour, linewidths=0)
+            ax.set_xlim(centre[0] - reach, centre[0] + reach)
+            ax.set_ylim(centre[1] - reach, centre[1] + reach)
+            ax.set_aspect("equal")
+            ax.set_title(
+                f"{title}: scan {k} (red) on scans {', '.join(str(j) for j in mates)} (blue)\n"
+                f"moves onto them by {move[0] * 1000:.0f} mm, {np.degrees(move[1]):.2f} deg",
+                fontsize=9,
+            )
     fig.tight_layout()
     directory.mkdir(parents=True, exist_ok=True)
     out = directory / f"{name}_stretch_{start}.png"
-    fig.savefig(out, dpi=110)
+    fig.savefig(out, dpi=100)
     plt.close(fig)
     print(f"      figure: {out}")
 

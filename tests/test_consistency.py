@@ -3,6 +3,7 @@ amounts, where which one agrees with its scans is known."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -11,6 +12,7 @@ import pytest
 from baromap.evaluation.consistency import (
     ScanGeometry,
     consistency,
+    revisit_corrections,
     revisit_partners,
     travel_m,
 )
@@ -44,9 +46,9 @@ def _ring_path(laps: int) -> np.ndarray:
     corners = np.array([[2, 2], [18, 2], [18, 10], [2, 10], [2, 2]], dtype=np.float64)
     poses = []
     for _ in range(laps):
-        for a, b in zip(corners[:-1], corners[1:], strict=True):
+        for a, b in itertools.pairwise(corners):
             heading = math.atan2(b[1] - a[1], b[0] - a[0])
-            steps = int(round(np.hypot(*(b - a)) / 0.5))
+            steps = round(float(np.hypot(*(b - a))) / 0.5)
             for k in range(steps):
                 poses.append([*(a + (b - a) * k / steps), heading])
     return np.array(poses)
@@ -67,7 +69,7 @@ def _bent(poses: np.ndarray, deg_per_m: float) -> np.ndarray:
     """The same steps, each turned by a creep proportional to its length: a trajectory that
     drifts slowly in heading, as a SLAM's does between loop closures."""
     out = [poses[0]]
-    for a, b in zip(poses[:-1], poses[1:], strict=True):
+    for a, b in itertools.pairwise(poses):
         step = se2.between(a, b)
         step[2] += math.radians(deg_per_m) * float(np.hypot(step[0], step[1]))
         out.append(se2.compose(out[-1], step))
@@ -120,3 +122,17 @@ def test_one_lap_has_no_revisit_to_score() -> None:
     score = consistency(geometry, truth, revisit_partners(truth, geometry.radius_m))
     assert score.scored == 0
     assert math.isnan(score.mean_m)
+
+
+def test_revisit_moves_find_the_bend(
+    ring: tuple[np.ndarray, ScanGeometry, list[np.ndarray]],
+) -> None:
+    truth, geometry, partners = ring
+    exact = revisit_corrections(geometry, truth, partners)
+    assert np.nanmax(exact[:, :2]) < 1e-6
+    creep = 0.01  # deg per metre: a lap of 48 m comes back turned by 0.48 deg
+    bent = revisit_corrections(geometry, _bent(truth, creep), partners)
+    lap_deg = creep * travel_m(truth)[len(truth) // 2]
+    turn = math.degrees(float(np.nanmedian(bent[:, 1])))
+    assert 0.5 * lap_deg < turn < 1.5 * lap_deg
+    assert np.nanmedian(bent[:, 0]) > 0.02  # and centimetres of shift on a 20 x 12 m ring
