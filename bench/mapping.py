@@ -9,7 +9,9 @@ Public logs (../shared/data/laser, or $BAROMAP_SHARED_DATA/laser): for each seed
 synthesised from the GMapping-corrected poses (5 % scale, 2 deg/m heading drift, seeded noise),
 SLAM over every scan, and beside it odometry alone: Kuemmerle relation errors where the log has
 relations (Intel, Freiburg 079), absolute trajectory error against the corrected poses after a
-rigid 2D alignment (all three). Bar: Intel relations <= 0.025 m and <= 0.4 deg, ATE <= 0.05 m
+rigid 2D alignment (all three), and the revisit consistency of the SLAM's poses and of the
+corrected ones (baromap.evaluation.consistency: how well each agrees with the scans where the
+robot came back, no reference needed; lower is better). Bar: Intel relations <= 0.025 m and <= 0.4 deg, ATE <= 0.05 m
 on Freiburg 079 and <= 0.10 m on Acapulco, for every seed.
 
 Harder inputs, so the front end is not tuned to three logs (the logs kept outside the
@@ -185,9 +187,9 @@ def bench_logs(specs: list[str], seeds: list[int], odometry: str = "default") ->
         judged = stride == 1 and odometry == "default"
         name_shown = spec if odometry == "default" else f"{spec} ({odometry} odometry)"
         print(f"{name_shown}: {'seed':>4}  {'odometry alone':>34}  {'SLAM':>34}  {'time':>6}")
-        rel_t, rel_r, ates = [], [], []
+        rel_t, rel_r, ates, cons = [], [], [], []
         for seed in seeds:
-            rep = run_log(LASER, name, seed, stride=stride, odometry=model)
+            rep = run_log(LASER, name, seed, stride=stride, odometry=model, score_consistency=True)
             cells = []
             for label, rel, ate in (
                 ("odometry", rep.odometry_relations, rep.odometry_ate),
@@ -202,6 +204,8 @@ def bench_logs(specs: list[str], seeds: list[int], odometry: str = "default") ->
                     if rel is not None:
                         rel_t.append(rel.trans_mean)
                         rel_r.append(rel.rot_mean)
+            if rep.slam_consistency is not None and rep.reference_consistency is not None:
+                cons.append((rep.slam_consistency.mean_m, rep.reference_consistency.mean_m))
             print(
                 f"{'':{len(name_shown)}}  {seed:>4}  {cells[0]:>34}  {cells[1]:>34}  "
                 f"{rep.seconds:5.1f} s"
@@ -230,6 +234,12 @@ def bench_logs(specs: list[str], seeds: list[int], odometry: str = "default") ->
         if not judged:
             verdict.append(f"ATE worst {max(ates):.3f} m (no bar: a harder input)")
         verdict.append(f"ATE mean {np.mean(ates):.3f} m")
+        if cons:
+            ours, ref = np.array(cons).T * 1000
+            verdict.append(
+                f"revisit consistency {ours.min():.1f}-{ours.max():.1f} mm, the corrected "
+                f"poses' {ref[0]:.1f} mm (lower: the scans agree better; docs/mapping.md)"
+            )
         print(f"{'':{len(name_shown)}}  " + "; ".join(verdict) + f"; {_load()}")
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"logs' peak memory {peak_mb:.0f} MB (this process: imports plus the runs above)")
