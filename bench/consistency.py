@@ -9,20 +9,25 @@ laser logs, beside their ground-truth relation errors and their ATE against GMap
 
 Trajectories scored on each log: GMapping's corrected poses (the ATE's reference), odometry
 alone (the synthesised odometry of each seed), ours (``run_log``, each seed; ``--poses DIR``
-keeps them as ``DIR/NAME_SEED.npy`` and reuses them), ours without loop closures
-(``--no-loops``, seeds 0-1: a SLAM of the same kind with revisits left open), and any
-``--extra LABEL=DIR`` of saved poses (``bench/mrpt_logs.py --save-poses DIR``: MRPT's
-icp-slam). The revisit partners are chosen once per log from GMapping's poses, so every
-trajectory is scored on the same pairs of scans.
+keeps them as ``DIR/ours/NAME_SEED.npy`` and ``DIR/noloops/...`` and reuses them), ours
+without loop closures (``--no-loops``, seeds 0-1: a SLAM of the same kind with revisits left
+open), and any ``--extra LABEL=DIR`` of saved poses (``bench/mrpt_logs.py --save-poses
+DIR``: MRPT's icp-slam). The revisit partners are chosen once per log from GMapping's poses,
+so every trajectory is scored on the same pairs of scans.
 
-Validation (logs with relations): the trajectories' order by consistency against their order by
-relation error, all relations and the revisits only (ends more than 200 scans apart), as
-Kendall's tau over the trajectories.
+Each trajectory gets its consistency (lower is better) and its revisit moves (median over
+scans of how far a scan must move to lie on its partners; "beyond reach" where it does not
+settle). Validation (logs with relations): the trajectories' order by consistency against
+their order by relation error, all relations and the revisits only (ends more than 200 scans
+apart), as Kendall's tau, and the share of pairs of trajectories whose relation errors differ
+by more than 5, 10, 20 % that consistency and moves order as the relations do.
 
-``--stretches N``: on each log, for each of our seeds, the N stretches of ``--window`` scans
-(disjoint) where our poses and GMapping's disagree most after the rigid alignment of the ATE,
-with both trajectories' consistency over the scans of each stretch; ``--figures DIR`` draws, for
-seed 0's stretches, the stretch's scans and their revisit partners' scans under each trajectory.
+``--stretches N``: on each log, for each of our seeds, the share of revisit scans where ours
+needs the smaller move than GMapping's, and the N stretches of ``--window`` scans (disjoint)
+where our poses and GMapping's disagree most after the rigid alignment of the ATE, with both
+trajectories' consistency and moves over the scans of each stretch; ``--figures DIR`` draws,
+for seed 0's stretches, the whole run with the disagreement and, 4 m across, the stretch's
+scan the two trajectories' moves judge most differently, on its partners, under each.
 """
 
 from __future__ import annotations

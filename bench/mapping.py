@@ -11,8 +11,8 @@ SLAM over every scan, and beside it odometry alone: Kuemmerle relation errors wh
 relations (Intel, Freiburg 079), absolute trajectory error against the corrected poses after a
 rigid 2D alignment (all three), and the revisit consistency of the SLAM's poses and of the
 corrected ones (baromap.evaluation.consistency: how well each agrees with the scans where the
-robot came back, no reference needed; lower is better). Bar: Intel relations <= 0.025 m and <= 0.4 deg, ATE <= 0.05 m
-on Freiburg 079 and <= 0.10 m on Acapulco, for every seed.
+robot came back, no reference needed; lower is better). Bar: Intel relations <= 0.025 m and
+<= 0.4 deg, ATE <= 0.05 m on Freiburg 079 and <= 0.10 m on Acapulco, for every seed.
 
 Harder inputs, so the front end is not tuned to three logs (the logs kept outside the
 repository are sparse: about one scan per metre, turns of up to 80 degrees between scans):
