@@ -1,13 +1,20 @@
-"""The tap process: stamps taken when the bytes were there, flushes exact, a hang-up seen."""
+"""The tap process: stamps taken when the bytes were there, flushes exact, a hang-up seen.
+
+Every test of the process runs both implementations (``daemon/tap.py`` and ``daemon/tap.c``,
+the ``tap_program`` fixture), the wire format checked byte for byte on each.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
+import subprocess
+import sys
 import termios
 import time
 import tty
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,7 +24,7 @@ from baromap.protocols import lms200
 from daemon.clock import HostClock
 from daemon.config import LaserConfig
 from daemon.lms200 import Lms200Session
-from daemon.tap import Tap
+from daemon.tap import EXPECT, FLUSH_REQUEST, RECORD, Tap
 
 
 @pytest.fixture
@@ -32,10 +39,49 @@ def pty_pair() -> Iterator[tuple[int, int]]:
 
 
 @pytest.fixture
-def tap(pty_pair: tuple[int, int]) -> Iterator[Tap]:
-    tap = Tap(pty_pair[1], "test")
+def tap(pty_pair: tuple[int, int], tap_program: list[str]) -> Iterator[Tap]:
+    tap = Tap(pty_pair[1], "test", tap_program)
     yield tap
     tap.close()
+
+
+@pytest.fixture
+def raw_tap(pty_pair: tuple[int, int], tap_program: list[str]) -> Iterator[subprocess.Popen[bytes]]:
+    """The tap process itself, its pipes in the test's hands."""
+    proc = subprocess.Popen(
+        [*tap_program, str(pty_pair[1]), "raw"],
+        pass_fds=(pty_pair[1],),
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        bufsize=0,
+    )
+    yield proc
+    if proc.poll() is None:
+        proc.kill()
+    proc.wait()
+    for stream in (proc.stdin, proc.stdout, proc.stderr):
+        if stream is not None:
+            stream.close()
+
+
+def _read_exactly(proc: subprocess.Popen[bytes], size: int) -> bytes:
+    assert proc.stdout is not None
+    data = b""
+    while len(data) < size:
+        more = proc.stdout.read(size - len(data))
+        assert more, f"the tap's pipe ended after {data!r}"
+        data += more
+    return data
+
+
+def _records(proc: subprocess.Popen[bytes], size: int) -> list[tuple[int, bytes]]:
+    """Records from the tap's pipe until ``size`` bytes of data came: (stamp, bytes) each."""
+    out: list[tuple[int, bytes]] = []
+    while sum(len(d) for _, d in out) < size:
+        stamp, length = RECORD.unpack(_read_exactly(proc, RECORD.size))
+        out.append((stamp, _read_exactly(proc, length)))
+    return out
 
 
 def _read_all(tap: Tap, size: int, timeout_s: float = 5.0) -> list[tuple[bytes, int]]:
@@ -77,6 +123,119 @@ def test_a_port_that_hangs_up_ends_the_tap_and_says_so(pty_pair: tuple[int, int]
         deadline = time.monotonic() + 5.0
         while time.monotonic() < deadline:
             tap.read(50)
+
+
+def test_the_wire_format_byte_for_byte(
+    pty_pair: tuple[int, int], raw_tap: subprocess.Popen[bytes]
+) -> None:
+    """Records of a little-endian int64 monotonic stamp and uint32 length, the bytes after;
+    a flush answered by stamp -1, length 0, and nothing else on the pipe; stdin closed: exit 0
+    with nothing on stderr."""
+    assert raw_tap.stdin is not None and raw_tap.stdout is not None
+    raw_tap.stdin.write(EXPECT.pack(b"E", 8))  # a frame's worth forwards at once
+    data = bytes(range(1, 21))
+    before = time.monotonic_ns()
+    os.write(pty_pair[0], data)
+    records = _records(raw_tap, len(data))
+    after = time.monotonic_ns()
+    assert b"".join(d for _, d in records) == data
+    assert all(before <= stamp <= after for stamp, _ in records)
+    raw_tap.stdin.write(FLUSH_REQUEST)
+    assert _read_exactly(raw_tap, RECORD.size) == b"\xff" * 8 + b"\x00" * 4
+    raw_tap.stdin.close()
+    assert raw_tap.wait(5) == 0
+    assert raw_tap.stdout.read() == b""  # the rest of the pipe: nothing after the answer
+    assert raw_tap.stderr is not None and raw_tap.stderr.read() == b""
+
+
+def test_requests_split_across_writes_are_put_together(
+    pty_pair: tuple[int, int], raw_tap: subprocess.Popen[bytes]
+) -> None:
+    """A frame size that arrives a byte at a time is still one request, and the flush after
+    it is answered once."""
+    assert raw_tap.stdin is not None
+    for byte in EXPECT.pack(b"E", 4) + FLUSH_REQUEST:
+        raw_tap.stdin.write(bytes([byte]))
+        time.sleep(0.01)  # separate reads of the tap's stdin, most likely
+    assert _read_exactly(raw_tap, RECORD.size) == RECORD.pack(-1, 0)
+    os.write(pty_pair[0], b"abcd")
+    assert b"".join(d for _, d in _records(raw_tap, 4)) == b"abcd"
+
+
+def test_a_port_that_hangs_up_ends_the_tap_with_exit_0(
+    pty_pair: tuple[int, int], raw_tap: subprocess.Popen[bytes]
+) -> None:
+    os.close(pty_pair[0])  # the pty's other end: the port hangs up (a read of nothing)
+    assert raw_tap.wait(5) == 0
+    assert raw_tap.stdout is not None and raw_tap.stdout.read() == b""
+
+
+def test_the_tap_is_named_after_its_device_in_the_os(
+    raw_tap: subprocess.Popen[bytes],
+) -> None:
+    assert raw_tap.stdin is not None
+    raw_tap.stdin.write(FLUSH_REQUEST)  # answered: the tap is past its start-up
+    assert _read_exactly(raw_tap, RECORD.size) == RECORD.pack(-1, 0)
+    comm = Path(f"/proc/{raw_tap.pid}/comm").read_text().strip()
+    assert comm == "baromapd-tap-raw"[:15]
+
+
+def test_a_bad_command_line_is_exit_1_and_nothing_on_the_pipe(tap_program: list[str]) -> None:
+    result = subprocess.run([*tap_program, "not-a-descriptor"], capture_output=True, check=False)
+    assert result.returncode == 1
+    assert result.stdout == b""
+    assert result.stderr != b""
+
+
+def _gone(pid: int) -> bool:
+    """Ended: no such process, or a zombie nobody reaped (a container's init may not)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return True
+    return stat.rpartition(")")[2].split()[0] in ("Z", "X")
+
+
+def test_the_tap_ends_with_its_daemon_though_its_pipes_stay_open(tap_program: list[str]) -> None:
+    """The daemon killed (SIGKILL: it closes nothing): the tap must not live on reading the
+    port, even with both its pipes still open at their other ends (held here; when the daemon
+    dies its ends close, and the tap's stdin closing ends it too)."""
+    control_r, control_w = os.pipe()
+    out_r, out_w = os.pipe()
+    device, port = os.openpty()
+    daemon = (
+        "import os, subprocess, sys\n"
+        "c, o, p = (int(a) for a in sys.argv[1:4])\n"
+        "t = subprocess.Popen(sys.argv[4:] + [str(p), 'x'], pass_fds=(p,), stdin=c, stdout=o)\n"
+        "print(t.pid, flush=True)\n"
+        "sys.stdin.readline()\n"
+        "os.kill(os.getpid(), 9)\n"
+    )
+    parent = subprocess.Popen(
+        [sys.executable, "-c", daemon, str(control_r), str(out_w), str(port), *tap_program],
+        pass_fds=(control_r, out_w, port),
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,  # the tap would hold a captured stderr open
+        text=True,
+    )
+    try:
+        assert parent.stdout is not None and parent.stdin is not None
+        pid = int(parent.stdout.readline())
+        os.write(control_w, FLUSH_REQUEST)  # answered: the tap is past its start-up
+        assert os.read(out_r, RECORD.size) == RECORD.pack(-1, 0)
+        parent.stdin.write("die\n")
+        parent.stdin.flush()
+        assert parent.wait(5) == -9
+        deadline = time.monotonic() + 5.0
+        while not _gone(pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert _gone(pid)
+    finally:
+        parent.kill()
+        parent.communicate()
+        for fd in (control_r, control_w, out_r, out_w, device, port):
+            os.close(fd)
 
 
 def _laser_session(published: list[tuple[Message, int]]) -> Lms200Session:
