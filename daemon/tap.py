@@ -205,13 +205,13 @@ def native_program() -> Path:
     return Path(sys.executable).parent / NATIVE_NAME
 
 
-def python_program() -> list[str]:
+def python_program() -> tuple[str, ...]:
     """This module as the tap."""
-    return [sys.executable, "-m", "daemon.tap"]
+    return (sys.executable, "-m", "daemon.tap")
 
 
 @functools.cache
-def default_program() -> list[str]:
+def default_program() -> tuple[str, ...]:
     """The C tap when it was built, else this module; logged once, when first asked."""
     import structlog  # here: `python -m daemon.tap` would carry it (10 MB) and never log
 
@@ -219,7 +219,7 @@ def default_program() -> list[str]:
     native = native_program()
     if os.access(native, os.X_OK):
         log.info("port tap", implementation="c", program=str(native))
-        return [str(native)]
+        return (str(native),)
     log.info(
         "port tap",
         implementation="python",
@@ -239,7 +239,7 @@ class Tap:
     def __init__(
         self, port: int, name: str, program: collections.abc.Sequence[str] | None = None
     ) -> None:
-        command = list(default_program() if program is None else program)
+        command = default_program() if program is None else program
         self._proc = subprocess.Popen(
             [*command, str(port), name],
             pass_fds=(port,),

@@ -67,13 +67,13 @@ def tap_program(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch)
     """Each implementation of the laser's tap (``daemon/tap.py``, ``daemon/tap.c``), as the
     program a ``Tap`` runs when none is given; the C one is skipped where it is not built."""
     if request.param == "python":
-        program = tap.python_program()
+        program = list(tap.python_program())
     else:
         native = tap.native_program()
         if not os.access(native, os.X_OK):
             pytest.skip(f"the C tap is not built ({native}: `make setup` builds it with cc)")
         program = [str(native)]
-    monkeypatch.setattr(tap, "default_program", lambda: program)
+    monkeypatch.setattr(tap, "default_program", lambda: tuple(program))
     return program
 
 
