@@ -257,9 +257,9 @@ def test_the_tap_dies_with_its_daemon_though_its_pipes_stay_open(tap_program: li
             assert parent.wait(5) == -signal.SIGKILL
             status = _reap(pid, 5.0)
             assert status is not None, "the tap outlived its daemon"
+            pid = None  # reaped
             # killed by the kernel, not ended by its once-a-second look at its parent
             assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGKILL
-            pid = None
         finally:
             parent.kill()
             parent.communicate()
