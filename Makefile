@@ -7,13 +7,15 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.baromap-installed
 TEST_STAMP := $(VENV)/.baromap-test-installed
 PYTEST_ARGS ?=
+TAP    := $(BIN)/baromapd-tap
+TAP_CFLAGS := -std=gnu11 -O2 -Wall -Wextra -Werror
 
-.PHONY: demo test lint setup system-deps firmware bench clean
+.PHONY: demo test lint setup system-deps firmware bench clean tap
 
-demo: $(STAMP)
+demo: $(STAMP) $(TAP)
 	$(BIN)/baromap demo
 
-test: $(TEST_STAMP)
+test: $(TEST_STAMP) $(TAP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
@@ -25,7 +27,7 @@ lint: $(TEST_STAMP)
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
-setup: $(TEST_STAMP)
+setup: $(TEST_STAMP) $(TAP)
 
 system-deps:
 	@scripts/system-deps.sh
@@ -48,7 +50,20 @@ $(TEST_STAMP): $(STAMP)
 	$(COMPILE)
 	touch $@
 
-bench: $(STAMP)
+# The laser's tap in C (daemon/tap.c; daemon/tap.py says why there is a tap): built beside the
+# venv's interpreter, where daemon.tap looks for it (the README's install: `make tap
+# BIN=/opt/baromap/bin`). Without a C compiler the daemon runs the Python tap and logs which.
+tap: $(TAP)
+
+$(TAP): daemon/tap.c
+	@mkdir -p $(dir $@)
+	@if command -v $(CC) >/dev/null 2>&1; then \
+	  echo "$(CC) $(TAP_CFLAGS) -o $@ $<"; $(CC) $(TAP_CFLAGS) -o $@ $<; \
+	else \
+	  echo "tap: no C compiler ($(CC)): the daemon runs the Python tap (daemon/tap.py)"; \
+	fi
+
+bench: $(STAMP) $(TAP)
 	for b in bench/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
 
 clean:

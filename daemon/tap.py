@@ -25,16 +25,25 @@ at the old speed during a baud search) reaches the decoder. The tap exits when t
 up or fails (the daemon sees the pipe end and handles it as an unplug), when its standard
 input closes, and with the daemon (``PR_SET_PDEATHSIG``).
 
-    python -m daemon.tap FD NAME     (started by DeviceSession, with FD passed to it)
+The tap runs as ``baromapd-tap`` (``daemon/tap.c``, the same protocol byte for byte) when that
+was built beside the interpreter (``make setup``: the venv's ``bin``, where ``baromapd`` is),
+and as this module otherwise. Both make the same system calls per wake-up; the C one skips the
+interpreter's work around them and its megabytes (docs/daemon.md has the figures). This one
+stays: it runs where there is no C compiler, and it is the protocol's readable statement.
+
+    baromapd-tap FD NAME             (started by DeviceSession, with FD passed to it)
+    python -m daemon.tap FD NAME     (the same, where baromapd-tap was not built)
 """
 
 from __future__ import annotations
 
 import collections
+import collections.abc
 import contextlib
 import ctypes
 import ctypes.util
 import fcntl
+import functools
 import os
 import resource
 import select
@@ -43,6 +52,7 @@ import struct
 import subprocess
 import sys
 import time
+from pathlib import Path
 from typing import Final
 
 from daemon.osthread import name_os_thread
@@ -68,6 +78,9 @@ READ_CHUNK: Final = 65536
 PIPE_BYTES: Final = 1 << 20
 #: How long the daemon waits for the tap's answer to a flush, and for the tap to exit.
 ANSWER_S: Final = 1.0
+
+#: The C tap's program (``daemon/tap.c``), beside the interpreter that runs the daemon.
+NATIVE_NAME: Final = "baromapd-tap"
 
 _F_SETPIPE_SZ: Final = 1031
 _PR_SET_PDEATHSIG: Final = 1
@@ -130,7 +143,10 @@ def serve(port: int, out: int, control: int) -> int:
                     else:
                         break
                 continue
-            size = os.readv(port, (chunk,))  # OSError (EIO: unplugged) ends the tap
+            try:
+                size = os.readv(port, (chunk,))  # OSError (EIO: unplugged) ends the tap
+            except BlockingIOError:
+                continue  # the daemon flushed the (non-blocking) port between poll and read
             stamp = monotonic_ns()
             if not size:
                 return 0  # hang-up
@@ -182,13 +198,50 @@ def main(argv: list[str] | None = None) -> int:
 
 
 # ---- the daemon's side -------------------------------------------------------------------------
+def native_program() -> Path:
+    """Where the C tap is: beside this interpreter (a venv's ``bin``, as ``make setup`` and the
+    README's install build it; the unit's ``/opt/baromap/bin``), so a checkout's venv runs its
+    own build and never another's."""
+    return Path(sys.executable).parent / NATIVE_NAME
+
+
+def python_program() -> tuple[str, ...]:
+    """This module as the tap."""
+    return (sys.executable, "-m", "daemon.tap")
+
+
+@functools.cache
+def default_program() -> tuple[str, ...]:
+    """The C tap when it was built, else this module; logged once, when first asked."""
+    import structlog  # here: `python -m daemon.tap` would carry it (10 MB) and never log
+
+    log = structlog.get_logger(__name__)
+    native = native_program()
+    if os.access(native, os.X_OK):
+        log.info("port tap", implementation="c", program=str(native))
+        return (str(native),)
+    log.info(
+        "port tap",
+        implementation="python",
+        program="python -m daemon.tap",
+        why=f"{native} not built (make setup builds it with a C compiler)",
+    )
+    return python_program()
+
+
 class Tap:
     """The daemon's end of a tap on an open port: (bytes, stamp) records, one at a time
-    (:meth:`read`, for a handshake's replies) or all that came (:meth:`read_all`)."""
+    (:meth:`read`, for a handshake's replies) or all that came (:meth:`read_all`).
 
-    def __init__(self, port: int, name: str) -> None:
+    ``program`` is the tap to run (default: :func:`default_program`); the port's descriptor
+    and ``name`` are its arguments."""
+
+    def __init__(
+        self, port: int, name: str, program: collections.abc.Sequence[str] | None = None
+    ) -> None:
+        command = default_program() if program is None else program
         self._proc = subprocess.Popen(
-            [sys.executable, "-m", "daemon.tap", str(port), name],
+            [*command, str(port), name],
             pass_fds=(port,),
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,

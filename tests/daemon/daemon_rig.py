@@ -7,6 +7,7 @@ fixture and are skipped then.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -20,6 +21,7 @@ from baromap.messages import DeviceHealth, DeviceState
 from baromap.recording import read_messages
 from baromap.recording.reader import Record
 from baromap.sim.twins import SimDevices
+from daemon import tap
 from daemon.app import Daemon
 from daemon.config import DaemonConfig, parse_config
 
@@ -58,6 +60,21 @@ def rig(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Rig]:
             sim,
             tmp_path,
         )
+
+
+@pytest.fixture(params=["python", "c"])
+def tap_program(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """Each implementation of the laser's tap (``daemon/tap.py``, ``daemon/tap.c``), as the
+    program a ``Tap`` runs when none is given; the C one is skipped where it is not built."""
+    if request.param == "python":
+        program = list(tap.python_program())
+    else:
+        native = tap.native_program()
+        if not os.access(native, os.X_OK):
+            pytest.skip(f"the C tap is not built ({native}: `make setup` builds it with cc)")
+        program = [str(native)]
+    monkeypatch.setattr(tap, "default_program", lambda: tuple(program))
+    return program
 
 
 @pytest.fixture

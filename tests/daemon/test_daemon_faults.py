@@ -28,8 +28,10 @@ def _health(records: list, device: str) -> list[messages.DeviceHealth]:
 
 
 def test_each_device_fails_and_recovers_while_the_others_record(
-    rig: Rig, twins: SimDevices
+    rig: Rig, twins: SimDevices, tap_program: list[str]
 ) -> None:
+    """With each implementation of the laser's tap: its port unplugged ends it, a new one
+    starts at the replug, and the handshake's flushes go through it."""
     config = make_config(rig)
     with RunningDaemon(config) as run:
         run.wait_up()

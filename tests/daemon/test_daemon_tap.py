@@ -1,23 +1,38 @@
-"""The tap process: stamps taken when the bytes were there, flushes exact, a hang-up seen."""
+"""The tap process: stamps taken when the bytes were there, flushes exact, a hang-up seen.
+
+Every test of the process runs both implementations (``daemon/tap.py`` and ``daemon/tap.c``,
+the ``tap_program`` fixture), the wire format checked byte for byte on each.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import functools
 import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
 import termios
 import time
 import tty
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
+from structlog.testing import capture_logs
 
 from baromap.messages import LaserScan, Message
 from baromap.protocols import lms200
 from daemon.clock import HostClock
 from daemon.config import LaserConfig
 from daemon.lms200 import Lms200Session
-from daemon.tap import Tap
+from daemon.tap import EXPECT, FLUSH_REQUEST, RECORD, Tap, default_program
+
+UNIT = Path(__file__).resolve().parents[2] / "systemd" / "baromapd.service"
 
 
 @pytest.fixture
@@ -32,10 +47,49 @@ def pty_pair() -> Iterator[tuple[int, int]]:
 
 
 @pytest.fixture
-def tap(pty_pair: tuple[int, int]) -> Iterator[Tap]:
-    tap = Tap(pty_pair[1], "test")
+def tap(pty_pair: tuple[int, int], tap_program: list[str]) -> Iterator[Tap]:
+    tap = Tap(pty_pair[1], "test", tap_program)
     yield tap
     tap.close()
+
+
+@pytest.fixture
+def raw_tap(pty_pair: tuple[int, int], tap_program: list[str]) -> Iterator[subprocess.Popen[bytes]]:
+    """The tap process itself, its pipes in the test's hands."""
+    proc = subprocess.Popen(
+        [*tap_program, str(pty_pair[1]), "raw"],
+        pass_fds=(pty_pair[1],),
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        bufsize=0,
+    )
+    yield proc
+    if proc.poll() is None:
+        proc.kill()
+    proc.wait()
+    for stream in (proc.stdin, proc.stdout, proc.stderr):
+        if stream is not None:
+            stream.close()
+
+
+def _read_exactly(proc: subprocess.Popen[bytes], size: int) -> bytes:
+    assert proc.stdout is not None
+    data = b""
+    while len(data) < size:
+        more = proc.stdout.read(size - len(data))
+        assert more, f"the tap's pipe ended after {data!r}"
+        data += more
+    return data
+
+
+def _records(proc: subprocess.Popen[bytes], size: int) -> list[tuple[int, bytes]]:
+    """Records from the tap's pipe until ``size`` bytes of data came: (stamp, bytes) each."""
+    out: list[tuple[int, bytes]] = []
+    while sum(len(d) for _, d in out) < size:
+        stamp, length = RECORD.unpack(_read_exactly(proc, RECORD.size))
+        out.append((stamp, _read_exactly(proc, length)))
+    return out
 
 
 def _read_all(tap: Tap, size: int, timeout_s: float = 5.0) -> list[tuple[bytes, int]]:
@@ -77,6 +131,228 @@ def test_a_port_that_hangs_up_ends_the_tap_and_says_so(pty_pair: tuple[int, int]
         deadline = time.monotonic() + 5.0
         while time.monotonic() < deadline:
             tap.read(50)
+
+
+def test_the_wire_format_byte_for_byte(
+    pty_pair: tuple[int, int], raw_tap: subprocess.Popen[bytes]
+) -> None:
+    """Records of a little-endian int64 monotonic stamp and uint32 length, the bytes after;
+    a flush answered by stamp -1, length 0, and nothing else on the pipe; stdin closed: exit 0
+    with nothing on stderr."""
+    assert raw_tap.stdin is not None and raw_tap.stdout is not None
+    raw_tap.stdin.write(EXPECT.pack(b"E", 8))  # a frame's worth forwards at once
+    data = bytes(range(1, 21))
+    before = time.monotonic_ns()
+    os.write(pty_pair[0], data)
+    records = _records(raw_tap, len(data))
+    after = time.monotonic_ns()
+    assert b"".join(d for _, d in records) == data
+    assert all(before <= stamp <= after for stamp, _ in records)
+    raw_tap.stdin.write(FLUSH_REQUEST)
+    assert _read_exactly(raw_tap, RECORD.size) == b"\xff" * 8 + b"\x00" * 4
+    raw_tap.stdin.close()
+    assert raw_tap.wait(5) == 0
+    assert raw_tap.stdout.read() == b""  # the rest of the pipe: nothing after the answer
+    assert raw_tap.stderr is not None and raw_tap.stderr.read() == b""
+
+
+def test_requests_split_across_writes_are_put_together(
+    pty_pair: tuple[int, int], raw_tap: subprocess.Popen[bytes]
+) -> None:
+    """A frame size that arrives a byte at a time is still one request, and the flush after
+    it is answered once."""
+    assert raw_tap.stdin is not None
+    for byte in EXPECT.pack(b"E", 4) + FLUSH_REQUEST:
+        raw_tap.stdin.write(bytes([byte]))
+        time.sleep(0.01)  # separate reads of the tap's stdin, most likely
+    assert _read_exactly(raw_tap, RECORD.size) == RECORD.pack(-1, 0)
+    os.write(pty_pair[0], b"abcd")
+    assert b"".join(d for _, d in _records(raw_tap, 4)) == b"abcd"
+
+
+def test_a_port_that_hangs_up_ends_the_tap_with_exit_0(
+    pty_pair: tuple[int, int], raw_tap: subprocess.Popen[bytes]
+) -> None:
+    os.close(pty_pair[0])  # the pty's other end: the port hangs up (a read of nothing)
+    assert raw_tap.wait(5) == 0
+    assert raw_tap.stdout is not None and raw_tap.stdout.read() == b""
+
+
+def test_the_tap_is_named_after_its_device_in_the_os(
+    raw_tap: subprocess.Popen[bytes],
+) -> None:
+    assert raw_tap.stdin is not None
+    raw_tap.stdin.write(FLUSH_REQUEST)  # answered: the tap is past its start-up
+    assert _read_exactly(raw_tap, RECORD.size) == RECORD.pack(-1, 0)
+    comm = Path(f"/proc/{raw_tap.pid}/comm").read_text().strip()
+    assert comm == "baromapd-tap-raw"[:15]
+
+
+def test_a_bad_command_line_is_exit_1_and_nothing_on_the_pipe(tap_program: list[str]) -> None:
+    result = subprocess.run([*tap_program, "not-a-descriptor"], capture_output=True, check=False)
+    assert result.returncode == 1
+    assert result.stdout == b""
+    assert result.stderr != b""
+
+
+_PR_SET_CHILD_SUBREAPER = 36
+
+
+@contextlib.contextmanager
+def _subreaper() -> Iterator[None]:
+    """Orphans of this process's children become its children (not init's, which in a
+    container may never reap them), so a test can wait for them."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(_PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0) != 0:
+        pytest.skip("cannot become a child subreaper here")
+    try:
+        yield
+    finally:
+        libc.prctl(_PR_SET_CHILD_SUBREAPER, 0, 0, 0, 0)
+
+
+def _reap(pid: int, timeout_s: float) -> int | None:
+    """The wait status of ``pid`` (a child, or an orphan of one), None while it still runs."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            return status
+        time.sleep(0.02)
+    return None
+
+
+def test_the_tap_dies_with_its_daemon_though_its_pipes_stay_open(tap_program: list[str]) -> None:
+    """The daemon killed (SIGKILL: it closes nothing): the kernel kills the tap with it
+    (``PR_SET_PDEATHSIG``), though both its pipes are still open at their other ends (held
+    here). When a daemon dies its ends close, and the tap's stdin closing ends it too."""
+    control_r, control_w = os.pipe()
+    out_r, out_w = os.pipe()
+    device, port = os.openpty()
+    daemon = (
+        "import os, subprocess, sys\n"
+        "c, o, p = (int(a) for a in sys.argv[1:4])\n"
+        "t = subprocess.Popen(sys.argv[4:] + [str(p), 'x'], pass_fds=(p,), stdin=c, stdout=o)\n"
+        "print(t.pid, flush=True)\n"
+        "sys.stdin.readline()\n"
+        "os.kill(os.getpid(), 9)\n"
+    )
+    with _subreaper():
+        parent = subprocess.Popen(
+            [sys.executable, "-c", daemon, str(control_r), str(out_w), str(port), *tap_program],
+            pass_fds=(control_r, out_w, port),
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,  # the tap would hold a captured stderr open
+            text=True,
+        )
+        pid = None
+        try:
+            assert parent.stdout is not None and parent.stdin is not None
+            pid = int(parent.stdout.readline())
+            os.write(control_w, FLUSH_REQUEST)  # answered: the tap is past its start-up
+            assert os.read(out_r, RECORD.size) == RECORD.pack(-1, 0)
+            parent.stdin.write("die\n")
+            parent.stdin.flush()
+            assert parent.wait(5) == -signal.SIGKILL
+            status = _reap(pid, 5.0)
+            assert status is not None, "the tap outlived its daemon"
+            pid = None  # reaped
+            # killed by the kernel, not ended by its once-a-second look at its parent
+            assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGKILL
+        finally:
+            parent.kill()
+            parent.communicate()
+            for fd in (control_r, control_w, out_r, out_w, device, port):
+                os.close(fd)  # a tap still running sees its stdin close and ends
+            if pid is not None:
+                _reap(pid, 5.0)
+
+
+@functools.cache
+def _syscall_group(name: str) -> frozenset[str]:
+    """A systemd system call group's calls, its groups in it expanded."""
+    text = subprocess.run(
+        ["systemd-analyze", "syscall-filter", name], capture_output=True, text=True, check=True
+    ).stdout
+    calls: set[str] = set()
+    for line in text.splitlines()[1:]:  # the first names the group
+        item = line.strip()
+        if item and not item.startswith("#"):
+            calls |= _syscall_group(item) if item.startswith("@") else {item}
+    return frozenset(calls)
+
+
+def _unit_allows() -> set[str]:
+    """The calls the unit's ``SystemCallFilter=`` lines let through, read in order as systemd
+    does: the first allows a list, ``~`` takes away, a later plain one adds."""
+    allowed: set[str] = set()
+    for line in UNIT.read_text().splitlines():
+        if not line.startswith("SystemCallFilter="):
+            continue
+        value = line.partition("=")[2]
+        named: set[str] = set()
+        for item in value.lstrip("~").split():
+            named |= _syscall_group(item) if item.startswith("@") else {item}
+        allowed = allowed - named if value.startswith("~") else allowed | named
+    return allowed
+
+
+@pytest.mark.skipif(
+    shutil.which("strace") is None or shutil.which("systemd-analyze") is None,
+    reason="needs strace and systemd-analyze",
+)
+def test_the_taps_system_calls_pass_the_units_filter(
+    tmp_path: Path, pty_pair: tuple[int, int], tap_program: list[str]
+) -> None:
+    """Under the unit a call outside ``SystemCallFilter=`` fails with EPERM: every call the tap
+    makes (start-up, realtime, reads, requests, exit) must be let through."""
+    probe = subprocess.run(
+        ["strace", "-qq", "-o", os.devnull, "true"], capture_output=True, check=False
+    )
+    if probe.returncode != 0:
+        pytest.skip(f"strace cannot trace here: {probe.stderr.decode(errors='replace')[:200]}")
+    trace = tmp_path / "trace"
+    proc = subprocess.Popen(
+        ["strace", "-f", "-qq", "-o", str(trace), *tap_program, str(pty_pair[1]), "laser"],
+        pass_fds=(pty_pair[1],),
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        bufsize=0,
+    )
+    assert proc.stdin is not None and proc.stdout is not None
+    try:
+        proc.stdin.write(EXPECT.pack(b"E", 8))
+        proc.stdin.write(FLUSH_REQUEST)
+        assert _read_exactly(proc, RECORD.size) == RECORD.pack(-1, 0)
+        os.write(pty_pair[0], bytes(20))
+        _records(proc, 20)
+        proc.stdin.close()
+        code = proc.wait(30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+    assert code == 0
+    calls = {m.group(1) for m in re.finditer(r"^\d+\s+(\w+)\(", trace.read_text(), re.M)}
+    assert {"read", "write", "poll", "prctl"} <= calls  # the trace saw the tap's work
+    assert calls - _unit_allows() == set()
+
+
+def test_the_c_tap_runs_when_built_beside_the_interpreter_and_the_log_says_which(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(sys, "executable", str(tmp_path / "python"))
+    choose = default_program.__wrapped__  # not the process's cached choice
+    with capture_logs() as logs:
+        assert choose() == (str(tmp_path / "python"), "-m", "daemon.tap")
+        native = tmp_path / "baromapd-tap"
+        native.write_bytes(b"")
+        assert choose() == (str(tmp_path / "python"), "-m", "daemon.tap")  # not executable
+        native.chmod(0o755)
+        assert choose() == (str(native),)
+    assert [e["implementation"] for e in logs] == ["python", "python", "c"]
 
 
 def _laser_session(published: list[tuple[Message, int]]) -> Lms200Session:
