@@ -183,6 +183,11 @@ class ScanGeometry:
         self.queries = [points[order[bounds[k] : bounds[k + 1]]] for k in range(self.count)]
 
 
+def _partner_cloud(geometry: ScanGeometry, poses: FloatArray, mates: IntArray) -> FloatArray:
+    """The partners' outlines, each placed by its pose: what a scan is held against."""
+    return np.concatenate([se2.transform_points(poses[j], geometry.outlines[j]) for j in mates])
+
+
 def consistency(
     geometry: ScanGeometry,
     poses: FloatArray,
@@ -200,7 +205,7 @@ def consistency(
         query = geometry.queries[i]
         if len(mates) == 0 or len(query) == 0:
             continue
-        cloud = np.concatenate([se2.transform_points(p[j], geometry.outlines[j]) for j in mates])
+        cloud = _partner_cloud(geometry, p, mates)
         if len(cloud) == 0:
             continue
         dist, _ = cKDTree(cloud).query(se2.transform_points(p[i], query), k=1)
@@ -244,7 +249,7 @@ def revisit_corrections(
         query = geometry.queries[i]
         if len(mates) == 0 or len(query) < 3:
             continue
-        cloud = np.concatenate([se2.transform_points(p[j], geometry.outlines[j]) for j in mates])
+        cloud = _partner_cloud(geometry, p, mates)
         if len(cloud) < 3:
             continue
         tree = cKDTree(cloud)

@@ -170,12 +170,9 @@ class OdometryNoise:
     theta: tuple[float, float, float]
 
     def sigmas(self, travel: float, turn: float) -> tuple[float, float]:
-        features = np.array([1.0, travel, abs(turn)])
-        var_xy = float(features @ np.array(self.xy))
-        var_theta = float(features @ np.array(self.theta))
-        return max(NOISE_FLOOR_M, math.sqrt(max(var_xy, 0.0))), max(
-            NOISE_FLOOR_RAD, math.sqrt(max(var_theta, 0.0))
-        )
+        """Position (per axis) and heading sigma of one step."""
+        xy, theta = self.sigmas_many(np.array([travel]), np.array([turn]))
+        return float(xy[0]), float(theta[0])
 
     def sigmas_many(self, travel: FloatArray, turn: FloatArray) -> tuple[FloatArray, FloatArray]:
         """:meth:`sigmas` of many steps at once."""
