@@ -176,7 +176,7 @@ def bench_sim(seed: int, minutes: float, keep: Path | None) -> bool:
 
 def bench_logs(specs: list[str], seeds: list[int], odometry: str = "default") -> bool:
     _quiet()
-    from baromap.evaluation.laser_logs import ODOMETRY_MODELS, run_log
+    from baromap.evaluation.laser_logs import ODOMETRY_MODELS, PreparedLog, run_prepared
 
     model = ODOMETRY_MODELS[odometry]
     ok = True
@@ -188,8 +188,10 @@ def bench_logs(specs: list[str], seeds: list[int], odometry: str = "default") ->
         name_shown = spec if odometry == "default" else f"{spec} ({odometry} odometry)"
         print(f"{name_shown}: {'seed':>4}  {'odometry alone':>34}  {'SLAM':>34}  {'time':>6}")
         rel_t, rel_r, ates, cons = [], [], [], []
+        # the scans, relations and the corrected poses' revisit score are every seed's: once
+        prepared = PreparedLog(LASER, name, stride=stride)
         for seed in seeds:
-            rep = run_log(LASER, name, seed, stride=stride, odometry=model, score_consistency=True)
+            rep = run_prepared(prepared, seed, odometry=model, score_consistency=True)
             cells = []
             for label, rel, ate in (
                 ("odometry", rep.odometry_relations, rep.odometry_ate),

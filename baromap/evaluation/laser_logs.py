@@ -37,7 +37,12 @@ from baromap.evaluation.consistency import (
     revisit_partners,
 )
 from baromap.evaluation.trajectory import TrajectoryError, trajectory_error
-from baromap.mapping.relations import RelationErrors, read_relations, relation_errors
+from baromap.mapping.relations import (
+    RelationErrors,
+    Relations,
+    read_relations,
+    relation_errors,
+)
 from baromap.mapping.scans import ScanBlock
 from baromap.mapping.slam import SlamConfig, SlamResult, run_slam
 from baromap.odometry.errors import OdometryErrorModel
@@ -46,6 +51,7 @@ from baromap.recording.carmen import read_carmen
 from baromap.recording.carmen_import import to_laser_scan
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
 
 
 @dataclass(frozen=True, slots=True)
@@ -104,6 +110,58 @@ class LogReport:
     reference_consistency: Consistency | None = None
 
 
+@dataclass(frozen=True, slots=True)
+class Revisits:
+    """What scoring trajectories' revisit consistency on one log needs: the scans prepared,
+    the revisit partners chosen from the corrected poses, and the corrected poses' own score.
+    The same for every seed (none of it depends on the odometry), so made once per log."""
+
+    geometry: ScanGeometry
+    partners: list[IntArray]
+    reference: Consistency
+
+
+class PreparedLog:
+    """One log's part as every seed's run needs it, read once: the scans, their times and
+    the corrected poses, the relations if the log has them; the revisit scoring made on the
+    first call of :meth:`revisits` and kept (it costs seconds on Freiburg 079, per seed when
+    it was made again for each)."""
+
+    def __init__(
+        self, data_dir: str | Path, name: str, *, scans: slice | None = None, stride: int = 1
+    ) -> None:
+        if stride < 1:
+            raise ConfigError(f"stride must be at least 1, got {stride}")
+        spec = LOGS.get(name)
+        if spec is None:
+            raise ConfigError(f"unknown laser log {name!r}; known: {', '.join(LOGS)}")
+        directory = Path(data_dir)
+        carmen = read_carmen(directory / spec.log_file)
+        part = np.arange(len(carmen.scans))[scans or slice(None)][::stride]
+        self.name = name
+        self.stride = stride
+        self.times = carmen.scan_times_ns()[part]
+        self.reference = carmen.reference_poses()[part]
+        self.block = ScanBlock.from_messages(
+            [to_laser_scan(carmen.scans[i], n) for n, i in enumerate(part)]
+        )
+        # a subsampled log keeps only the relations whose both ends it kept, a subset biased
+        # towards long gaps (revisits): not comparable with the log's published figures
+        self.relations: Relations | None = None
+        if spec.relations_file is not None and stride == 1:
+            self.relations = read_relations(directory / spec.relations_file)
+        self._revisits: Revisits | None = None
+
+    def revisits(self) -> Revisits:
+        if self._revisits is None:
+            geometry = ScanGeometry(self.block)
+            partners = revisit_partners(self.reference, geometry.radius_m)
+            self._revisits = Revisits(
+                geometry, partners, consistency(geometry, self.reference, partners)
+            )
+        return self._revisits
+
+
 def run_log(
     data_dir: str | Path,
     name: str,
@@ -118,41 +176,43 @@ def run_log(
     """SLAM on log ``name`` with odometry synthesised by ``seed``; ``scans`` takes a part,
     ``stride`` keeps every so many scans of it, ``odometry`` is the error model (default:
     the synthesis default); ``score_consistency`` adds both trajectories' revisit
-    consistency (a few seconds on Freiburg 079)."""
-    if stride < 1:
-        raise ConfigError(f"stride must be at least 1, got {stride}")
-    spec = LOGS.get(name)
-    if spec is None:
-        raise ConfigError(f"unknown laser log {name!r}; known: {', '.join(LOGS)}")
-    directory = Path(data_dir)
-    carmen = read_carmen(directory / spec.log_file)
-    part = np.arange(len(carmen.scans))[scans or slice(None)][::stride]
-    times = carmen.scan_times_ns()[part]
-    reference = carmen.reference_poses()[part]
+    consistency (a few seconds on Freiburg 079). Several seeds of one log: read it once
+    (:class:`PreparedLog`) and call :func:`run_prepared`."""
+    prepared = PreparedLog(data_dir, name, scans=scans, stride=stride)
+    return run_prepared(
+        prepared, seed, config=config, odometry=odometry, score_consistency=score_consistency
+    )
+
+
+def run_prepared(
+    log: PreparedLog,
+    seed: int,
+    *,
+    config: SlamConfig | None = None,
+    odometry: OdometryErrorModel | None = None,
+    score_consistency: bool = False,
+) -> LogReport:
+    """:func:`run_log` on a log read once for many seeds."""
+    reference = log.reference
     odom = synthesize_odometry(reference, seed, odometry)
-    block = ScanBlock.from_messages([to_laser_scan(carmen.scans[i], n) for n, i in enumerate(part)])
-    zeros = np.zeros(len(times), dtype=np.int64)
+    zeros = np.zeros(len(log.times), dtype=np.int64)
     start = time.perf_counter()
-    result = run_slam(block, odom, zeros, zeros, config=config)
+    result = run_slam(log.block, odom, zeros, zeros, config=config)
     seconds = time.perf_counter() - start
     slam_rel = odom_rel = ref_rel = None
-    # a subsampled log keeps only the relations whose both ends it kept, a subset biased
-    # towards long gaps (revisits): not comparable with the log's published figures
-    if spec.relations_file is not None and stride == 1:
-        relations = read_relations(directory / spec.relations_file)
-        slam_rel = relation_errors(times, result.scan_poses, relations)
-        odom_rel = relation_errors(times, odom, relations)
-        ref_rel = relation_errors(times, reference, relations)
+    if log.relations is not None:
+        slam_rel = relation_errors(log.times, result.scan_poses, log.relations)
+        odom_rel = relation_errors(log.times, odom, log.relations)
+        ref_rel = relation_errors(log.times, reference, log.relations)
     slam_con = ref_con = None
     if score_consistency:
-        geometry = ScanGeometry(block)
-        partners = revisit_partners(reference, geometry.radius_m)
-        slam_con = consistency(geometry, result.scan_poses, partners)
-        ref_con = consistency(geometry, reference, partners)
+        revisits = log.revisits()
+        slam_con = consistency(revisits.geometry, result.scan_poses, revisits.partners)
+        ref_con = revisits.reference
     return LogReport(
-        log=name,
+        log=log.name,
         seed=seed,
-        scans=len(times),
+        scans=len(log.times),
         slam_ate=trajectory_error(result.scan_poses, reference),
         odometry_ate=trajectory_error(odom, reference),
         slam_relations=slam_rel,

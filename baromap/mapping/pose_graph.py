@@ -185,8 +185,12 @@ class PoseGraph:
     def _of_kind(self, kind: str) -> IntArray:
         return np.flatnonzero(np.array([k == kind for k in self._kinds], dtype=bool))
 
-    def optimize(self, iterations: int = 20, anchor: int = 0, tolerance: float = 1e-5) -> int:
-        """Robust Gauss-Newton in place; returns the iterations used."""
+    def optimize(
+        self, iterations: int = 20, anchor: int | None = 0, tolerance: float = 1e-5
+    ) -> int:
+        """Robust Gauss-Newton in place; returns the iterations used. ``anchor`` is held where
+        it stands (a graph of relative edges alone has no frame of its own); None when priors
+        in the graph's frame fix the frame (see :meth:`set_priors`)."""
         n, m = self._n, self._m
         if n < 2 or m == 0:
             return 0
@@ -326,11 +330,14 @@ class _BlockStructure:
         # summing block values: one bincount over (block, entry) slots
         self.entry = (9 * inverse[:, None] + np.arange(9)[None, :]).reshape(-1)
 
-    def matrix(self, edge_blocks: FloatArray, anchor: int, extra: FloatArray) -> sparse.csc_matrix:
+    def matrix(
+        self, edge_blocks: FloatArray, anchor: int | None, extra: FloatArray
+    ) -> sparse.csc_matrix:
         n = self.n
         # every node's diagonal block gets a tiny regulariser, the anchor a stiff prior
         diag = extra + np.eye(3) * 1e-9
-        diag[anchor] += np.eye(3) * ANCHOR_INFORMATION
+        if anchor is not None:
+            diag[anchor] += np.eye(3) * ANCHOR_INFORMATION
         values = np.concatenate([edge_blocks, diag]).reshape(-1)
         summed = np.bincount(self.entry, weights=values, minlength=9 * self.blocks)
         data = np.empty(9 * self.blocks)
