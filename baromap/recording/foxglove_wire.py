@@ -2,10 +2,10 @@
 
 The writer records scans as ``foxglove.LaserScan`` (protobuf, the SDK's own schema). Built
 through the SDK, a scan becomes two Python lists of 181 floats, a tree of message objects and
-a protobuf encoding in Rust; in the daemon, which writes one scan every 13 ms with its caches
-cold, that took about 200 us a scan (``bench/writer.py``). Here the fixed fields (frame, pose,
-angles) are bytes made once, the time stamp a few bytes a message, and the ranges and flags
-one packed ``repeated double`` each, straight from their numpy arrays.
+a protobuf encoding in Rust. Here the fixed fields (frame, pose, angles) are bytes made once,
+the time stamp a few bytes a message, and the ranges and flags one packed ``repeated double``
+each, straight from their numpy arrays: half the CPU in a loop, and less on the daemon's
+recorder, whose caches are cold at every scan (``bench/writer.py``; docs/daemon.md).
 
 The bytes are the SDK's (prost's proto3 encoding), which the tests check on random messages:
 fields in tag order, scalars equal to zero left out (``-0.0`` too: it compares equal to
@@ -30,7 +30,6 @@ _DOUBLE: Final = struct.Struct("<d")
 _LITTLE_F64: Final = np.dtype("<f8")
 
 #: Wire types.
-_VARINT: Final = 0
 _I64: Final = 1
 _LEN: Final = 2
 
@@ -73,13 +72,6 @@ def pose(
 ) -> bytes:
     """A ``foxglove.Pose`` (its two sub-messages always written, as the SDK does)."""
     return length_delimited(1, vector3(*position)) + length_delimited(2, quaternion(*orientation))
-
-
-def timestamp(field: int, t_ns: int) -> bytes:
-    """A ``google.protobuf.Timestamp`` field from nanoseconds since the epoch (t_ns >= 0)."""
-    sec, nsec = divmod(t_ns, 1_000_000_000)
-    payload = (b"\x08" + varint(sec) if sec else b"") + (b"\x10" + varint(nsec) if nsec else b"")
-    return length_delimited(field, payload)
 
 
 IDENTITY_POSE: Final = pose((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
