@@ -1,6 +1,7 @@
 """Write a run into one MCAP file that Foxglove opens without plugins.
 
-Scans go out as ``foxglove.LaserScan`` in the ``laser`` frame (per-beam
+Scans go out as ``foxglove.LaserScan`` in the ``laser`` frame, encoded by
+:mod:`~baromap.recording.foxglove_wire` into the bytes the SDK would write (per-beam
 :class:`~baromap.messages.BeamFlag` bits ride in ``intensities``: the LMS200 reports no
 intensity in its ranging modes; the range limits ride in the channel's metadata; the status
 byte is the session's business, on ``/diagnostics``). Odometry goes out as
