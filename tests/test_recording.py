@@ -241,8 +241,9 @@ def test_flush_interval_writes_chunks_while_recording(tmp_path: Path) -> None:
 
 
 def test_closed_files_leave_no_channels_behind(tmp_path: Path) -> None:
-    """A daemon opens a file a minute for days: the JSON channels of a closed file must go
-    (the foxglove SDK keeps every ``foxglove.Channel`` in a registry of its own)."""
+    """A daemon opens a file a minute for days: the plain channels of a closed file (JSON, and
+    the scans' protobuf) must go (the foxglove SDK keeps every ``foxglove.Channel`` in a
+    registry of its own)."""
     import gc
 
     import foxglove
@@ -256,7 +257,8 @@ def test_closed_files_leave_no_channels_behind(tmp_path: Path) -> None:
         with RecordingWriter(tmp_path / f"run_{part}.mcap", robot="r1") as writer:
             writer.write(m.PressureSample(T0, 100000.0, seq=part))
             writer.write(m.DeviceHealth(T0, "barometer", m.DeviceState.UP, "/dev/x", "", {}))
-            assert channels() == before + 2
+            writer.write(make_scan(T0))
+            assert channels() == before + 3
     assert channels() == before
     last = [r.message for r in read_messages(tmp_path / "run_4.mcap", [t.BARO])]
     assert last == [m.PressureSample(T0, 100000.0, seq=4)]

@@ -16,8 +16,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from baromap.errors import ConfigError, InputFormatError
 
 #: Floors a model may list: far above any building, small enough to check pairwise.
@@ -62,6 +60,8 @@ class BuildingModel:
 
 def load_building_model(path: str | Path) -> BuildingModel:
     """Read the floors of a ``building.yaml`` (``floors: [{index, elevation_m[, name]}]``)."""
+    import yaml  # here: the daemon imports this module, and reads a model only if configured
+
     try:
         document = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
     except OSError as exc:

@@ -1,6 +1,7 @@
 """Write a run into one MCAP file that Foxglove opens without plugins.
 
-Scans go out as ``foxglove.LaserScan`` in the ``laser`` frame (per-beam
+Scans go out as ``foxglove.LaserScan`` in the ``laser`` frame, encoded by
+:mod:`~baromap.recording.foxglove_wire` into the bytes the SDK would write (per-beam
 :class:`~baromap.messages.BeamFlag` bits ride in ``intensities``: the LMS200 reports no
 intensity in its ranging modes; the range limits ride in the channel's metadata; the status
 byte is the session's business, on ``/diagnostics``). Odometry goes out as
@@ -32,12 +33,11 @@ from types import TracebackType
 
 import foxglove
 import structlog
-from foxglove.channels import FrameTransformChannel, LaserScanChannel, OdometryChannel
+from foxglove.channels import FrameTransformChannel, OdometryChannel
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 from foxglove.messages import (
     FrameTransform,
     KeyValuePair,
-    LaserScan,
     Odometry,
     Pose,
     Quaternion,
@@ -47,7 +47,7 @@ from foxglove.messages import (
 
 from baromap import __version__, jsonmsg, messages
 from baromap.errors import BaromapError, RecordingError
-from baromap.recording import topics
+from baromap.recording import foxglove_wire, topics
 from baromap.recording.frames import LASER_MOUNT_KEY, LaserMount, yaw_to_quaternion
 
 log = structlog.get_logger(__name__)
@@ -128,7 +128,8 @@ class RecordingWriter:
         self._last_flush = time.monotonic()
         self._dirty = False
         self._json_channels: dict[tuple[str, type], foxglove.Channel] = {}
-        self._scan_channels: dict[tuple[str, float], LaserScanChannel] = {}
+        self._scan_channels: dict[tuple[str, float], foxglove.Channel] = {}
+        self._scan_encoder = foxglove_wire.LaserScanEncoder(topics.LASER_FRAME)
         self._odom_channels: dict[str, OdometryChannel] = {}
         self._tf_channel: FrameTransformChannel | None = None
         self._static_channel: FrameTransformChannel | None = None
@@ -238,13 +239,14 @@ class RecordingWriter:
         cls = type(message)
         if cls not in DEFAULT_TOPICS:
             raise RecordingError(f"cannot record a {cls.__name__}")
-        if not 0 <= message.t_ns <= MAX_T_NS:
-            raise RecordingError(f"{cls.__name__} time {message.t_ns} ns is outside 1970..2106")
+        t_ns = message.t_ns
+        if not 0 <= t_ns <= MAX_T_NS:
+            raise RecordingError(f"{cls.__name__} time {t_ns} ns is outside 1970..2106")
         topic = topic or DEFAULT_TOPICS[cls]
         if self._laser_mount is not None and (
-            self._static_due or not 0 <= message.t_ns - self._last_static_ns < STATIC_PERIOD_NS
+            self._static_due or not 0 <= t_ns - self._last_static_ns < STATIC_PERIOD_NS
         ):
-            self._write_static(message.t_ns)
+            self._write_static(t_ns)
         if isinstance(message, messages.LaserScan):
             self._write_scan(topic, message)
         elif isinstance(message, messages.Odometry):
@@ -252,7 +254,9 @@ class RecordingWriter:
             if topic == topics.ODOM:
                 self._write_tf(message)
         else:
-            self._json_channel(topic, cls).log(jsonmsg.dumps(message), log_time=message.t_ns)
+            # the plain channel's own log: Channel.log checks the payload's type first, and
+            # every line counts on the recorder's cold caches (bench/writer.py)
+            self._json_channel(topic, cls).base.log(jsonmsg.dumps(message), t_ns, None)
         self.counts[topic] = self.counts.get(topic, 0) + 1
         self._dirty = True
         self.flush_if_due()
@@ -296,11 +300,11 @@ class RecordingWriter:
             if self._sync_fd >= 0:
                 os.close(self._sync_fd)
                 self._sync_fd = -1
-            self._release_json_channels()
+            self._release_channels()
         log.info("recording closed", path=str(self.path), messages=sum(self.counts.values()))
 
-    def _release_json_channels(self) -> None:
-        """Let go of this file's JSON channels for good.
+    def _release_channels(self) -> None:
+        """Let go of this file's plain channels (JSON, and the scans' protobuf) for good.
 
         The SDK keeps every ``foxglove.Channel`` ever made in a module-level registry (by id,
         for ``foxglove.log``) and never removes one, closed or not: each file's channels, with
@@ -311,11 +315,12 @@ class RecordingWriter:
         transforms) are not in it.
         """
         registry: dict[int, object] | None = getattr(foxglove.channel, "_channels_by_id", None)
-        for channel in self._json_channels.values():
+        for channel in (*self._json_channels.values(), *self._scan_channels.values()):
             channel.close()
             if registry is not None:
                 registry.pop(channel.id(), None)
         self._json_channels.clear()
+        self._scan_channels.clear()
 
     def _json_channel(self, topic: str, cls: type) -> foxglove.Channel:
         key = (topic, cls)
@@ -333,11 +338,19 @@ class RecordingWriter:
         return channel
 
     def _write_scan(self, topic: str, scan: messages.LaserScan) -> None:
+        """A ``foxglove.LaserScan``, encoded by :mod:`~baromap.recording.foxglove_wire`.
+
+        The bytes are those the SDK's ``LaserScanChannel`` would write, on a channel with the
+        same schema and metadata; building the SDK's message objects from two Python lists
+        cost the daemon's recorder several times more a scan (``bench/writer.py``).
+        """
         key = (topic, scan.range_max_m)
         channel = self._scan_channels.get(key)
         if channel is None:
-            channel = LaserScanChannel(
+            channel = foxglove.Channel(
                 topic,
+                schema=foxglove_wire.laser_scan_schema(),
+                message_encoding="protobuf",
                 metadata={
                     "range_max_m": repr(scan.range_max_m),
                     "range_min_m": repr(scan.range_min_m),
@@ -346,18 +359,7 @@ class RecordingWriter:
                 context=self.context,
             )
             self._scan_channels[key] = channel
-        channel.log(
-            LaserScan(
-                timestamp=stamp(scan.t_ns),
-                frame_id=topics.LASER_FRAME,
-                pose=_IDENTITY_POSE,
-                start_angle=scan.angle_min_rad,
-                end_angle=scan.angle_max_rad,
-                ranges=scan.ranges_m.tolist(),
-                intensities=scan.flags.tolist(),
-            ),
-            log_time=scan.t_ns,
-        )
+        channel.base.log(self._scan_encoder.encode(scan), scan.t_ns, None)
 
     def _write_odometry(self, topic: str, odom: messages.Odometry) -> None:
         channel = self._odom_channels.get(topic)
