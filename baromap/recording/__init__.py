@@ -25,22 +25,6 @@ if TYPE_CHECKING:
         read_metadata,
     )
 
-_FROM_READER = frozenset(
-    {
-        "OdometrySeries",
-        "PressureSeries",
-        "Record",
-        "load_odometry",
-        "load_pressure",
-        "load_pressure_and_odometry",
-        "load_pressures_and_odometry",
-        "odometry_series",
-        "pressure_series",
-        "read_messages",
-        "read_metadata",
-    }
-)
-
 
 def __getattr__(name: str) -> Any:
     if name in _FROM_READER:
@@ -65,3 +49,6 @@ __all__ = [
     "read_messages",
     "read_metadata",
 ]
+
+#: What the reader module provides (the rest of ``__all__`` is imported above).
+_FROM_READER = frozenset(__all__) - {"LaserMount", "RecordingWriter"}
