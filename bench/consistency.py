@@ -54,15 +54,12 @@ from baromap.evaluation.consistency import (
     revisit_corrections,
     revisit_partners,
 )
-from baromap.evaluation.laser_logs import LOGS, run_log
+from baromap.evaluation.laser_logs import PreparedLog, run_prepared
 from baromap.evaluation.trajectory import trajectory_error
 from baromap.mapping import se2
-from baromap.mapping.relations import Relations, read_relations, relation_errors
-from baromap.mapping.scans import ScanBlock
+from baromap.mapping.relations import Relations, relation_errors
 from baromap.mapping.slam import SlamConfig
 from baromap.odometry.synthesis import synthesize_odometry
-from baromap.recording.carmen import read_carmen
-from baromap.recording.carmen_import import to_laser_scan
 
 REPO = Path(__file__).resolve().parent.parent
 LASER = Path(os.environ.get("BAROMAP_SHARED_DATA", REPO.parent / "shared" / "data")) / "laser"
@@ -89,30 +86,29 @@ def _revisits(times: np.ndarray, rel: Relations) -> Relations:
     return Relations(rel.t1_ns[far], rel.t2_ns[far], rel.motion[far])
 
 
-def _ours(name: str, seed: int, store: Path | None, no_loops: bool) -> np.ndarray:
-    tag = f"{name}_{seed}.npy"
+def _ours(log: PreparedLog, seed: int, store: Path | None, no_loops: bool) -> np.ndarray:
+    tag = f"{log.name}_{seed}.npy"
     path = None if store is None else store / ("noloops" if no_loops else "ours") / tag
     if path is not None and path.exists():
         return np.load(path)
-    poses = run_log(LASER, name, seed, config=NO_LOOPS if no_loops else None).result.scan_poses
+    poses = run_prepared(log, seed, config=NO_LOOPS if no_loops else None).result.scan_poses
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         np.save(path, poses)
     return poses
 
 
-def trajectories(
-    name: str, reference: np.ndarray, args: argparse.Namespace
-) -> dict[str, np.ndarray]:
+def trajectories(log: PreparedLog, args: argparse.Namespace) -> dict[str, np.ndarray]:
+    name, reference = log.name, log.reference
     seeds = [int(s) for s in args.seeds.split(",")]
     out: dict[str, np.ndarray] = {"gmapping": reference}
     for seed in seeds:
         out[f"odometry {seed}"] = synthesize_odometry(reference, seed)
     for seed in seeds:
-        out[f"ours {seed}"] = _ours(name, seed, args.poses, no_loops=False)
+        out[f"ours {seed}"] = _ours(log, seed, args.poses, no_loops=False)
     if args.no_loops:
         for seed in seeds[:2]:
-            out[f"ours, no loops {seed}"] = _ours(name, seed, args.poses, no_loops=True)
+            out[f"ours, no loops {seed}"] = _ours(log, seed, args.poses, no_loops=True)
     for extra in args.extra:
         label, _, directory = extra.partition("=")
         for seed in seeds:
@@ -123,20 +119,16 @@ def trajectories(
 
 
 def bench_log(name: str, args: argparse.Namespace) -> None:
-    spec = LOGS[name]
-    carmen = read_carmen(LASER / spec.log_file)
-    times = carmen.scan_times_ns()
-    reference = carmen.reference_poses()
-    block = ScanBlock.from_messages([to_laser_scan(s, n) for n, s in enumerate(carmen.scans)])
-    geometry = ScanGeometry(block)
+    log = PreparedLog(LASER, name)  # read once: every seed's SLAM runs on it
+    times, reference, relations = log.times, log.reference, log.relations
+    geometry = ScanGeometry(log.block)
     partners = revisit_partners(
         reference, geometry.radius_m * args.radius_scale, min_travel_m=args.min_travel
     )
     with_partners = sum(len(p) > 0 for p in partners)
     print(f"{name}: {len(times)} scans, {with_partners} with revisit partners; {_load()}")
-    relations = None if spec.relations_file is None else read_relations(LASER / spec.relations_file)
     rows: list[dict[str, Any]] = []
-    for label, poses in trajectories(name, reference, args).items():
+    for label, poses in trajectories(log, args).items():
         start = time.process_time()
         score = consistency(geometry, poses, partners, truncate_m=args.truncate)
         moves = revisit_corrections(geometry, poses, partners, truncate_m=args.truncate)
