@@ -18,6 +18,7 @@ in the same rounds (an A/B in one process: the cold figures move by 2-3x between
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import os
 import random
@@ -31,7 +32,7 @@ import numpy as np
 import structlog
 
 from baromap import messages
-from baromap.recording import RecordingWriter
+from baromap.recording import RecordingWriter, foxglove_wire
 from baromap.recording.frames import LaserMount
 
 
@@ -87,21 +88,10 @@ def cases(writer: RecordingWriter, beams: int, rounds: int) -> dict[str, Callabl
         writer.write(messages.PressureSample(t0 + i * step, 101_325.0 + i % 7, 21.5, i, i * 20_000))
 
     def floor_state(i: int) -> None:
-        writer.write(
-            messages.FloorState(t0 + i * step, state.phase, 0, "ground", 0.0, 0.0, 101_325.0, t0, 1)
-        )
+        writer.write(dataclasses.replace(state, t_ns=t0 + i * step))
 
     def diagnostics(i: int) -> None:
-        writer.write(
-            messages.DeviceHealth(
-                t0 + i * step,
-                health.device,
-                health.state,
-                health.port,
-                health.detail,
-                health.counters,
-            )
-        )
+        writer.write(dataclasses.replace(health, t_ns=t0 + i * step))
 
     out: dict[str, Callable[[int], None]] = {
         "/scan": scan,
@@ -146,11 +136,6 @@ def scan_paths(
     def nothing(i: int) -> None:
         pass
 
-    out = {"scan alone: SDK objects": sdk, "nothing (timing floor)": nothing}
-    try:  # this branch's encoder; the bench also runs against a checkout without it
-        from baromap.recording import foxglove_wire
-    except ImportError:
-        return out
     encoder = foxglove_wire.LaserScanEncoder("laser")
     plain = foxglove.Channel(
         "/bench/wire",
@@ -163,8 +148,11 @@ def scan_paths(
         s = scan_list[i]
         plain.log(encoder.encode(s), log_time=s.t_ns)
 
-    out["scan alone: foxglove_wire"] = wire
-    return out
+    return {
+        "scan alone: SDK objects": sdk,
+        "scan alone: foxglove_wire": wire,
+        "nothing (timing floor)": nothing,
+    }
 
 
 def run(

@@ -139,7 +139,6 @@ class PreparedLog:
         carmen = read_carmen(directory / spec.log_file)
         part = np.arange(len(carmen.scans))[scans or slice(None)][::stride]
         self.name = name
-        self.stride = stride
         self.times = carmen.scan_times_ns()[part]
         self.reference = carmen.reference_poses()[part]
         self.block = ScanBlock.from_messages(
