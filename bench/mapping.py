@@ -218,7 +218,11 @@ def bench_logs(specs: list[str], seeds: list[int], odometry: str = "default") ->
                     if rel is not None:
                         rel_t.append(rel.trans_mean)
                         rel_r.append(rel.rot_mean)
-            if rep.slam_consistency is not None and rep.reference_consistency is not None:
+            if (
+                rep.slam_consistency is not None
+                and rep.reference_consistency is not None
+                and np.isfinite(rep.slam_consistency.mean_m)  # a part may hold no revisit
+            ):
                 cons.append((rep.slam_consistency.mean_m, rep.reference_consistency.mean_m))
             print(
                 f"{'':{len(name_shown)}}  {seed:>4}  {cells[0]:>34}  {cells[1]:>34}  "
