@@ -54,10 +54,6 @@ OUTLIER_SIGMAS = 4.0
 #: turn, a couple of degrees per metre (the synthetic logs' creep, twice a P3-AT's).
 TURN_SLACK = 0.05
 CREEP_SLACK_RAD_PER_M = math.radians(2.0)
-#: Steps set aside as wrong matches are judged again as the fit moves; the oldest are
-#: forgotten beyond this many (a run of wrong matches must not cost a pass over all of them
-#: at every step).
-MAX_SET_ASIDE = 200
 
 
 class OdometryCalibration:
@@ -71,8 +67,7 @@ class OdometryCalibration:
         self._rot_h = np.zeros((2, 2))
         self._rot_g = np.zeros(2)
         self.samples = 0
-        # steps refused as wrong matches, (odometric, matched, covariance), newest last
-        self._aside: list[tuple[FloatArray, FloatArray, FloatArray]] = []
+        self.rejected = 0
 
     # ---------------------------------------------------------------- estimates
 
@@ -110,38 +105,7 @@ class OdometryCalibration:
     def observe(self, odometric: FloatArray, matched: FloatArray, covariance: FloatArray) -> None:
         """One step as odometry read it and as matching measured it (same frame, the step's
         start), with the covariance of the matched step (3x3). A step whose travel or turn is
-        far from what the fit so far expects is a wrong match, and neither part of it counts
-        while it is: it is kept aside and judged again whenever the fit has taken a sample
-        (:data:`MAX_SET_ASIDE`)."""
-        sample = (
-            np.asarray(odometric, dtype=np.float64).copy(),
-            np.asarray(matched, dtype=np.float64).copy(),
-            np.asarray(covariance, dtype=np.float64).copy(),
-        )
-        if not self._take(*sample):
-            self._aside.append(sample)
-            del self._aside[:-MAX_SET_ASIDE]
-            return
-        # the fit moved: a step set aside against an earlier fit may be a right one it was
-        # missing. On a sparse log (steps of 1.5-3 m) a creep of 2.6 deg/m is 8 deg a step,
-        # beyond the slack, so from a fit at zero every long step was refused for good and
-        # only the short ones taught the fit (on `intel/3` the first 60 of 70 samples)
-        taken = True
-        while taken and self._aside:
-            taken = False
-            for i, kept in enumerate(self._aside):
-                if self._take(*kept):
-                    del self._aside[i]
-                    taken = True
-                    break
-
-    @property
-    def rejected(self) -> int:
-        """Steps set aside as wrong matches (those the fit never came to agree with)."""
-        return len(self._aside)
-
-    def _take(self, odometric: FloatArray, matched: FloatArray, covariance: FloatArray) -> bool:
-        """Adds the step to the fit unless it is far from what the fit so far expects."""
+        far from what the fit so far expects is a wrong match, and neither part of it counts."""
         travel = math.hypot(odometric[0], odometric[1])
         distance: tuple[float, float] | None = None  # (weight, matched travel along)
         if travel >= MIN_STEP_M:
@@ -151,7 +115,8 @@ class OdometryCalibration:
                 along = float(u @ matched[:2])
                 scale = self._wad / self._wdd if self._wdd > 0 else 1.0
                 if abs(along - scale * travel) > OUTLIER_SIGMAS * math.sqrt(var) + 0.02 * travel:
-                    return False
+                    self.rejected += 1
+                    return
                 distance = (1.0 / var, along)
         var_t = float(covariance[2, 2])
         turn: tuple[float, FloatArray, float] | None = None  # (weight, features, residual)
@@ -161,7 +126,8 @@ class OdometryCalibration:
             expected = float(x @ self._turn_fit())
             slack = TURN_SLACK * abs(odometric[2]) + CREEP_SLACK_RAD_PER_M * travel
             if abs(residual - expected) > OUTLIER_SIGMAS * math.sqrt(var_t) + slack:
-                return False
+                self.rejected += 1
+                return
             turn = (1.0 / var_t, x, residual)
         if distance is not None:
             w, along = distance
@@ -171,10 +137,8 @@ class OdometryCalibration:
             w, x, residual = turn
             self._rot_h += w * np.outer(x, x)
             self._rot_g += w * x * residual
-        if distance is None and turn is None:
-            return True  # nothing to learn from, nothing wrong with it
-        self.samples += 1
-        return True
+        if distance is not None or turn is not None:
+            self.samples += 1
 
     def _turn_fit(self) -> FloatArray:
         """(a, b) fitted so far, whatever their uncertainty (zero before two samples)."""
