@@ -11,6 +11,7 @@ import yaml
 from hypothesis import given
 from hypothesis import strategies as st
 
+from baromap.errors import ConfigError
 from baromap.mapping import se2
 from baromap.mapping.export import (
     FREE_VALUE,
@@ -465,6 +466,98 @@ def test_odometry_calibration_learns_the_systematic_errors_where_scans_pin_the_m
     assert math.degrees(b) == pytest.approx(-1.0 / 1.04, abs=0.1)
     step = cal.correct(np.array([1.03, 0.0, 1.04 * 0.3 + math.radians(1.0) * 1.03]))
     assert step == pytest.approx([1.0, 0.0, 0.3], abs=0.01)
+
+
+def test_an_error_models_correction_undoes_it() -> None:
+    """What a perfect calibration learns of a model (distance factor, turn factor - 1, creep
+    per odometric metre), applied as the SLAM applies it, gives back the true steps: checked
+    on noiseless odometry synthesised by models of every sign."""
+    from baromap.evaluation.laser_logs import varied_odometry
+    from baromap.odometry.errors import OdometryErrorModel
+    from baromap.odometry.synthesis import synthesize_odometry
+
+    rng = np.random.default_rng(5)
+    steps = np.column_stack(
+        [rng.uniform(0.2, 1.5, 60), rng.normal(0, 0.05, 60), rng.normal(0, 0.6, 60)]
+    )
+    truth = np.zeros((61, 3))
+    for i, step in enumerate(steps):
+        truth[i + 1] = se2.compose(truth[i], step)
+    for seed in range(4):
+        drawn = varied_odometry(seed)
+        model = OdometryErrorModel(
+            scale=drawn.scale,
+            rotation_scale=drawn.rotation_scale,
+            drift_rad_per_m=drawn.drift_rad_per_m,
+            sigma_trans_per_m=0.0,
+            sigma_side_per_m=0.0,
+            sigma_rot_per_m=0.0,
+            sigma_rot_per_rad=0.0,
+        )
+        odom = synthesize_odometry(truth, seed, model)
+        c, a, b = model.correction()
+        for i in range(60):
+            read = se2.between(odom[i], odom[i + 1])
+            travel = math.hypot(read[0], read[1])
+            undone = np.array([read[0] * c, read[1] * c, read[2] * (1 + a) + b * travel])
+            assert undone == pytest.approx(se2.between(truth[i], truth[i + 1]), abs=1e-9)
+
+
+def test_varied_odometry_is_drawn_per_seed_within_its_family() -> None:
+    """Each seed draws its own model, the same every time; magnitudes within the family's
+    ranges and noise within half to one and a half times the default's; over a few seeds
+    every systematic term takes both signs."""
+    from baromap.evaluation import laser_logs
+    from baromap.odometry.errors import OdometryErrorModel
+
+    default = OdometryErrorModel()
+    models = [laser_logs.varied_odometry(seed) for seed in range(12)]
+    assert laser_logs.varied_odometry(3) == models[3]
+    assert len({m.scale for m in models}) == len(models)
+    for m in models:
+        assert laser_logs.VARIED_SCALE[0] <= abs(m.scale) <= laser_logs.VARIED_SCALE[1]
+        assert abs(m.rotation_scale) <= laser_logs.VARIED_ROTATION_SCALE[1]
+        low, high = laser_logs.VARIED_CREEP_RAD_PER_M
+        assert low <= abs(m.drift_rad_per_m) <= high
+        for name in ("sigma_trans_per_m", "sigma_side_per_m", "sigma_rot_per_m"):
+            assert 0.5 <= getattr(m, name) / getattr(default, name) <= 1.5
+    for name in ("scale", "rotation_scale", "drift_rad_per_m"):
+        signs = {math.copysign(1.0, getattr(m, name)) for m in models}
+        assert signs == {-1.0, 1.0}
+    assert laser_logs.odometry_model("varied", 3) == models[3]
+    assert laser_logs.odometry_model("strong", 3) is laser_logs.STRONG_ODOMETRY
+    with pytest.raises(ConfigError):
+        laser_logs.odometry_model("weak", 0)
+    with pytest.raises(ConfigError):
+        laser_logs.varied_odometry(-1)
+
+
+@pytest.mark.parametrize(
+    ("text", "name", "stride", "scans"),
+    [
+        ("fr079", "fr079", 1, None),
+        ("intel/3", "intel", 3, None),
+        ("fr079[0:967]", "fr079", 1, slice(0, 967)),
+        ("acapulco/2[168:822]", "acapulco", 2, slice(168, 822)),
+        ("intel[100:]", "intel", 1, slice(100, None)),
+    ],
+)
+def test_log_specs_name_a_log_its_part_and_stride(
+    text: str, name: str, stride: int, scans: slice | None
+) -> None:
+    from baromap.evaluation.laser_logs import LogSpec, parse_log_spec
+
+    spec = parse_log_spec(text)
+    assert spec == LogSpec(name, stride, scans)
+    assert spec.published == (text == "fr079")
+
+
+@pytest.mark.parametrize("text", ["lab", "intel/0", "intel/x", "intel[1:2", "intel[a:b]", ""])
+def test_a_bad_log_spec_is_a_config_error(text: str) -> None:
+    from baromap.evaluation.laser_logs import parse_log_spec
+
+    with pytest.raises(ConfigError):
+        parse_log_spec(text)
 
 
 def test_front_end_holds_on_a_sparse_log(shared_data: Path) -> None:

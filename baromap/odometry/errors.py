@@ -72,6 +72,17 @@ class OdometryErrorModel:
             sigma_rot_per_sqrt_rad=math.radians(1.0),
         )
 
+    def correction(self) -> tuple[float, float, float]:
+        """What undoes the systematic part, in the terms odometry calibration learns
+        (``SlamResult.odometry_correction``): the factor taking odometric travel to true
+        travel, the turn factor minus one, and the creep in radians per odometric metre
+        (true turn = odometric turn * (1 + a) + creep * odometric travel). Odometry reads
+        a turn as ``turn * (1 + rotation_scale) + drift * travel``, travel ``1 + scale``
+        times long: so the creep is the drift, divided by both."""
+        gain = 1.0 + self.scale
+        turn = 1.0 + self.rotation_scale
+        return 1.0 / gain, 1.0 / turn - 1.0, -self.drift_rad_per_m / (turn * gain)
+
     def as_dict(self) -> dict[str, float]:
         """For metadata: angles in degrees."""
         return {
