@@ -613,8 +613,8 @@ def test_a_front_end_match_odometry_cannot_explain_yields_in_the_last_solve(
     125 (corrected odometry was 5 degrees off) and keyframes along corridors 0.7-1 m along
     (odometry 0.03-0.15 m off); the next keyframes' matches put the robot back, so two match
     edges held each wrong pose against odometry and the closures (0.258 m ATE, 1.04 m max).
-    Doubted in the last solve (a robust kernel on the matches beyond odometry's fitted
-    noise), they yield: 0.082 m (max 0.29 m)."""
+    Doubted in the last solve (a robust kernel on the matches that disagree with corrected
+    odometry beyond both their uncertainties), they yield: 0.081 m (max 0.29 m)."""
     from baromap.evaluation.laser_logs import run_log
 
     report = run_log(shared_data / "laser", "intel", seed=2, stride=4)

@@ -570,11 +570,16 @@ class _Slam:
         GMapping's steps took `intel/4` seed 2 from 0.258 to 0.061 m and `fr079/30` seed 3
         from 0.443 to 0.094 m: they are what is left.
 
-        Which matches to doubt is said by odometry's noise as fitted to the matched steps
-        (:func:`fit_noise`): beyond NOISE_OUTLIER_SIGMAS of it, the fit itself counts a step
-        as a wrong match. Such an edge keeps its weight while the graph agrees with it and
-        yields to odometry and the closures where they disagree; where match and odometry
-        agree, the chain stays as stiff as before.
+        A match is doubted when it and corrected odometry disagree by more than both can be
+        wrong together: the miss weighed by the match's own covariance plus odometry's noise
+        as fitted to the matched steps (:func:`fit_noise`), beyond NOISE_OUTLIER_SIGMAS (where
+        that fit itself counts a step as a wrong match). Odometry's noise alone is not the
+        test: on the simulated building it is 7 mm a half-metre step, and 45 matches along
+        corridors, 3-5 cm along the corridor where the match itself is weak, were doubted
+        and the building bent (seed 0: 0.033 -> 0.042 m RMS, max 0.102 -> 0.157 m). A
+        doubted edge keeps its weight while the graph agrees with it and yields to odometry
+        and the closures where they disagree; where match and odometry agree, the chain stays
+        as stiff as before.
         """
         edges = self.graph.edges
         doubted = 0
@@ -582,12 +587,15 @@ class _Slam:
             if e.kind != "match":
                 continue
             read = self._odometry_step(e.i, e.j)
-            miss = se2.between(self.calibration.correct(read), e.z)
+            # the corrected odometric step as seen from where the match put k (the frame in
+            # which the edge's information weighs a translation)
+            miss = se2.between(e.z, self.calibration.correct(read))
+            miss[2] = se2.wrap(miss[2])
             sigma_xy, sigma_theta = noise.sigmas(math.hypot(read[0], read[1]), read[2])
-            if (
-                math.hypot(miss[0], miss[1]) > NOISE_OUTLIER_SIGMAS * sigma_xy
-                or abs(float(miss[2])) > NOISE_OUTLIER_SIGMAS * sigma_theta
-            ):
+            both = np.linalg.inv(e.information) + np.diag(
+                [sigma_xy**2, sigma_xy**2, sigma_theta**2]
+            )
+            if float(miss @ np.linalg.solve(both, miss)) > NOISE_OUTLIER_SIGMAS**2:
                 e.robust_c = LOOP_ROBUST_C
                 doubted += 1
         self.stats["matches_doubted"] = doubted
