@@ -174,6 +174,12 @@ class LogSpec:
     stride: int = 1
     scans: slice | None = None
 
+    def __post_init__(self) -> None:
+        if self.name not in LOGS:
+            raise ConfigError(f"unknown laser log {self.name!r}; known: {', '.join(LOGS)}")
+        if self.stride < 1:
+            raise ConfigError(f"stride must be at least 1, got {self.stride}")
+
     @property
     def published(self) -> bool:
         """The log as published: every scan (issue 14's bar applies to these only)."""
@@ -191,17 +197,12 @@ def parse_log_spec(text: str) -> LogSpec:
     match = _SPEC.match(text.strip())
     if match is None:
         raise ConfigError(f"a log is NAME, NAME/N, NAME[a:b] or NAME/N[a:b], got {text!r}")
-    if match["name"] not in LOGS:
-        raise ConfigError(f"unknown laser log {match['name']!r}; known: {', '.join(LOGS)}")
-    stride = int(match["stride"] or 1)
-    if stride < 1:
-        raise ConfigError(f"stride must be at least 1, got {stride}")
     scans = None
     if match["a"] is not None:
         scans = slice(
             int(match["a"]) if match["a"] else None, int(match["b"]) if match["b"] else None
         )
-    return LogSpec(match["name"], stride, scans)
+    return LogSpec(match["name"], int(match["stride"] or 1), scans)
 
 
 @dataclass(frozen=True, slots=True)
@@ -238,18 +239,15 @@ class Revisits:
 
 class PreparedLog:
     """One log's part as every seed's run needs it, read once: the scans, their times and
-    the corrected poses, the relations if the log has them; the revisit scoring made on the
-    first call of :meth:`revisits` and kept (it costs seconds on Freiburg 079, per seed when
-    it was made again for each)."""
+    the corrected poses, the relations if the part holds any and the corrected poses' score
+    on them; the revisit scoring made on the first call of :meth:`revisits` and kept (it
+    costs seconds on Freiburg 079, per seed when it was made again for each)."""
 
     def __init__(
         self, data_dir: str | Path, name: str, *, scans: slice | None = None, stride: int = 1
     ) -> None:
-        if stride < 1:
-            raise ConfigError(f"stride must be at least 1, got {stride}")
-        spec = LOGS.get(name)
-        if spec is None:
-            raise ConfigError(f"unknown laser log {name!r}; known: {', '.join(LOGS)}")
+        LogSpec(name, stride, scans)  # checks the name and the stride
+        spec = LOGS[name]
         directory = Path(data_dir)
         carmen = read_carmen(directory / spec.log_file)
         part = np.arange(len(carmen.scans))[scans or slice(None)][::stride]
@@ -262,8 +260,14 @@ class PreparedLog:
         # a subsampled log keeps only the relations whose both ends it kept, a subset biased
         # towards long gaps (revisits): not comparable with the log's published figures
         self.relations: Relations | None = None
+        #: the corrected poses' own score on the relations
+        self.reference_relations: RelationErrors | None = None
         if spec.relations_file is not None and stride == 1:
-            self.relations = read_relations(directory / spec.relations_file)
+            relations = read_relations(directory / spec.relations_file)
+            scored = relation_errors(self.times, self.reference, relations)
+            # a part of a log may hold none of its relations (both ends inside): then it has none
+            if scored.used:
+                self.relations, self.reference_relations = relations, scored
         self._revisits: Revisits | None = None
 
     def revisits(self) -> Revisits:
@@ -313,12 +317,10 @@ def run_prepared(
     start = time.perf_counter()
     result = run_slam(log.block, odom, zeros, zeros, config=config)
     seconds = time.perf_counter() - start
-    slam_rel = odom_rel = ref_rel = None
-    # a part of a log may hold none of its relations (both ends inside): then it has none
-    if log.relations is not None and relation_errors(log.times, reference, log.relations).used:
+    slam_rel = odom_rel = None
+    if log.relations is not None:
         slam_rel = relation_errors(log.times, result.scan_poses, log.relations)
         odom_rel = relation_errors(log.times, odom, log.relations)
-        ref_rel = relation_errors(log.times, reference, log.relations)
     slam_con = ref_con = None
     if score_consistency:
         revisits = log.revisits()
@@ -332,7 +334,7 @@ def run_prepared(
         odometry_ate=trajectory_error(odom, reference),
         slam_relations=slam_rel,
         odometry_relations=odom_rel,
-        reference_relations=ref_rel,
+        reference_relations=log.reference_relations,
         result=result,
         seconds=seconds,
         slam_consistency=slam_con,
