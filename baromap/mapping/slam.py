@@ -1190,13 +1190,20 @@ class _Slam:
         drift = min(since_closure, self.clouds.path_m(nearest_kf, k))
         bound_m = LOOP_BASE_M + config.drift_m_per_m * drift
         bound_rad = LOOP_BASE_RAD + math.radians(config.drift_deg_per_m) * drift
-        # past LOOP_MAX_M the window is searched by branch and bound, and what it finds must
-        # agree with another keyframe's closure: a window of metres holds aliases. Any
-        # target: after a long drive without a closure (a big building's loop of hundreds of
-        # metres) the front end is metres off, and a window capped at LOOP_MAX_M would hold
-        # only the aliases, the best of which scores like a loop (docs/mapping.md)
+        # past LOOP_MAX_M the window is searched by branch and bound, and a correction it
+        # finds beyond LOOP_MAX_M must agree with another keyframe's closure: a window of
+        # metres holds aliases. Any target: after a long drive without a closure (a big
+        # building's loop of hundreds of metres) the front end is metres off, and a window
+        # capped at LOOP_MAX_M would hold only the aliases, the best of which scores like a
+        # loop; a dense target is then the run around the revisit (docs/mapping.md)
         sparse_target = len(sub.keyframes) < LOOP_MIN_KEYFRAMES
         wide = bound_m > LOOP_MAX_M
+        framed = None
+        if wide and not sparse_target:
+            framed = self._stretch_target(nearest_kf, k, min(LOOP_WIDE_M, bound_m))
+            if framed is None:
+                self.stats["loop_unframed"] += 1
+                return
         linear = min(LOOP_WIDE_M if wide else LOOP_MAX_M, bound_m)
         angular = min(LOOP_MAX_RAD, bound_rad)
         window = _window(
@@ -1205,11 +1212,7 @@ class _Slam:
             _angle_step(self.clouds.typical_range[k], config.resolution_m),
             config.resolution_m,
         )
-        if wide and not sparse_target:
-            framed = self._stretch_target(nearest_kf, k, linear)
-            if framed is None:
-                self.stats["loop_unframed"] += 1
-                return
+        if framed is not None:
             target, fld, coarse = framed
         else:
             target, fld, coarse = self._loop_target(sub, nearest_kf, k, window.coarse_step_cells)
@@ -1245,7 +1248,10 @@ class _Slam:
             self.stats["loop_ambiguous"] += 1
             return
         edge = self._match_edge(target, k, result, kind="loop")
-        if result.score < config.loop_min_score or wide:
+        # what the capped window would have found stands alone, as it did; a correction
+        # beyond it, or any from a sparse target's wide window, waits for a second closure
+        alone = not wide or (not sparse_target and moved <= LOOP_MAX_M)
+        if result.score < config.loop_min_score or not alone:
             self._propose(edge, result.score)
             return
         self._accept_loop(edge, result.score)
