@@ -1184,20 +1184,23 @@ class _Slam:
                 tried.add(nearest_kf)
             self._try_loop(k, sub, nearest_kf, since_closure)
 
-    def _try_loop(self, k: int, sub: Submap, nearest_kf: int, since_closure: float) -> None:
+    def _try_loop(
+        self, k: int, sub: Submap, nearest_kf: int, since_closure: float, capped: bool = False
+    ) -> None:
         config = self.config
         poses = self.graph.poses
         drift = min(since_closure, self.clouds.path_m(nearest_kf, k))
         bound_m = LOOP_BASE_M + config.drift_m_per_m * drift
         bound_rad = LOOP_BASE_RAD + math.radians(config.drift_deg_per_m) * drift
-        # past LOOP_MAX_M the window is searched by branch and bound, and a correction it
-        # finds beyond LOOP_MAX_M must agree with another keyframe's closure: a window of
-        # metres holds aliases. Any target: after a long drive without a closure (a big
-        # building's loop of hundreds of metres) the front end is metres off, and a window
-        # capped at LOOP_MAX_M would hold only the aliases, the best of which scores like a
-        # loop; a dense target is then the run around the revisit (docs/mapping.md)
+        # past LOOP_MAX_M the window is searched by branch and bound, and what it finds must
+        # agree with another keyframe's closure: a window of metres holds aliases. Any
+        # target: after a long drive without a closure (a big building's loop of hundreds of
+        # metres) the front end is metres off, and a window capped at LOOP_MAX_M would hold
+        # only the aliases, the best of which scores like a loop; a dense target is then the
+        # run around the revisit, and where the correction turns out within LOOP_MAX_M the
+        # capped search decides, alone, as before (docs/mapping.md)
         sparse_target = len(sub.keyframes) < LOOP_MIN_KEYFRAMES
-        wide = bound_m > LOOP_MAX_M
+        wide = bound_m > LOOP_MAX_M and not capped
         framed = None
         if wide and not sparse_target:
             framed = self._stretch_target(nearest_kf, k, min(LOOP_WIDE_M, bound_m))
@@ -1234,10 +1237,15 @@ class _Slam:
             prior=prior,
             wide=wide,
         )
+        moved = math.hypot(result.pose[0] - local_guess[0], result.pose[1] - local_guess[1])
+        if framed is not None and moved <= LOOP_MAX_M:
+            # the front end has drifted no further than the capped window reaches: that
+            # window, against the submap, decides as it did before the wide search existed
+            self._try_loop(k, sub, nearest_kf, since_closure, capped=True)
+            return
         low = LOOP_GROUP_MIN_SCORE if sparse_target else config.loop_min_score
         if result.score < low:
             return
-        moved = math.hypot(result.pose[0] - local_guess[0], result.pose[1] - local_guess[1])
         turned = abs(float(se2.wrap(result.pose[2] - local_guess[2])))
         if moved > bound_m + config.resolution_m or turned > bound_rad + window.angle_step_rad:
             # a correction larger than the front end can have drifted is an alias (a similar
@@ -1248,10 +1256,7 @@ class _Slam:
             self.stats["loop_ambiguous"] += 1
             return
         edge = self._match_edge(target, k, result, kind="loop")
-        # what the capped window would have found stands alone, as it did; a correction
-        # beyond it, or any from a sparse target's wide window, waits for a second closure
-        alone = not wide or (not sparse_target and moved <= LOOP_MAX_M)
-        if result.score < config.loop_min_score or not alone:
+        if result.score < config.loop_min_score or wide:
             self._propose(edge, result.score)
             return
         self._accept_loop(edge, result.score)
