@@ -620,6 +620,32 @@ def test_a_log_whose_laser_sits_off_the_robot_centre_maps_the_robot(
     assert on_mount < max(0.1, 2 * as_read)
 
 
+def test_a_log_from_outside_the_data_directory_runs_by_name(
+    shared_data: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The logs issue 14 keeps outside the repository run through the same code as ours:
+    registered by path under a name, then named as ours are (strides and parts too)."""
+    import shutil
+
+    from baromap.evaluation import laser_logs
+
+    monkeypatch.setattr(laser_logs, "LOGS", dict(laser_logs.LOGS))
+    copy = tmp_path / "elsewhere.log.gz"
+    shutil.copy(shared_data / "laser" / laser_logs.LOGS["intel"].log_file, copy)
+    laser_logs.register_log("elsewhere", copy)
+    spec = laser_logs.parse_log_spec("elsewhere/3[0:300]")
+    ours = laser_logs.PreparedLog(shared_data / "laser", "intel", scans=spec.scans, stride=3)
+    # the data directory given is not where the registered log is: its own path is used
+    theirs = laser_logs.PreparedLog(tmp_path / "absent", spec.name, scans=spec.scans, stride=3)
+    assert np.array_equal(theirs.reference, ours.reference)
+    assert np.array_equal(theirs.block.ranges_m, ours.block.ranges_m, equal_nan=True)
+    for name, path in (("elsewhere", copy), ("no-dash", copy), ("gone", tmp_path / "x.log")):
+        with pytest.raises(ConfigError):
+            laser_logs.register_log(name, path)
+    with pytest.raises(ConfigError):
+        laser_logs.register_log("with_relations", copy, tmp_path / "missing.relations")
+
+
 def test_loops_close_on_a_sparse_log_after_metres_of_drift(shared_data: Path) -> None:
     """The last half of the Acapulco log, every third scan kept: 137 scans, a scan every 3 m.
     Its revisits score 0.3-0.55 against the few scans around the revisited place (under the

@@ -76,6 +76,34 @@ LOGS = {
 }
 
 
+_LOG_NAME = re.compile(r"^[A-Za-z0-9_]+$")
+
+
+def register_log(
+    name: str, log_path: str | Path, relations_path: str | Path | None = None
+) -> LaserLog:
+    """Make a CARMEN log outside the data directory an input under ``name``: any log whose
+    ``FLASER`` or ``ROBOTLASER1`` lines carry corrected poses (the PLE collection's
+    ``*-corrected.log.gz``), with Kuemmerle relations if there are any. So the logs issue 14
+    keeps outside the repository run through exactly the code the three here do."""
+    if not _LOG_NAME.match(name):
+        raise ConfigError(f"a log's name is letters, digits and _, got {name!r}")
+    if name in LOGS:
+        raise ConfigError(f"{name!r} already names a log")
+    log_file = Path(log_path).expanduser().resolve()
+    if not log_file.is_file():
+        raise ConfigError(f"laser log {log_path} not found")
+    relations_file = None
+    if relations_path is not None:
+        relations_file = Path(relations_path).expanduser().resolve()
+        if not relations_file.is_file():
+            raise ConfigError(f"relations file {relations_path} not found")
+    # absolute paths: the data directory they are joined to is ignored
+    spec = LaserLog(name, str(log_file), None if relations_file is None else str(relations_file))
+    LOGS[name] = spec
+    return spec
+
+
 #: A harder odometry than the synthesis default (5 % long, 2 deg/m to the left): reads short
 #: by 8 %, turns 4 % too far, creeps 3 deg/m to the right, with half as much noise again.
 #: Other signs than the default, so a front end that leans on the default's direction (or on
