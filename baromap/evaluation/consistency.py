@@ -73,7 +73,8 @@ MAX_TURN_DEG = 60.0
 MAX_PARTNERS = 6
 #: The partners' outlines are sampled this finely: distances below it are not resolved.
 SPACING_M = 0.02
-#: Beams beyond this are left out (the SLAM's own range; far returns graze and scatter).
+#: Beams beyond this are left out (far returns graze and scatter). The SLAM's own range when
+#: the measure was validated; kept since, so its figures stay comparable.
 MAX_RANGE_M = 20.0
 #: A scan's points used as queries, spread evenly over its beams.
 QUERY_BEAMS = 90

@@ -63,13 +63,23 @@ def odometry_messages(carmen: CarmenLog, synth_seed: int | None) -> list[Odometr
 
 
 def laser_offset(carmen: CarmenLog) -> tuple[float, float, float]:
-    """Mounting of the laser on the robot, from the first scan's two poses."""
-    first = carmen.scans[0]
-    rx, ry, rt = first.robot_pose
-    lx, ly, lt = first.laser_pose
-    c, s = math.cos(rt), math.sin(rt)
-    dx, dy = lx - rx, ly - ry
-    return c * dx + s * dy, -s * dx + c * dy, math.remainder(lt - rt, math.tau)
+    """Mounting of the laser on the robot: the laser pose in the robot's frame.
+
+    A ``FLASER`` or ``ROBOTLASER1`` line carries both poses; where they differ (a laser
+    mounted ahead of the wheels' axle, as on most Pioneers) the scans are taken at the laser
+    while the reference poses and the odometry are the robot's. The median over the scans,
+    so one line printed with a rounded or stale pose cannot set it.
+    """
+    laser = np.array([s.laser_pose for s in carmen.scans], dtype=np.float64).reshape(-1, 3)
+    robot = carmen.reference_poses()
+    c, s = np.cos(robot[:, 2]), np.sin(robot[:, 2])
+    dx, dy = laser[:, 0] - robot[:, 0], laser[:, 1] - robot[:, 1]
+    dtheta = np.remainder(laser[:, 2] - robot[:, 2] + math.pi, math.tau) - math.pi
+    return (
+        float(np.median(c * dx + s * dy)),
+        float(np.median(-s * dx + c * dy)),
+        float(np.median(dtheta)),
+    )
 
 
 def import_carmen(
