@@ -24,7 +24,9 @@ and the odometry calibration got wrong.
 
 from __future__ import annotations
 
+import gzip
 import math
+import os
 import re
 import time
 from dataclasses import dataclass
@@ -51,8 +53,9 @@ from baromap.mapping.scans import ScanBlock
 from baromap.mapping.slam import SlamConfig, SlamResult, run_slam
 from baromap.odometry.errors import OdometryErrorModel
 from baromap.odometry.synthesis import synthesize_odometry
-from baromap.recording.carmen import read_carmen
+from baromap.recording.carmen import CarmenLog, read_carmen
 from baromap.recording.carmen_import import laser_offset, to_laser_scan
+from baromap.sim.big_loop import big_loop
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -60,20 +63,49 @@ IntArray = npt.NDArray[np.int64]
 
 @dataclass(frozen=True, slots=True)
 class LaserLog:
-    """One public log: its file in the data directory, and its relations file if any."""
+    """One log: its file in the data directory, and its relations file if any; or, for a
+    synthetic log (``world`` set), the seed of :func:`baromap.sim.big_loop.big_loop` that
+    makes it, written once into :func:`synthetic_dir` under ``log_file``."""
 
     name: str
     log_file: str
     relations_file: str | None
+    world: int | None = None
 
 
 #: The logs of ``../shared/data/laser``. The ``abstime`` copies hold the same scans and poses
-#: as the originals, with the timestamps the relations refer to.
+#: as the originals, with the timestamps the relations refer to. ``bigloop``: a synthetic
+#: corridor ring of 60-120 m a side driven once round and 40 m on (:mod:`baromap.sim.big_loop`),
+#: its true poses as the corrected ones: the first revisit after hundreds of metres, which
+#: the public logs never make.
 LOGS = {
     "intel": LaserLog("intel", "intel-corrected-abstime.log.gz", "intel.relations"),
     "fr079": LaserLog("fr079", "freiburg-079-corrected-abstime.log.gz", "fr079.relations"),
     "acapulco": LaserLog("acapulco", "acapulco-corrected.log.gz", None),
+    "bigloop": LaserLog("bigloop", "bigloop-v1-world0.log.gz", None, world=0),
 }
+
+
+def synthetic_dir() -> Path:
+    """Where synthetic logs are written: ``$BAROMAP_CACHE`` or ``~/.cache/baromap``."""
+    root = os.environ.get("BAROMAP_CACHE")
+    return Path(root) if root else Path.home() / ".cache" / "baromap"
+
+
+def read_log(data_dir: str | Path, spec: LaserLog) -> CarmenLog:
+    """A log's CARMEN records: a public one from ``data_dir``; a synthetic one from the
+    cache, generated and written there first if missing (the file name carries the
+    generator's version and the world's seed, so a stale file is never read)."""
+    if spec.world is None:
+        return read_carmen(Path(data_dir) / spec.log_file)
+    path = synthetic_dir() / spec.log_file
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_name(f"{path.name}.{os.getpid()}.partial")
+        with gzip.open(partial, "wt", encoding="ascii") as handle:
+            handle.write("\n".join(big_loop(spec.world).flaser_lines()) + "\n")
+        partial.replace(path)  # whole or not at all, if two runs write it at once
+    return read_carmen(path)
 
 
 _LOG_NAME = re.compile(r"^[A-Za-z0-9_]+$")
@@ -277,7 +309,7 @@ class PreparedLog:
         LogSpec(name, stride, scans)  # checks the name and the stride
         spec = LOGS[name]
         directory = Path(data_dir)
-        carmen = read_carmen(directory / spec.log_file)
+        carmen = read_log(directory, spec)
         part = np.arange(len(carmen.scans))[scans or slice(None)][::stride]
         self.name = name
         self.times = carmen.scan_times_ns()[part]

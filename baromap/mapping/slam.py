@@ -217,7 +217,7 @@ LOOP_MAX_M = 2.0
 LOOP_MAX_RAD = math.radians(20.0)
 #: When the drift since the last closure is beyond LOOP_MAX_M the window grows up to this,
 #: searched by branch and bound (scan_matcher.branch_and_bound_search).
-LOOP_WIDE_M = 8.0
+LOOP_WIDE_M = 12.0
 #: Keyframes closer than this along the run are the front end's business, not a loop.
 LOOP_MIN_SEPARATION = 30
 #: A submap is tried again as a loop target after this much travel, and a keyframe tries at
@@ -1171,10 +1171,9 @@ class _Slam:
             dist = np.hypot(origins[:, 0] - here[0], origins[:, 1] - here[1])
             nearest = int(np.argmin(dist))
             drift = min(since_closure, self.clouds.path_m(sub.keyframes[nearest], k))
-            # a target of few scans is searched as wide as the drift (see _try_loop)
-            cap = LOOP_WIDE_M if len(sub.keyframes) < LOOP_MIN_KEYFRAMES else LOOP_MAX_M
+            # every target is searched as wide as the drift (see _try_loop)
             if dist[nearest] < self.config.loop_radius_m + min(
-                cap, self.config.drift_m_per_m * drift
+                LOOP_WIDE_M, self.config.drift_m_per_m * drift
             ):
                 candidates.append((float(dist[nearest]), int(m), sub.keyframes[nearest]))
         candidates.sort(key=lambda c: c[0])
@@ -1190,16 +1189,29 @@ class _Slam:
                 tried.add(nearest_kf)
             self._try_loop(k, sub, nearest_kf, since_closure)
 
-    def _try_loop(self, k: int, sub: Submap, nearest_kf: int, since_closure: float) -> None:
+    def _try_loop(
+        self, k: int, sub: Submap, nearest_kf: int, since_closure: float, capped: bool = False
+    ) -> None:
         config = self.config
         poses = self.graph.poses
         drift = min(since_closure, self.clouds.path_m(nearest_kf, k))
         bound_m = LOOP_BASE_M + config.drift_m_per_m * drift
         bound_rad = LOOP_BASE_RAD + math.radians(config.drift_deg_per_m) * drift
         # past LOOP_MAX_M the window is searched by branch and bound, and what it finds must
-        # agree with another keyframe's closure: a window of metres holds aliases
+        # agree with another keyframe's closure: a window of metres holds aliases. Any
+        # target: after a long drive without a closure (a big building's loop of hundreds of
+        # metres) the front end is metres off, and a window capped at LOOP_MAX_M would hold
+        # only the aliases, the best of which scores like a loop; a dense target is then the
+        # run around the revisit, and where the correction turns out within LOOP_MAX_M the
+        # capped search decides, alone, as before (docs/mapping.md)
         sparse_target = len(sub.keyframes) < LOOP_MIN_KEYFRAMES
-        wide = sparse_target and bound_m > LOOP_MAX_M
+        wide = bound_m > LOOP_MAX_M and not capped
+        framed = None
+        if wide and not sparse_target:
+            framed = self._stretch_target(nearest_kf, k, min(LOOP_WIDE_M, bound_m))
+            if framed is None:
+                self.stats["loop_unframed"] += 1
+                return
         linear = min(LOOP_WIDE_M if wide else LOOP_MAX_M, bound_m)
         angular = min(LOOP_MAX_RAD, bound_rad)
         window = _window(
@@ -1208,7 +1220,10 @@ class _Slam:
             _angle_step(self.clouds.typical_range[k], config.resolution_m),
             config.resolution_m,
         )
-        target, fld, coarse = self._loop_target(sub, nearest_kf, k, window.coarse_step_cells)
+        if framed is not None:
+            target, fld, coarse = framed
+        else:
+            target, fld, coarse = self._loop_target(sub, nearest_kf, k, window.coarse_step_cells)
         anchor = poses[target]
         local_guess = se2.between(anchor, poses[k])
         # the pull towards the estimate costs as much at the wide window's edge as at the
@@ -1227,10 +1242,15 @@ class _Slam:
             prior=prior,
             wide=wide,
         )
+        moved = math.hypot(result.pose[0] - local_guess[0], result.pose[1] - local_guess[1])
+        if framed is not None and moved <= LOOP_MAX_M:
+            # the front end has drifted no further than the capped window reaches: that
+            # window, against the submap, decides as it did before the wide search existed
+            self._try_loop(k, sub, nearest_kf, since_closure, capped=True)
+            return
         low = LOOP_GROUP_MIN_SCORE if sparse_target else config.loop_min_score
         if result.score < low:
             return
-        moved = math.hypot(result.pose[0] - local_guess[0], result.pose[1] - local_guess[1])
         turned = abs(float(se2.wrap(result.pose[2] - local_guess[2])))
         if moved > bound_m + config.resolution_m or turned > bound_rad + window.angle_step_rad:
             # a correction larger than the front end can have drifted is an alias (a similar
@@ -1247,6 +1267,12 @@ class _Slam:
         self._accept_loop(edge, result.score)
 
     def _accept_loop(self, edge: Edge, score: float) -> None:
+        # the largest correction a closure made to the graph as it stood: the front end's
+        # drift at the first revisit after a long drive, for the bench to print
+        poses = self.graph.poses
+        fix = se2.between(se2.between(poses[edge.i], poses[edge.j]), edge.z)
+        moved_mm = round(1000 * math.hypot(fix[0], fix[1]))
+        self.stats["loop_max_correction_mm"] = max(self.stats["loop_max_correction_mm"], moved_mm)
         index = self.graph.add_edge(edge)
         self.unsolved.append(index)
         self.loops.append((edge.i, edge.j))
@@ -1330,6 +1356,41 @@ class _Slam:
         res = self.config.resolution_m
         fld = LikelihoodField.from_points(points, res, res)
         return nearest_kf, fld, fld.pooled(coarse_step) if coarse_step > 1 else None
+
+    def _stretch_target(
+        self, nearest_kf: int, k: int, reach_m: float
+    ) -> tuple[int, LikelihoodField, None] | None:
+        """What a wide closure matches against: the keyframes of the run within ``reach_m``
+        of path either side of the revisited one, fused in its frame; None when the run
+        does not reach that far both ways (the start of the run, where a visit began or
+        ends, what is not finished yet).
+
+        A window of metres must hold the scan's true surroundings: against one submap a
+        scan that is truly a few metres outside it (the robot coming back to where the run
+        began, from behind) scores poorly where it is and well slid metres along the
+        corridor onto the map, and consecutive keyframes slide alike, so they agree.
+        Revisits are taken where the map reaches past the window on both sides."""
+        last = min(int(self.finished_index.last_keyframe.max()), k - LOOP_MIN_SEPARATION)
+        visit = self.kf_visit[nearest_kf]
+        path = self.clouds.path_m
+        lo = hi = nearest_kf
+        while lo > 0 and self.kf_visit[lo - 1] == visit and path(lo, nearest_kf) < reach_m:
+            lo -= 1
+        while hi < last and self.kf_visit[hi + 1] == visit and path(nearest_kf, hi) < reach_m:
+            hi += 1
+        if path(lo, nearest_kf) < reach_m or path(nearest_kf, hi) < reach_m:
+            return None
+        poses = self.graph.poses
+        points = np.concatenate(
+            [
+                se2.transform_points(
+                    se2.between(poses[nearest_kf], poses[j]), self.clouds.surfaces[j]
+                )
+                for j in range(lo, hi + 1)
+            ]
+        )
+        res = self.config.resolution_m
+        return nearest_kf, LikelihoodField.from_points(points, res, res), None
 
     def _solve_if_needed(self) -> None:
         if not self.unsolved:

@@ -1,0 +1,95 @@
+"""The synthetic big loop (baromap.sim.big_loop) and the loop closure after a long drive.
+
+A small ring (130-160 m round) with the strong odometry model: the front end has drifted 2-5 m
+by the time the robot is back where it started, beyond the capped 2 m window a dense target
+used to get, where only corridor aliases lie (the map kept two copies of the corridor, ATE
+about 2 m). docs/mapping.md, "Closing a loop after a long drive".
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from baromap.errors import ConfigError
+from baromap.evaluation import laser_logs
+from baromap.evaluation.trajectory import trajectory_error
+from baromap.mapping.scans import ScanBlock
+from baromap.mapping.slam import run_slam
+from baromap.odometry.synthesis import synthesize_odometry
+from baromap.recording.carmen import parse_lines
+from baromap.recording.carmen_import import to_laser_scan
+from baromap.sim.big_loop import BEAMS, BigLoop, BigLoopConfig, big_loop
+
+SMALL = BigLoopConfig(side_m=(30.0, 40.0))
+
+
+def test_the_same_seed_makes_the_same_log_and_another_seed_another() -> None:
+    a, b, c = big_loop(1, SMALL), big_loop(1, SMALL), big_loop(2, SMALL)
+    assert np.array_equal(a.ranges, b.ranges) and np.array_equal(a.poses, b.poses)
+    assert a.poses.shape != c.poses.shape or not np.allclose(a.poses, c.poses)
+
+
+def test_the_drive_goes_round_once_and_on_past_the_start() -> None:
+    loop = big_loop(0, SMALL)
+    steps = np.hypot(*np.diff(loop.poses[:, :2], axis=0).T)
+    # a scan every half metre, give or take a fifth
+    assert steps.min() > 0.35 and steps.max() < 0.65
+    # the whole drive, short of at most the last gap (and the chords' shortcut of the wander)
+    planned = loop.perimeter_m + SMALL.overrun_m
+    assert planned - 2.0 < steps.sum() < planned + 0.5
+    # the heading turns by one full turn plus the overrun's corner(s), counter-clockwise
+    turned = np.sum(np.angle(np.exp(1j * np.diff(loop.poses[:, 2]))))
+    assert turned > 2 * np.pi
+    # far walls are no-returns, as on the public logs; near ones are seen
+    assert loop.ranges.shape == (len(loop.poses), BEAMS)
+    assert (loop.ranges >= 80.0).any() and (loop.ranges < SMALL.max_range_m).mean() > 0.5
+
+
+def test_the_flaser_lines_read_back_as_the_log() -> None:
+    loop = big_loop(0, SMALL)
+    read = parse_lines(loop.flaser_lines())
+    assert len(read.scans) == len(loop.poses)
+    assert np.allclose(read.reference_poses(), loop.poses, atol=1e-4)
+    ranges = np.array([s.ranges_m for s in read.scans])
+    assert np.allclose(ranges, loop.ranges, atol=0.005)
+    assert np.array_equal(read.scan_times_ns(), loop.times_ns)
+
+
+def test_a_ring_too_small_for_its_offices_is_refused() -> None:
+    with pytest.raises(ConfigError):
+        BigLoopConfig(side_m=(10.0, 40.0))
+
+
+def test_the_bench_log_is_written_once_into_the_cache(
+    tmp_path: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("BAROMAP_CACHE", str(tmp_path))
+    spec = laser_logs.LOGS["bigloop"]
+    first = laser_logs.read_log("/nonexistent", spec)
+    written = laser_logs.synthetic_dir() / spec.log_file
+    stamp = written.stat().st_mtime_ns
+    again = laser_logs.read_log("/nonexistent", spec)
+    assert written.stat().st_mtime_ns == stamp  # read, not written again
+    assert np.array_equal(first.reference_poses(), again.reference_poses())
+    assert np.allclose(first.reference_poses(), big_loop(0).poses, atol=1e-4)
+
+
+def _slam_on(loop: BigLoop, seed: int) -> tuple[float, float, dict[str, float]]:
+    scans = loop.carmen().scans
+    block = ScanBlock.from_messages([to_laser_scan(s, i) for i, s in enumerate(scans)])
+    odom = synthesize_odometry(loop.poses, seed, laser_logs.STRONG_ODOMETRY)
+    zeros = np.zeros(len(odom), dtype=np.int64)
+    result = run_slam(block, odom, zeros, zeros)
+    error = trajectory_error(result.scan_poses, loop.poses)
+    return error.rms_m, error.max_m, result.stats
+
+
+@pytest.mark.parametrize(("world", "seed"), [(1, 0), (0, 2)])
+def test_the_loop_closes_after_metres_of_drift(world: int, seed: int) -> None:
+    rms, worst, stats = _slam_on(big_loop(world, SMALL), seed)
+    # the input does what it is for: the first revisit corrects metres, past LOOP_MAX_M
+    assert stats["loop_max_correction_mm"] > 3000
+    # one copy of the corridor: before the fix 2.16 m and 2.28 m RMS (main at 00e940e)
+    assert rms < 0.4
+    assert worst < 0.8
