@@ -31,7 +31,7 @@ import numpy.typing as npt
 
 from baromap.errors import ConfigError
 from baromap.recording.carmen import NO_RETURN_M, CarmenLog, CarmenScan, flaser_geometry
-from baromap.sim.building import RASTER_M, _raster_boundary
+from baromap.sim.building import RASTER_M, raster_boundary
 from baromap.sim.laser import cast
 
 FloatArray = npt.NDArray[np.float64]
@@ -200,7 +200,7 @@ def _ring_world(
             pos += float(rng.uniform(3.0, 7.0))
     for box in clutter:
         raster.carve(box, value=False)
-    walls: FloatArray = _raster_boundary(raster.free)
+    walls: FloatArray = raster_boundary(raster.free)
     return walls
 
 

@@ -430,8 +430,7 @@ class _Builder:
             self.polygons.append(poly)
             structure[window] &= ~mask
         walls = np.concatenate(
-            [_raster_boundary(self.free & structure)]
-            + [_polygon_segments(p) for p in self.polygons]
+            [raster_boundary(self.free & structure)] + [_polygon_segments(p) for p in self.polygons]
         )
         nav, dropped = _checked_nav(nodes, edges, self.kinds, structure)
         if dropped:
@@ -507,7 +506,7 @@ def _polygon_mask(
     return inside, window
 
 
-def _raster_boundary(free: BoolArray) -> FloatArray:
+def raster_boundary(free: BoolArray) -> FloatArray:
     """Wall segments between free and solid cells, merged into maximal straight runs."""
     padded = np.pad(free, 1, constant_values=False)
     segments: list[tuple[float, float, float, float]] = []
