@@ -104,6 +104,18 @@ def _lookup(times_ns: IntArray, query: IntArray) -> IntArray:
     return np.where(ok, pick, -1).astype(np.int64)
 
 
+def relation_pairs(
+    times_ns: IntArray, relations: Relations
+) -> tuple[IntArray, IntArray, FloatArray, int]:
+    """The relations whose both ends are among the sorted stamps ``times_ns``: the index of
+    each end, the relation's motion, and how many relations were left out."""
+    times = np.asarray(times_ns, dtype=np.int64)
+    i1 = _lookup(times, relations.t1_ns)
+    i2 = _lookup(times, relations.t2_ns)
+    usable = (i1 >= 0) & (i2 >= 0)
+    return i1[usable], i2[usable], relations.motion[usable], int((~usable).sum())
+
+
 def relation_errors(times_ns: IntArray, poses: FloatArray, relations: Relations) -> RelationErrors:
     """Score poses (N, 3) at sorted stamps ``times_ns`` against the relations.
 
@@ -114,14 +126,12 @@ def relation_errors(times_ns: IntArray, poses: FloatArray, relations: Relations)
     order = np.argsort(times_ns, kind="stable")
     times = np.asarray(times_ns, dtype=np.int64)[order]
     sorted_poses = np.asarray(poses, dtype=np.float64)[order]
-    i1 = _lookup(times, relations.t1_ns)
-    i2 = _lookup(times, relations.t2_ns)
-    usable = (i1 >= 0) & (i2 >= 0)
-    estimated = se2.between(sorted_poses[i1[usable]], sorted_poses[i2[usable]])
-    error = se2.between(relations.motion[usable], estimated)
+    i1, i2, motion, unused = relation_pairs(times, relations)
+    estimated = se2.between(sorted_poses[i1], sorted_poses[i2])
+    error = se2.between(motion, estimated)
     return RelationErrors(
-        used=int(usable.sum()),
-        unused=int((~usable).sum()),
+        used=len(i1),
+        unused=unused,
         trans_m=np.hypot(error[:, 0], error[:, 1]),
         rot_deg=np.degrees(np.abs(error[:, 2])),
     )
