@@ -8,8 +8,6 @@ about 2 m). docs/mapping.md, "Closing a loop after a long drive".
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -77,12 +75,10 @@ def test_the_bench_log_is_written_once_into_the_cache(
     assert np.allclose(first.reference_poses(), big_loop(0).poses, atol=1e-4)
 
 
-def _slam_on(
-    loop: BigLoop, seed: int, strong: bool = True
-) -> tuple[float, float, dict[str, float]]:
+def _slam_on(loop: BigLoop, seed: int) -> tuple[float, float, dict[str, float]]:
     scans = loop.carmen().scans
     block = ScanBlock.from_messages([to_laser_scan(s, i) for i, s in enumerate(scans)])
-    odom = synthesize_odometry(loop.poses, seed, laser_logs.STRONG_ODOMETRY if strong else None)
+    odom = synthesize_odometry(loop.poses, seed, laser_logs.STRONG_ODOMETRY)
     zeros = np.zeros(len(odom), dtype=np.int64)
     result = run_slam(block, odom, zeros, zeros)
     error = trajectory_error(result.scan_poses, loop.poses)
@@ -97,15 +93,3 @@ def test_the_loop_closes_after_metres_of_drift(world: int, seed: int) -> None:
     # one copy of the corridor: before the fix 2.16 m and 2.28 m RMS (main at 00e940e)
     assert rms < 0.4
     assert worst < 0.8
-
-
-def test_a_run_that_stops_just_past_its_start_still_closes_its_loop() -> None:
-    """The same small ring, default odometry, the drive ending 6 m past where it began: the
-    revisit lies within a window's width of the run's start, where the map does not reach
-    past it on both sides (unframed) and the wide search cannot run. Refused outright there,
-    the loop never closed (no closure, 0.46 m RMS); the capped search, confirmed by a second
-    closure, closes it (0.16 m)."""
-    rms, _, stats = _slam_on(big_loop(0, dataclasses.replace(SMALL, overrun_m=6.0)), 0, False)
-    assert stats["loop_unframed"] > 0
-    assert stats["loops"] > 0
-    assert rms < 0.3

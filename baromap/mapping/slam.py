@@ -1190,14 +1190,7 @@ class _Slam:
             self._try_loop(k, sub, nearest_kf, since_closure)
 
     def _try_loop(
-        self,
-        k: int,
-        sub: Submap,
-        nearest_kf: int,
-        since_closure: float,
-        *,
-        capped: bool = False,
-        confirm: bool = False,
+        self, k: int, sub: Submap, nearest_kf: int, since_closure: float, capped: bool = False
     ) -> None:
         config = self.config
         poses = self.graph.poses
@@ -1217,14 +1210,7 @@ class _Slam:
         if wide and not sparse_target:
             framed = self._stretch_target(nearest_kf, k, min(LOOP_WIDE_M, bound_m))
             if framed is None:
-                # the map does not reach a window's width past the revisited place (the run's
-                # start, a visit's ends): the capped search, and its closure waits for a second
-                # that agrees. Refused outright, a run that stops a few metres after coming
-                # back to its start never closed its loop (the big loop 6 m past its start,
-                # default odometry: ATE 1.48-5.75 m; 0.40-0.51 m so); taken alone, aliases
-                # slid onto the map came back (bigloop/2 seed 3: 0.22 -> 1.11 m)
                 self.stats["loop_unframed"] += 1
-                self._try_loop(k, sub, nearest_kf, since_closure, capped=True, confirm=True)
                 return
         linear = min(LOOP_WIDE_M if wide else LOOP_MAX_M, bound_m)
         angular = min(LOOP_MAX_RAD, bound_rad)
@@ -1275,7 +1261,7 @@ class _Slam:
             self.stats["loop_ambiguous"] += 1
             return
         edge = self._match_edge(target, k, result, kind="loop")
-        if result.score < config.loop_min_score or wide or confirm:
+        if result.score < config.loop_min_score or wide:
             self._propose(edge, result.score)
             return
         self._accept_loop(edge, result.score)
@@ -1383,8 +1369,7 @@ class _Slam:
         scan that is truly a few metres outside it (the robot coming back to where the run
         began, from behind) scores poorly where it is and well slid metres along the
         corridor onto the map, and consecutive keyframes slide alike, so they agree.
-        Where the map does not reach past the window on both sides, the capped search
-        decides, with a second closure's agreement (see _try_loop)."""
+        Revisits are taken where the map reaches past the window on both sides."""
         last = min(int(self.finished_index.last_keyframe.max()), k - LOOP_MIN_SEPARATION)
         visit = self.kf_visit[nearest_kf]
         path = self.clouds.path_m
