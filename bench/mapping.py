@@ -351,11 +351,9 @@ def main() -> int:
         specs = args.logs.split(",")
         if not LASER.is_dir():
             # the synthetic logs and those of --log-file (absolute paths) need no data directory
+            known = [(s, LOGS[parse_log_spec(s).name]) for s in specs]
             kept = [
-                s
-                for s in specs
-                if LOGS[parse_log_spec(s).name].world is not None
-                or Path(LOGS[parse_log_spec(s).name].log_file).is_absolute()
+                s for s, log in known if log.world is not None or Path(log.log_file).is_absolute()
             ]
             print(f"laser logs not found at {LASER}: skipped {', '.join(set(specs) - set(kept))}")
             specs = kept

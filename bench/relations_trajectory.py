@@ -26,6 +26,8 @@ import os
 from pathlib import Path
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse.csgraph import connected_components
 
 REPO = Path(__file__).resolve().parent.parent
 LASER = Path(os.environ.get("BAROMAP_SHARED_DATA", REPO.parent / "shared" / "data")) / "laser"
@@ -60,15 +62,8 @@ def main() -> int:
     nodes, ends = np.unique(np.concatenate([i1, i2]), return_inverse=True)
     a, b = ends[: len(i1)], ends[len(i1) :]
     # the largest connected part of the relations' graph (the rest cannot be placed)
-    label = np.arange(len(nodes))
-    while True:
-        low = np.minimum(label[a], label[b])
-        before = label.copy()
-        np.minimum.at(label, a, low)
-        np.minimum.at(label, b, low)
-        label = label[label]
-        if np.array_equal(label, before):
-            break
+    joined = sparse.coo_matrix((np.ones(len(a)), (a, b)), shape=(len(nodes), len(nodes)))
+    _, label = connected_components(joined, directed=False)
     part = label == np.bincount(label).argmax()
     kept = part[a]
     print(
