@@ -34,8 +34,11 @@ a side driven once round and 40 m on, a scan every half metre, its true poses as
 corrected ones, scored like the logs (``bigloop/3``, ``--odometry strong``, ...): the first
 revisit after hundreds of metres of drift, which the public logs never make. Under every
 seed's row: the loop closures' attempts (wide: branch and bound over metres), the refused
-(implausible, ambiguous, unframed: no map around the revisit wider than the window), the
-accepted, and the largest correction one made (the front end's drift at the revisit).
+(implausible, ambiguous, unframed: the map reaches past the window on one side only and
+the correction is beyond the capped window), those kept against a one-sided map until the
+visit ends and how many of them were taken (none where a closure framed on both sides came
+after), the accepted, and the largest correction one made (the front end's drift at the
+revisit).
 
 Any other CARMEN log with corrected poses (e.g. the PLE collection's ``*-corrected.log.gz``)
 runs through the same code: ``--log-file edmonton=/data/edmonton-corrected.log.gz --logs
@@ -250,7 +253,9 @@ def bench_logs(specs: list[str], seeds: list[int], odometry: str = "default") ->
                 f"{'':{len(name_shown)}}        loops: {st.get('loop_attempts', 0)} attempts "
                 f"({st.get('loop_wide_attempts', 0)} wide), refused "
                 f"{st.get('loop_implausible', 0)} implausible, {st.get('loop_ambiguous', 0)} "
-                f"ambiguous, {st.get('loop_unframed', 0)} unframed; {st.get('loops', 0)} "
+                f"ambiguous, {st.get('loop_unframed', 0)} unframed; "
+                f"{st.get('loop_deferred', 0)} kept one-sided, "
+                f"{st.get('loop_deferred_taken', 0)} of them taken; {st.get('loops', 0)} "
                 f"accepted, largest correction {st.get('loop_max_correction_mm', 0) / 1000:.2f} m"
             )
             if odometry == "varied":
