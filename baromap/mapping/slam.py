@@ -1275,7 +1275,7 @@ class _Slam:
             self.stats["loop_ambiguous"] += 1
             return
         edge = self._match_edge(target, k, result, kind="loop")
-        if defer and result.score >= config.loop_min_score:
+        if defer:  # a dense target: its score is past loop_min_score here
             self.deferred.append((edge, result.score))
             self.stats["loop_deferred"] += 1
             return
