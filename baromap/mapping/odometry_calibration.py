@@ -10,15 +10,23 @@ scale error stretches a 30 m corridor by 60 cm unless it is known.
 
 So every front-end match that pins both ends of a step (a keyframe and the one before it,
 both matched with small uncertainty in the direction measured) is a sample of what odometry
-got wrong, and the systematic part is fitted by weighted least squares over all of them:
+got wrong, and the systematic part is fitted over all of them:
 
-- distance: matched travel along the odometric direction = ``c`` * odometric travel;
-- rotation: matched turn - odometric turn = ``a`` * odometric turn + ``b`` * odometric travel.
+- distance: matched travel along the odometric direction = ``c`` * odometric travel,
+  weighted by the inverse variance of the matched travel (both ends' match covariances
+  added), so steps in corridors, where the match is weak along the travel, hardly count; the
+  factor is applied once its own uncertainty is well below the error it corrects;
+- rotation: odometric turn - matched turn = ``r`` * matched turn + ``k`` * odometric travel,
+  odometry's error as a function of the motion made (a wheelbase off by ``r``, wheels that
+  creep ``k`` per metre), then inverted. It is fitted that way round because the odometric
+  turn carries odometry's noise: on a straight step it is the creep plus the noise, and a
+  fit against it takes the noise for a turn error and learns only part of a creep along
+  corridors (55-75 % on a ring of long corridors, from perfect matches). Each sample is
+  weighted by its whole variance, the match's and odometry's, odometry's found from how far
+  the samples scatter; and the fit is a posterior with no error as its prior, applied from
+  the first few samples as far as they have shown it (:func:`_fit_turn`).
 
-Each sample is weighted by the inverse variance of the matched quantity (both ends' match
-covariances added), so steps in corridors, where the match is weak along the travel, hardly
-count. A correction is applied only once its own uncertainty is well below the error it
-corrects, and within bounds no working odometry exceeds; until then odometry is used as read.
+Both are kept within bounds no working odometry exceeds.
 
 What is left once the systematic part is out is noise, and its size is measured on the same
 steps (:func:`fit_noise`): the graph's last solve weighs odometry by it.
@@ -36,10 +44,8 @@ from scipy.optimize import nnls
 FloatArray = npt.NDArray[np.float64]
 
 #: The distance factor is applied once its standard error is below this (0.3 %: 9 cm over a
-#: 30 m corridor), the rotation terms once theirs are below 0.5 % of a turn and 0.1 deg/m.
+#: 30 m corridor).
 SCALE_SIGMA = 0.003
-TURN_SIGMA = 0.005
-CREEP_SIGMA_RAD_PER_M = math.radians(0.1)
 #: Beyond these the odometry is broken rather than miscalibrated: corrections are clipped.
 MAX_SCALE_ERROR = 0.2
 MAX_TURN_ERROR = 0.2
@@ -51,21 +57,29 @@ MIN_STEP_M = 0.05
 #: bad match, not odometry: it is left out.
 OUTLIER_SIGMAS = 4.0
 #: ... beyond that and beyond what the fit so far may still be missing: a few percent of the
-#: turn, a couple of degrees per metre (the synthetic logs' creep, twice a P3-AT's).
+#: turn, a couple of degrees per metre (the synthetic logs' creep, twice a P3-AT's). These are
+#: also the prior sigmas of the turn terms: the size working odometry's errors have.
 TURN_SLACK = 0.05
 CREEP_SLACK_RAD_PER_M = math.radians(2.0)
 
 
 class OdometryCalibration:
-    """Running weighted least squares of odometry's distance factor and turn errors."""
+    """Running fits of odometry's distance factor (weighted least squares) and turn errors
+    (weighted by the samples' whole variance, shrunk towards no error; see :meth:`_fit_turn`)."""
 
     def __init__(self) -> None:
         # distance: sums of w * a * d and w * d^2
         self._wad = 0.0
         self._wdd = 0.0
-        # rotation: normal equations of (a, b) over features (turn, travel)
-        self._rot_h = np.zeros((2, 2))
-        self._rot_g = np.zeros(2)
+        # rotation: every sample kept (one per matched keyframe step, a few thousand at most),
+        # since its weight depends on odometry's noise, which is fitted from them all
+        self._odometric_turn: list[float] = []
+        self._matched_turn: list[float] = []
+        self._travel: list[float] = []
+        self._match_var: list[float] = []
+        self._turn = np.zeros(2)
+        self._turn_fitted_at = 0
+        self.turn_noise = 0.0
         self.samples = 0
         self.rejected = 0
 
@@ -80,16 +94,10 @@ class OdometryCalibration:
 
     def turn_terms(self) -> tuple[float, float]:
         """(a, b): true turn = odometric turn * (1 + a) + b * odometric travel."""
-        h = self._rot_h
-        if np.linalg.det(h) <= 1e-12 * max(1.0, float(np.trace(h)) ** 2):
-            return 0.0, 0.0
-        cov = np.linalg.inv(h)
-        a, b = self._turn_fit()
-        a = float(a) if math.sqrt(cov[0, 0]) < TURN_SIGMA else 0.0
-        b = float(b) if math.sqrt(cov[1, 1]) < CREEP_SIGMA_RAD_PER_M else 0.0
-        a = min(MAX_TURN_ERROR, max(-MAX_TURN_ERROR, a))
-        b = min(MAX_CREEP_RAD_PER_M, max(-MAX_CREEP_RAD_PER_M, b))
-        return a, b
+        self._refit_turn()
+        r, k = (float(v) for v in self._turn)
+        # odometric = true * (1 + r) + k * travel, inverted
+        return 1.0 / (1.0 + r) - 1.0, -k / (1.0 + r)
 
     def correct(self, step: FloatArray) -> FloatArray:
         """An odometric step (dx, dy, dtheta in the frame of its start) as the robot moved."""
@@ -119,34 +127,125 @@ class OdometryCalibration:
                     return
                 distance = (1.0 / var, along)
         var_t = float(covariance[2, 2])
-        turn: tuple[float, FloatArray, float] | None = None  # (weight, features, residual)
+        turn_ok = False
         if var_t > 0:
-            x = np.array([odometric[2], travel])
-            residual = float(math.remainder(matched[2] - odometric[2], math.tau))
-            expected = float(x @ self._turn_fit())
+            self._refit_turn()
+            r, k = self._turn
+            error = float(math.remainder(odometric[2] - matched[2], math.tau))
+            expected = r * float(matched[2]) + k * travel
+            noise = self.turn_noise * _turn_noise_feature(travel, float(matched[2]))
             slack = TURN_SLACK * abs(odometric[2]) + CREEP_SLACK_RAD_PER_M * travel
-            if abs(residual - expected) > OUTLIER_SIGMAS * math.sqrt(var_t) + slack:
+            if abs(error - expected) > OUTLIER_SIGMAS * math.sqrt(var_t + noise) + slack:
                 self.rejected += 1
                 return
-            turn = (1.0 / var_t, x, residual)
+            turn_ok = True
         if distance is not None:
             w, along = distance
             self._wad += w * along * travel
             self._wdd += w * travel * travel
-        if turn is not None:
-            w, x, residual = turn
-            self._rot_h += w * np.outer(x, x)
-            self._rot_g += w * x * residual
-        if distance is not None or turn is not None:
+        if turn_ok:
+            self._odometric_turn.append(float(odometric[2]))
+            self._matched_turn.append(float(matched[2]))
+            self._travel.append(travel)
+            self._match_var.append(var_t)
+        if distance is not None or turn_ok:
             self.samples += 1
 
-    def _turn_fit(self) -> FloatArray:
-        """(a, b) fitted so far, whatever their uncertainty (zero before two samples)."""
-        h = self._rot_h
-        if np.linalg.det(h) <= 1e-12 * max(1.0, float(np.trace(h)) ** 2):
-            return np.zeros(2)
-        fit: FloatArray = np.asarray(np.linalg.solve(h, self._rot_g), dtype=np.float64)
-        return fit
+    def _refit_turn(self) -> None:
+        """Fit the turn terms again once the samples have grown by REFIT_GROWTH (every sample
+        while they are few): the fit is over them all, and this keeps its cost near linear."""
+        n = len(self._travel)
+        if n == self._turn_fitted_at:
+            return
+        if n >= REFIT_EVERY_SAMPLE_UNTIL and n < self._turn_fitted_at * REFIT_GROWTH:
+            return
+        self._turn_fitted_at = n
+        self._turn, self.turn_noise = _fit_turn(
+            np.array(self._odometric_turn),
+            np.array(self._matched_turn),
+            np.array(self._travel),
+            np.array(self._match_var),
+        )
+
+
+#: The turn fit waits for this many samples: fewer cannot say how far they scatter.
+MIN_TURN_SAMPLES = 5
+#: Refit at every sample until there are this many, then when they have grown by this factor.
+REFIT_EVERY_SAMPLE_UNTIL = 100
+REFIT_GROWTH = 1.05
+#: Rounds of the fit (weights from the last round's odometry noise and turn factor).
+TURN_FIT_ROUNDS = 3
+
+
+def _turn_noise_feature(travel: float | FloatArray, turn: float | FloatArray) -> FloatArray:
+    """What odometry's turn variance grows with: slip accrues with the distance driven and the
+    angle turned, a metre and a radian alike within a factor of two (a P3-AT-sized model's
+    0.5 deg a metre against 2 % of the turn, 1.1 deg a radian), as a random walk over a
+    step's readings."""
+    return np.asarray(np.add(travel, np.abs(turn)), dtype=np.float64)
+
+
+def _fit_turn(
+    odometric: FloatArray, matched: FloatArray, travel: FloatArray, match_var: FloatArray
+) -> tuple[FloatArray, float]:
+    """(r, k) of odometric turn = matched turn * (1 + r) + k * travel, and odometry's turn
+    noise per unit of :func:`_turn_noise_feature` (a variance).
+
+    Odometry's error is fitted against the matched turn, not the odometric one: the odometric
+    turn carries odometry's noise, and on a straight step the error to explain is exactly
+    minus that noise, so a fit on it takes the noise for a turn error and learns only part of
+    a creep along corridors. Each sample is weighted by its whole variance, the match's plus
+    odometry's; odometry's is what makes the samples scatter as much as their variances say
+    (a reduced chi-square of one, the way a between-sample variance is found in a
+    meta-analysis). A sample weighted by the match's variance alone counts as if odometry had
+    no noise, so a few early samples from well-pinned rooms pass for a sure fit.
+
+    The fit is a posterior: no turn error is the prior (TURN_SLACK and CREEP_SLACK_RAD_PER_M
+    its sigmas, the sizes working odometry has), so a term is applied as far as the samples
+    have shown it, early and partly rather than late and at once."""
+    n = len(travel)
+    if n < MIN_TURN_SAMPLES:
+        return np.zeros(2), 0.0
+    error = np.remainder(odometric - matched + math.pi, math.tau) - math.pi
+    x = np.stack([matched, travel], axis=1)
+    feature = _turn_noise_feature(travel, matched)
+    prior = np.diag([1.0 / TURN_SLACK**2, 1.0 / CREEP_SLACK_RAD_PER_M**2])
+    fit = np.zeros(2)
+    noise = 0.0
+    for _ in range(TURN_FIT_ROUNDS):
+        inflate = (1.0 + fit[0]) ** 2
+        residual = error - x @ fit
+        noise = _excess_variance(residual**2, inflate * match_var, feature, n - 2)
+        w = 1.0 / (inflate * match_var + noise * feature)
+        h = (x * w[:, None]).T @ x + prior
+        g = (x * w[:, None]).T @ error
+        fit = np.linalg.solve(h, g)
+    fit[0] = min(MAX_TURN_ERROR, max(-MAX_TURN_ERROR, float(fit[0])))
+    fit[1] = min(MAX_CREEP_RAD_PER_M, max(-MAX_CREEP_RAD_PER_M, float(fit[1])))
+    return fit, noise
+
+
+def _excess_variance(
+    squared: FloatArray, known: FloatArray, feature: FloatArray, dof: int
+) -> float:
+    """q >= 0 with sum(squared / (known + q * feature)) = dof: the variance per unit of
+    feature the known variances leave unexplained (0 if they explain it all)."""
+
+    def chi2(q: float) -> float:
+        return float(np.sum(squared / (known + q * feature)))
+
+    if dof <= 0 or chi2(0.0) <= dof:
+        return 0.0
+    low, high = 0.0, 1e-6
+    while chi2(high) > dof and high < 1e3:
+        low, high = high, high * 4.0
+    for _ in range(40):
+        mid = 0.5 * (low + high)
+        if chi2(mid) > dof:
+            low = mid
+        else:
+            high = mid
+    return high
 
 
 #: A step whose residual is beyond this many sigmas of the noise fitted so far is a wrong
