@@ -129,7 +129,7 @@ def test_closures_against_a_one_sided_map_give_way_when_the_run_goes_on() -> Non
     those of refusing them outright: 0.125 m RMS, max 0.25 m at e516ecd; 0.205 m, max 0.39 m
     since the turn calibration weighs odometry's noise, which has it learn the creep here
     while the old fit learnt none: the ring's nine runs with this odometry went 0.156 ->
-    0.172 m mean, a draw of the front end, docs/mapping.md)."""
+    0.164 m mean, a draw of the front end, docs/mapping.md)."""
     rms, worst, stats = _slam_on(big_loop(0, SMALL), 0, OdometryErrorModel())
     assert stats["loop_deferred"] > 0
     assert stats.get("loop_deferred_taken", 0) == 0
