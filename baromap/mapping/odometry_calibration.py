@@ -77,8 +77,9 @@ class OdometryCalibration:
         self._matched_turn: list[float] = []
         self._travel: list[float] = []
         self._match_var: list[float] = []
-        self._turn = np.zeros(2)
+        self._turn = np.zeros(2)  # (r, k) as last fitted, see _fit_turn
         self._turn_fitted_at = 0
+        #: odometry's turn variance per unit of _turn_noise_feature, as last fitted
         self.turn_noise = 0.0
         self.samples = 0
         self.rejected = 0
