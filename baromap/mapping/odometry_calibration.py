@@ -73,10 +73,8 @@ class OdometryCalibration:
         self._wdd = 0.0
         # rotation: every sample kept (one per matched keyframe step, a few thousand at most),
         # since its weight depends on odometry's noise, which is fitted from them all
-        self._odometric_turn: list[float] = []
-        self._matched_turn: list[float] = []
-        self._travel: list[float] = []
-        self._match_var: list[float] = []
+        # (odometric turn, matched turn, travel, match's heading variance) per sample
+        self._turn_samples: list[tuple[float, float, float, float]] = []
         self._turn = np.zeros(2)  # (r, k) as last fitted, see _fit_turn
         self._turn_fitted_at = 0
         #: odometry's turn variance per unit of _turn_noise_feature, as last fitted
@@ -145,28 +143,20 @@ class OdometryCalibration:
             self._wad += w * along * travel
             self._wdd += w * travel * travel
         if turn_ok:
-            self._odometric_turn.append(float(odometric[2]))
-            self._matched_turn.append(float(matched[2]))
-            self._travel.append(travel)
-            self._match_var.append(var_t)
+            self._turn_samples.append((float(odometric[2]), float(matched[2]), travel, var_t))
         if distance is not None or turn_ok:
             self.samples += 1
 
     def _refit_turn(self) -> None:
         """Fit the turn terms again once the samples have grown by REFIT_GROWTH (every sample
         while they are few): the fit is over them all, and this keeps its cost near linear."""
-        n = len(self._travel)
+        n = len(self._turn_samples)
         if n == self._turn_fitted_at:
             return
         if n >= REFIT_EVERY_SAMPLE_UNTIL and n < self._turn_fitted_at * REFIT_GROWTH:
             return
         self._turn_fitted_at = n
-        self._turn, self.turn_noise = _fit_turn(
-            np.array(self._odometric_turn),
-            np.array(self._matched_turn),
-            np.array(self._travel),
-            np.array(self._match_var),
-        )
+        self._turn, self.turn_noise = _fit_turn(*np.array(self._turn_samples).T)
 
 
 #: The turn fit waits for this many samples: fewer cannot say how far they scatter.
