@@ -141,6 +141,32 @@ def test_wide_multiresolution_search_finds_a_far_offset() -> None:
     assert abs(se2.wrap(result.pose[2] - truth[2])) < math.radians(0.5)
 
 
+@given(
+    st.integers(min_value=1, max_value=23),
+    st.integers(min_value=1, max_value=23),
+    st.sampled_from([2, 3, 4]),
+    st.integers(min_value=0, max_value=2**16),
+)
+def test_a_pooled_field_bounds_every_shift_of_up_to_half_its_step(
+    height: int, width: int, step: int, seed: int
+) -> None:
+    """The coarse search is exact only if the pooled field is an upper bound: each coarse
+    cell at least the largest fine value within half a step of where it looks."""
+    data = np.random.default_rng(seed).random((height, width), dtype=np.float32)
+    data[[0, -1], :] = 0.0
+    data[:, [0, -1]] = 0.0
+    fine = LikelihoodField(data=data, origin_xy=(0.3, -0.2), resolution=0.05)
+    coarse = fine.pooled(step)
+    for row in range(height):
+        for col in range(width):
+            xy = np.array([[0.3 + 0.05 * col, -0.2 + 0.05 * row]])
+            u, v = coarse.cell_coords(xy)
+            crow, ccol = int(np.rint(v[0])), int(np.rint(u[0]))
+            lo_r, lo_c = max(0, row - step // 2), max(0, col - step // 2)
+            near = data[lo_r : row + step // 2 + 1, lo_c : col + step // 2 + 1].max()
+            assert coarse.data[crow, ccol] >= near
+
+
 def test_branch_and_bound_finds_an_offset_of_metres() -> None:
     """A loop closure after a long stretch without one: the guess is metres and degrees off,
     further than the lattice search's window (LOOP_MAX_M) reaches."""

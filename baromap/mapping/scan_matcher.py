@@ -70,6 +70,26 @@ def stamp(
     np.maximum.at(data.reshape(-1), flat.ravel(), values.ravel())
 
 
+def _block_max(data: Float32Array, step: int) -> Float32Array:
+    """Largest value of each ``step`` x ``step`` block of ``data`` (its sides are multiples
+    of ``step``).
+
+    One strided ``np.maximum`` per row and column of a block: a ``max`` over the axes of a
+    reshaped view walks memory out of order and took 13 ms on a 1200 x 1400 field against
+    0.7 ms this way (pooling was 6 of Acapulco's 34 s of CPU).
+    """
+    h, w = data.shape
+    cols = data.reshape(h, w // step, step)
+    across: Float32Array = cols[:, :, 0].copy()
+    for i in range(1, step):
+        np.maximum(across, cols[:, :, i], out=across)
+    rows = across.reshape(h // step, step, w // step)
+    out: Float32Array = rows[:, 0].copy()
+    for i in range(1, step):
+        np.maximum(out, rows[:, i], out=out)
+    return out
+
+
 @dataclass(frozen=True, slots=True)
 class LikelihoodField:
     """Endpoint likelihood on a grid; cell (row i, col j) is centred at origin + res * (j, i).
@@ -119,7 +139,7 @@ class LikelihoodField:
         bh, bw = -(-h // step), -(-w // step)
         padded = np.zeros((bh * step, bw * step), dtype=np.float32)
         padded[:h, :w] = self.data
-        blocks = padded.reshape(bh, step, bw, step).max(axis=(1, 3))
+        blocks = _block_max(padded, step)
         bound = ndimage.maximum_filter(blocks, size=3, mode="constant", cval=0.0)
         # a zero border again, so clipped lookups beyond the grid still read nothing
         data = np.zeros((bh + 2, bw + 2), dtype=np.float32)
