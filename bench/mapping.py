@@ -254,6 +254,7 @@ def bench_logs(specs: list[str], seeds: list[int], odometry: str = "default") ->
                 f"({st.get('loop_wide_attempts', 0)} wide), refused "
                 f"{st.get('loop_implausible', 0)} implausible, {st.get('loop_ambiguous', 0)} "
                 f"ambiguous, {st.get('loop_unframed', 0)} unframed; "
+                f"{st.get('loop_beyond_drift', 0)} beyond the drift proposed, "
                 f"{st.get('loop_deferred', 0)} kept one-sided, "
                 f"{st.get('loop_deferred_taken', 0)} of them taken; {st.get('loops', 0)} "
                 f"accepted, largest correction {st.get('loop_max_correction_mm', 0) / 1000:.2f} m"

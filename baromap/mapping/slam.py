@@ -1266,9 +1266,17 @@ class _Slam:
         if result.score < low:
             return
         turned = abs(float(se2.wrap(result.pose[2] - local_guess[2])))
-        if moved > bound_m + config.resolution_m or turned > bound_rad + window.angle_step_rad:
-            # a correction larger than the front end can have drifted is an alias (a similar
-            # room, the next door along), not a loop
+        # a correction larger than the front end's drift along the way: an alias (a similar
+        # room, the next door along), or a front-end match that went wrong (degrees after a
+        # turn of 100-170 degrees on a sparse log), which no drift model foresees and only
+        # such a closure can put right. Scoring as a loop within a front-end window of the
+        # estimate, it is proposed: taken only when another keyframe's closure agrees
+        beyond = moved > bound_m + config.resolution_m or turned > bound_rad + window.angle_step_rad
+        if beyond and (
+            result.score < config.loop_min_score
+            or moved > LOOP_MAX_M
+            or turned > MAX_FRONT_WINDOW_RAD
+        ):
             self.stats["loop_implausible"] += 1
             return
         if result.runner_up >= LOOP_MAX_AMBIGUITY * result.score:
@@ -1279,7 +1287,9 @@ class _Slam:
             self.deferred.append((edge, result.score))
             self.stats["loop_deferred"] += 1
             return
-        if result.score < config.loop_min_score or wide:
+        if result.score < config.loop_min_score or wide or beyond:
+            if beyond:
+                self.stats["loop_beyond_drift"] += 1
             self._propose(edge, result.score)
             return
         self._accept_loop(edge, result.score)
