@@ -451,6 +451,9 @@ class _Slam:
         self.stats: Counter[str] = Counter()
         self.visit_start = 0
         self.last_closure = 0  # keyframe of the last accepted closure (or visit start)
+        #: keyframe of the last front-end step the scan could not vouch for (a weak, refused
+        #: or missing match: odometry or a doubtful match placed it), -1 for none
+        self.last_doubtful = -1
         self.unsolved: list[int] = []  # loop edges added since the last solve
         #: closures under the threshold waiting for another to agree (see _propose)
         self.pending: list[tuple[Edge, float]] = []
@@ -935,6 +938,7 @@ class _Slam:
         points = self.clouds.points[k]
         if len(points) < MIN_POINTS or not self.active:
             self.stats["front_skipped"] += 1
+            self.last_doubtful = k
             return
         config = self.config
         sub = self.active[0]
@@ -961,6 +965,11 @@ class _Slam:
             result = match(sub.field, points, local_guess, window, coarse_field=coarse, prior=prior)
             if result.score < FRONT_RETRY_BELOW and abs(read[2]) > FRONT_RETRY_TURN_RAD:
                 result = self._retry_after_turn(k, sub.anchor, result, window=window, prior=prior)
+        if (
+            result.score < FRONT_RETRY_BELOW
+            or result.runner_up >= FRONT_MAX_AMBIGUITY * result.score
+        ):
+            self.last_doubtful = k
         if result.score < config.front_min_score:
             self.stats["front_failures"] += 1
             return
@@ -1273,7 +1282,8 @@ class _Slam:
         # estimate, it is proposed: taken only when another keyframe's closure agrees
         beyond = moved > bound_m + config.resolution_m or turned > bound_rad + window.angle_step_rad
         if beyond and (
-            result.score < config.loop_min_score
+            self.last_doubtful <= max(self.last_closure, nearest_kf)
+            or result.score < config.loop_min_score
             or moved > LOOP_MAX_M
             or turned > MAX_FRONT_WINDOW_RAD
         ):
