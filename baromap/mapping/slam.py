@@ -1276,9 +1276,10 @@ class _Slam:
             return
         turned = abs(float(se2.wrap(result.pose[2] - local_guess[2])))
         # a correction larger than the front end's drift along the way: an alias (a similar
-        # room, the next door along), or a front-end match that went wrong (degrees after a
-        # turn of 100-170 degrees on a sparse log), which no drift model foresees and only
-        # such a closure can put right. Scoring as a loop within a front-end window of the
+        # room, the next door along), or, where the chain it corrects holds a step the scan
+        # could not vouch for, a front-end match that went wrong (degrees, after a turn of
+        # 100-170 degrees on a sparse log), which no drift model foresees and only such a
+        # closure can put right. Then, scoring as a loop within a front-end window of the
         # estimate, it is proposed: taken only when another keyframe's closure agrees
         beyond = moved > bound_m + config.resolution_m or turned > bound_rad + window.angle_step_rad
         if beyond and (
