@@ -1279,8 +1279,9 @@ class _Slam:
         # room, the next door along), or, where the chain it corrects holds a step the scan
         # could not vouch for, a front-end match that went wrong (degrees, after a turn of
         # 100-170 degrees on a sparse log), which no drift model foresees and only such a
-        # closure can put right. Then, scoring as a loop within a front-end window of the
-        # estimate, it is proposed: taken only when another keyframe's closure agrees
+        # closure can put right. Then, scoring as a loop within the capped loop window (2 m)
+        # and the front end's widest turn (45 deg) of the estimate, it is proposed: taken
+        # only when another keyframe's closure agrees
         beyond = moved > bound_m + config.resolution_m or turned > bound_rad + window.angle_step_rad
         if beyond and (
             self.last_doubtful <= max(self.last_closure, nearest_kf)
