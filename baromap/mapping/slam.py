@@ -965,15 +965,13 @@ class _Slam:
             result = match(sub.field, points, local_guess, window, coarse_field=coarse, prior=prior)
             if result.score < FRONT_RETRY_BELOW and abs(read[2]) > FRONT_RETRY_TURN_RAD:
                 result = self._retry_after_turn(k, sub.anchor, result, window=window, prior=prior)
-        if (
-            result.score < FRONT_RETRY_BELOW
-            or result.runner_up >= FRONT_MAX_AMBIGUITY * result.score
-        ):
+        ambiguous = result.runner_up >= FRONT_MAX_AMBIGUITY * result.score
+        if result.score < FRONT_RETRY_BELOW or ambiguous:
             self.last_doubtful = k
         if result.score < config.front_min_score:
             self.stats["front_failures"] += 1
             return
-        if result.runner_up >= FRONT_MAX_AMBIGUITY * result.score:
+        if ambiguous:
             self.stats["front_ambiguous"] += 1
             return
         self.graph.poses[k] = se2.compose(anchor, result.pose)
