@@ -35,7 +35,7 @@ from baromap.mapping.scan_matcher import (
 )
 from baromap.mapping.scans import ScanBlock
 from baromap.mapping.segmentation import label_scans, moving_scans
-from baromap.mapping.slam import BETWEEN_FLOORS, scan_poses
+from baromap.mapping.slam import BETWEEN_FLOORS, MATCH_COV_SCALE, match_information, scan_poses
 
 # an L-shaped room with a pillar: walls as segments (x0, y0, x1, y1)
 ROOM = np.array(
@@ -968,3 +968,27 @@ def test_the_intel_log_cut_just_after_its_first_return_to_the_start_closes_that_
     report = run_log(shared_data / "laser", "intel", seed=0, scans=slice(0, 109))
     assert report.result.stats["loop_deferred_taken"] >= 2
     assert report.slam_ate.rms_m < 0.12
+
+
+@given(
+    st.lists(st.floats(-1e3, 1e3), min_size=9, max_size=9),
+    st.integers(0, 3),
+)
+def test_match_information_holds_for_a_scan_that_measured_little(
+    values: list[float], rank: int
+) -> None:
+    """A rank-deficient fit (a few points along one wall) must not raise or poison the graph."""
+    a = np.array(values).reshape(3, 3)
+    a[:, rank:] = 0.0  # information of rank <= rank
+    h = a @ a.T
+    info = match_information(h, 0.05, 0.01)
+    assert np.all(np.isfinite(info))
+    assert np.allclose(info, info.T)
+    eig = np.linalg.eigvalsh(info)
+    assert eig.min() >= -1e-6 * max(eig.max(), 1.0)
+    # never more than the floor alone allows
+    assert eig.max() <= (1 / 0.01**2) * (1 + 1e-9)
+    if np.linalg.cond(h) < 1e8:
+        floor = np.diag([0.05**2, 0.05**2, 0.01**2])
+        direct = np.linalg.inv(np.linalg.inv(h) * MATCH_COV_SCALE + floor)
+        assert np.allclose(info, direct, rtol=1e-6, atol=1e-9 * np.abs(direct).max())

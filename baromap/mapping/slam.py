@@ -367,16 +367,20 @@ def _info(sigma_xy: float, sigma_theta: float) -> FloatArray:
     return np.diag([1 / sigma_xy**2, 1 / sigma_xy**2, 1 / sigma_theta**2])
 
 
-def _match_info(information: FloatArray, sigma_xy: float, sigma_theta: float) -> FloatArray:
+def match_information(information: FloatArray, sigma_xy: float, sigma_theta: float) -> FloatArray:
     """Edge information from a match: inflated GN covariance plus a floor, inverted (in the
-    frame the match was made in; :func:`_rotate_info` takes it into the edge's frame)."""
-    try:
-        cov = np.linalg.inv(information) * MATCH_COV_SCALE
-    except np.linalg.LinAlgError:
-        cov = np.diag([1.0, 1.0, 1.0])
-    cov = cov + np.diag([sigma_xy**2, sigma_xy**2, sigma_theta**2])
-    out: FloatArray = np.linalg.inv(cov)
-    return out
+    frame the match was made in; :func:`_rotate_info` takes it into the edge's frame).
+
+    ``(H^-1 s + F)^-1`` is computed as ``(I + H F / s)^-1 H / s``, which needs no inverse of
+    ``H``: a scan with a handful of points along one wall (a laser that sees little in a hall)
+    has an information matrix of rank one, whose inverse is ``inf`` or garbage and made the old
+    double inversion raise. A direction the scan did not measure gets no information here.
+    """
+    h = np.asarray(information, dtype=np.float64) / MATCH_COV_SCALE
+    floor = np.diag([sigma_xy**2, sigma_xy**2, sigma_theta**2])
+    out = np.asarray(np.linalg.solve(np.eye(3) + h @ floor, h), dtype=np.float64)
+    symmetric: FloatArray = (out + out.T) / 2
+    return symmetric
 
 
 def _rotate_info(info: FloatArray, theta: float) -> FloatArray:
@@ -692,7 +696,7 @@ class _Slam:
                 points, owner = concatenate([self.clouds.points[k] for k in mine])
                 out = refine_batch(fld, points, owner, poses[mine])
                 info = np.array(
-                    [_match_info(h, MATCH_SIGMA_M, MATCH_SIGMA_RAD) for h in out.information]
+                    [match_information(h, MATCH_SIGMA_M, MATCH_SIGMA_RAD) for h in out.information]
                 )
                 nodes.append(mine[out.usable])
                 measured.append(out.poses[out.usable])
@@ -793,7 +797,7 @@ class _Slam:
             start = se2.between(poses[anchor][None, :], poses[others])
             out = refine_batch(fld, points, owner, start)
             for n in np.flatnonzero(out.usable):
-                info = _match_info(out.information[n], LOOP_SIGMA_M, LOOP_SIGMA_RAD)
+                info = match_information(out.information[n], LOOP_SIGMA_M, LOOP_SIGMA_RAD)
                 edges.append(
                     Edge(
                         anchor,
@@ -1057,7 +1061,7 @@ class _Slam:
         robust kernel and their own floor sigmas, and can be outvoted.
         """
         loop = kind in ("loop", "car")
-        info = _match_info(
+        info = match_information(
             result.information,
             LOOP_SIGMA_M if loop else MATCH_SIGMA_M,
             LOOP_SIGMA_RAD if loop else MATCH_SIGMA_RAD,
