@@ -16,8 +16,8 @@ from baromap.messages import BeamFlag, LaserScan, Odometry
 from baromap.odometry.errors import OdometryErrorModel
 from baromap.odometry.synthesis import synthesize_odometry
 from baromap.recording import read_messages, read_metadata
-from baromap.recording.carmen import parse_lines, parse_time_ns, read_carmen
-from baromap.recording.carmen_import import import_carmen, to_laser_scan
+from baromap.recording.carmen import flaser_geometry, parse_lines, parse_time_ns, read_carmen
+from baromap.recording.carmen_import import import_carmen, laser_offset, to_laser_scan
 
 RANGES = " ".join(["1.5"] * 178 + ["81.83", "2.25"])
 FLASER = f"FLASER 180 {RANGES} 1.0 2.0 0.5 1.1 2.1 0.5 976052890.244111 pippo 976052890.244111"
@@ -104,6 +104,60 @@ def test_no_return_becomes_flagged_nan() -> None:
     assert np.isnan(msg.ranges_m[178])
     assert msg.flags[178] & BeamFlag.OVER_RANGE
     assert msg.valid().sum() == 179
+
+
+@pytest.mark.parametrize(
+    ("n", "first_deg", "step_deg"),
+    [(180, -90.0, 1.0), (181, -90.0, 1.0), (361, -90.0, 0.5), (401, -50.0, 0.25), (91, -90.0, 2.0)],
+)
+def test_flaser_geometry_is_carmens_guess_for_a_sick(
+    n: int, first_deg: float, step_deg: float
+) -> None:
+    first, step = flaser_geometry(n)
+    assert math.degrees(first) == pytest.approx(first_deg)
+    assert math.degrees(step) == pytest.approx(step_deg)
+
+
+def _flaser_line(ranges: np.ndarray, t: float) -> str:
+    text = " ".join(f"{r:.3f}" for r in ranges)
+    return f"FLASER {len(ranges)} {text} 0 0 0 0 0 0 {t:.6f} host {t:.6f}"
+
+
+def _short_range_log(code: float | None, n_scans: int = 60) -> list[str]:
+    """A room of walls 2-12 m away seen by a laser whose readings stop at 8 m."""
+    rng = np.random.default_rng(1)
+    lines = []
+    for k in range(n_scans):
+        ranges = rng.uniform(2.0, 12.0, 181) + rng.normal(0.0, 0.01, 181)
+        if code is not None:
+            ranges = np.where(ranges >= code, code, ranges)
+        lines.append(_flaser_line(ranges, 10.0 + k))
+    return lines
+
+
+def test_a_short_range_no_return_code_is_found_and_flagged() -> None:
+    log = parse_lines(_short_range_log(8.183))
+    assert log.range_limit_m == pytest.approx(8.178)
+    coded = np.concatenate([s.ranges_m for s in log.scans]) == 8.183
+    flagged = np.concatenate([to_laser_scan(s, 0).flags for s in log.scans]) != 0
+    assert coded.sum() > 0.3 * coded.size  # the room reaches past 8 m often
+    assert np.all(flagged[coded])
+    assert np.count_nonzero(flagged & ~coded) < 0.001 * coded.size  # walls in the code's bin
+
+
+def test_readings_that_merely_end_somewhere_keep_their_limit() -> None:
+    log = parse_lines(_short_range_log(None))
+    assert log.range_limit_m is None
+    assert all(s.range_max_m == 80.0 for s in log.scans)
+
+
+def test_the_declared_front_laser_maximum_limits_the_ranges() -> None:
+    lines = ["PARAM robot_front_laser_max 7.5 host 0", *_short_range_log(None, 5)]
+    log = parse_lines(lines)
+    assert log.range_limit_m == 7.5
+    far = np.concatenate([s.ranges_m for s in log.scans]) >= 7.5
+    flagged = np.concatenate([to_laser_scan(s, 0).flags for s in log.scans]) != 0
+    assert np.array_equal(far, flagged)
 
 
 def test_file_without_laser_is_an_input_error(tmp_path: Path) -> None:
@@ -199,6 +253,22 @@ def test_intel_log_parses(shared_data: Path) -> None:
     log = read_carmen(shared_data / "laser" / "intel-corrected-abstime.log.gz")
     assert len(log.scans) == 910
     assert not log.skipped
+    assert log.range_limit_m is None  # its 81.83 m code is past the 80 m every FLASER line has
     assert all(len(s.ranges_m) == 180 for s in log.scans)
     times = log.scan_times_ns()
     assert np.all(np.diff(times) > 0)
+
+
+def test_a_backward_facing_laser_mounting_is_read_whole() -> None:
+    """Turns of the laser against the robot near 180 deg print as +-180: read about their mean."""
+    rng = np.random.default_rng(4)
+    lines = []
+    for k in range(40):
+        robot = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(-3, 3)])
+        mount = np.array([-0.25, 0.02, math.pi + rng.normal(0.0, 1e-3)])
+        laser = se2.compose(robot, mount)
+        poses = " ".join(f"{v:.6f}" for v in (*laser, *robot))
+        lines.append(f"FLASER 3 1.0 1.0 1.0 {poses} {10.0 + k:.6f} host {10.0 + k:.6f}")
+    x, y, turn = laser_offset(parse_lines(lines))
+    assert (x, y) == pytest.approx((-0.25, 0.02), abs=1e-5)
+    assert abs(math.remainder(turn - math.pi, math.tau)) < 1e-3

@@ -4,7 +4,8 @@ CARMEN logs are text, one message per line. Three messages matter for mapping:
 
 - ``FLASER n r_1..r_n laser_x laser_y laser_theta robot_x robot_y robot_theta ipc_t host log_t``
   (old front-laser format; CARMEN's reader assumes a 180 degree field of view starting at -90
-  degrees, one beam per degree for 180/181 beams, half a degree for 360/361);
+  degrees, one beam per degree for 180/181 beams, half a degree for 360/361; 400/401 beams are
+  an LMS over 100 degrees at a quarter degree);
 - ``ROBOTLASER1 type start_angle fov resolution max_range accuracy remission_mode n r_1..r_n
   m e_1..e_m laser_x laser_y laser_theta robot_x robot_y robot_theta tv rv fwd side turn
   ipc_t host log_t`` (carries its own geometry);
@@ -26,7 +27,7 @@ import math
 import zlib
 from collections import Counter
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TextIO
 
@@ -43,6 +44,15 @@ log = structlog.get_logger(__name__)
 MAX_BEAMS = 4096
 #: Ranges at or above this are "no return" markers (the Intel log uses 81.83 m).
 NO_RETURN_M = 80.0
+#: A reading at the top of a log's readings held by at least this share of all its beams, and
+#: this many times as many beams as the 10 cm below it, is the laser's "no return" code, not a
+#: wall: real walls spread over centimetres of noise, a code sits on one value. Logs of a laser
+#: in a short-range mode print such a code far below ``NO_RETURN_M`` (and FLASER has no field
+#: for it); mapped as a wall it would draw an arc that moves with the robot.
+NO_RETURN_CODE_MIN_SHARE = 0.001
+NO_RETURN_CODE_SPIKE = 5.0
+#: Half the width of the bin a printed code falls in (logs print to the centimetre or finer).
+NO_RETURN_CODE_BIN_M = 0.005
 #: Stamps are Unix seconds; int64 nanoseconds hold about 292 years either side of 1970.
 MAX_ABS_TIME_S = 9_200_000_000
 
@@ -80,6 +90,9 @@ class CarmenLog:
     odometry: list[CarmenOdom] = field(default_factory=list)
     params: dict[str, str] = field(default_factory=dict)
     skipped: Counter[str] = field(default_factory=Counter)
+    #: Set when a no-return code or ``robot_front_laser_max`` limits the ranges (see
+    #: :func:`no_return_code`); ``None`` when the lines' own limits stand.
+    range_limit_m: float | None = None
 
     def reference_poses(self) -> FloatArray:
         """(N, 3) robot poses attached to the scans."""
@@ -113,9 +126,52 @@ def flaser_geometry(n: int) -> tuple[float, float]:
         return -math.pi / 2, math.radians(1.0)
     if n in (360, 361):
         return -math.pi / 2, math.radians(0.5)
+    if n in (400, 401):
+        # an LMS over 100 deg at 0.25 deg (CARMEN's guess); centred, as the scanner sweeps
+        return -math.radians(50.0), math.radians(0.25)
     if n in (720, 721):
         return -math.pi / 2, math.radians(0.25)
     return -math.pi / 2, math.pi / max(n - 1, 1)
+
+
+def no_return_code(scans: list[CarmenScan]) -> float | None:
+    """The log's "no return" reading, if it prints one below the range its lines declare."""
+    if not scans:
+        return None
+    ranges = np.concatenate([s.ranges_m for s in scans])
+    ranges = ranges[np.isfinite(ranges) & (ranges > 0.0)]
+    limit = min(s.range_max_m for s in scans)
+    ranges = ranges[ranges < limit]
+    if ranges.size == 0:
+        return None
+    top = float(ranges.max())
+    at_top = int(np.count_nonzero(ranges >= top - NO_RETURN_CODE_BIN_M))
+    below = int(np.count_nonzero((ranges >= top - 0.1) & (ranges < top - NO_RETURN_CODE_BIN_M)))
+    share = at_top / ranges.size
+    if share < NO_RETURN_CODE_MIN_SHARE or at_top < NO_RETURN_CODE_SPIKE * max(below, 1):
+        return None
+    return top - NO_RETURN_CODE_BIN_M
+
+
+def _declared_max(params: dict[str, str]) -> float | None:
+    """``robot_front_laser_max``, CARMEN's setting for the front laser's longest valid reading."""
+    try:
+        value = float(params.get("robot_front_laser_max", "nan"))
+    except ValueError:
+        return None
+    return value if math.isfinite(value) and 0.0 < value < NO_RETURN_M else None
+
+
+def _apply_range_limit(result: CarmenLog) -> None:
+    """Mark readings at the log's no-return code (or past its declared maximum) as no return."""
+    limits = [v for v in (_declared_max(result.params), no_return_code(result.scans)) if v]
+    if not limits:
+        return
+    limit = min(limits)
+    result.scans = [
+        replace(s, range_max_m=limit) if s.range_max_m > limit else s for s in result.scans
+    ]
+    result.range_limit_m = limit
 
 
 def _ranges(tokens: list[str], start: int, n: int) -> FloatArray:
@@ -213,6 +269,7 @@ def parse_lines(lines: Iterator[str] | list[str]) -> CarmenLog:
             result.skipped[f"malformed {kind}"] += 1
     result.scans.sort(key=lambda s: s.t_ns)
     result.odometry.sort(key=lambda o: o.t_ns)
+    _apply_range_limit(result)
     return result
 
 
@@ -232,5 +289,6 @@ def read_carmen(path: str | Path) -> CarmenLog:
         scans=len(result.scans),
         odometry=len(result.odometry),
         skipped=dict(result.skipped),
+        range_limit_m=result.range_limit_m,
     )
     return result

@@ -74,11 +74,15 @@ def laser_offset(carmen: CarmenLog) -> tuple[float, float, float]:
     robot = carmen.reference_poses()
     c, s = np.cos(robot[:, 2]), np.sin(robot[:, 2])
     dx, dy = laser[:, 0] - robot[:, 0], laser[:, 1] - robot[:, 1]
-    dtheta = np.remainder(laser[:, 2] - robot[:, 2] + math.pi, math.tau) - math.pi
+    dtheta = laser[:, 2] - robot[:, 2]
+    # about the circular mean, so a laser facing backwards (near +-180 deg) is not split in two
+    centre = math.atan2(float(np.mean(np.sin(dtheta))), float(np.mean(np.cos(dtheta))))
+    around = np.remainder(dtheta - centre + math.pi, math.tau) - math.pi
+    turn = math.remainder(centre + float(np.median(around)), math.tau)
     return (
         float(np.median(c * dx + s * dy)),
         float(np.median(-s * dx + c * dy)),
-        float(np.median(dtheta)),
+        turn,
     )
 
 
