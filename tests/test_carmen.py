@@ -98,6 +98,13 @@ def test_malformed_lines_are_counted_not_fatal(line: str) -> None:
     assert log.skipped["unused NEFF"] == 1
 
 
+def test_a_log_with_both_laser_lines_keeps_each_scan_once() -> None:
+    log = parse_lines([FLASER, ROBOTLASER1])
+    (scan,) = log.scans
+    assert len(scan.ranges_m) == 3  # the ROBOTLASER1 line, which states its geometry
+    assert log.skipped["FLASER beside ROBOTLASER1"] == 1
+
+
 def test_no_return_becomes_flagged_nan() -> None:
     (scan,) = parse_lines([FLASER]).scans
     msg = to_laser_scan(scan, 0)

@@ -249,6 +249,7 @@ def _open_text(path: Path) -> TextIO:
 def parse_lines(lines: Iterator[str] | list[str]) -> CarmenLog:
     """Parse CARMEN text lines; unknown messages and malformed lines are counted, not fatal."""
     result = CarmenLog()
+    robot_lasers: list[CarmenScan] = []
     for line in lines:
         tokens = line.split()
         if not tokens or tokens[0].startswith("#"):
@@ -258,7 +259,7 @@ def parse_lines(lines: Iterator[str] | list[str]) -> CarmenLog:
             if kind == "FLASER":
                 result.scans.append(_parse_flaser(tokens))
             elif kind == "ROBOTLASER1":
-                result.scans.append(_parse_robotlaser1(tokens))
+                robot_lasers.append(_parse_robotlaser1(tokens))
             elif kind == "ODOM":
                 result.odometry.append(_parse_odom(tokens))
             elif kind == "PARAM" and len(tokens) >= 3:
@@ -267,6 +268,12 @@ def parse_lines(lines: Iterator[str] | list[str]) -> CarmenLog:
                 result.skipped[f"unused {kind}"] += 1
         except (ValueError, IndexError):
             result.skipped[f"malformed {kind}"] += 1
+    if robot_lasers:
+        # a logger that writes both prints every front-laser scan twice; ROBOTLASER1 says
+        # its own geometry, FLASER leaves it to a guess from the beam count
+        if result.scans:
+            result.skipped["FLASER beside ROBOTLASER1"] += len(result.scans)
+        result.scans = robot_lasers
     result.scans.sort(key=lambda s: s.t_ns)
     result.odometry.sort(key=lambda o: o.t_ns)
     _apply_range_limit(result)
