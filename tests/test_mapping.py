@@ -35,7 +35,13 @@ from baromap.mapping.scan_matcher import (
 )
 from baromap.mapping.scans import ScanBlock
 from baromap.mapping.segmentation import label_scans, moving_scans
-from baromap.mapping.slam import BETWEEN_FLOORS, MATCH_COV_SCALE, match_information, scan_poses
+from baromap.mapping.slam import (
+    BETWEEN_FLOORS,
+    MATCH_COV_SCALE,
+    edge_covariance,
+    match_information,
+    scan_poses,
+)
 
 # an L-shaped room with a pillar: walls as segments (x0, y0, x1, y1)
 ROOM = np.array(
@@ -988,7 +994,11 @@ def test_match_information_holds_for_a_scan_that_measured_little(
     assert eig.min() >= -1e-6 * max(eig.max(), 1.0)
     # never more than the floor alone allows
     assert eig.max() <= (1 / 0.01**2) * (1 + 1e-9)
+    # its covariance, wanted by the odometry calibration and the doubt of matches, is finite
+    cov = edge_covariance(info)
+    assert np.all(np.isfinite(cov))
     if np.linalg.cond(h) < 1e8:
         floor = np.diag([0.05**2, 0.05**2, 0.01**2])
         direct = np.linalg.inv(np.linalg.inv(h) * MATCH_COV_SCALE + floor)
         assert np.allclose(info, direct, rtol=1e-6, atol=1e-9 * np.abs(direct).max())
+        assert np.allclose(cov, np.linalg.inv(direct), rtol=1e-6, atol=1e-9)

@@ -201,6 +201,10 @@ MATCH_SIGMA_M = 0.01
 MATCH_SIGMA_RAD = math.radians(0.2)
 LOOP_SIGMA_M = 0.02
 LOOP_SIGMA_RAD = math.radians(0.5)
+#: Information given to every direction of an edge before its covariance is taken, a standard
+#: deviation of 1 km (see :func:`edge_covariance`); the floors above cap a measured
+#: direction's at 1e4-1e5, so the inverse stays well conditioned.
+UNMEASURED_INFORMATION = 1e-6
 #: Weight of odometry's pull in matching (see scan_matcher.Prior).
 PRIOR_WEIGHT = 0.01
 #: A loop closure's pull towards the current estimate: among equally good corridor alignments
@@ -381,6 +385,18 @@ def match_information(information: FloatArray, sigma_xy: float, sigma_theta: flo
     out = np.asarray(np.linalg.solve(np.eye(3) + h @ floor, h), dtype=np.float64)
     symmetric: FloatArray = (out + out.T) / 2
     return symmetric
+
+
+def edge_covariance(information: FloatArray) -> FloatArray:
+    """An edge's covariance from its information, finite where the edge measured nothing.
+
+    :func:`match_information` leaves a direction a scan did not measure without information;
+    the regulariser, negligible against any measured direction, gives it a standard deviation
+    of 1 km instead of an inverse that raises.
+    """
+    regular = np.asarray(information, dtype=np.float64) + UNMEASURED_INFORMATION * np.eye(3)
+    cov: FloatArray = np.asarray(np.linalg.inv(regular), dtype=np.float64)
+    return cov
 
 
 def _rotate_info(info: FloatArray, theta: float) -> FloatArray:
@@ -615,7 +631,7 @@ class _Slam:
             miss = se2.between(e.z, self.calibration.correct(read))
             miss[2] = se2.wrap(miss[2])
             sigma_xy, sigma_theta = noise.sigmas(math.hypot(read[0], read[1]), read[2])
-            both = np.linalg.inv(e.information) + np.diag(
+            both = edge_covariance(e.information) + np.diag(
                 [sigma_xy**2, sigma_xy**2, sigma_theta**2]
             )
             if float(miss @ np.linalg.solve(both, miss)) > NOISE_OUTLIER_SIGMAS**2:
@@ -927,7 +943,7 @@ class _Slam:
         """Keyframe k was matched: with k - 1 matched too, the step between them is measured at
         both ends, a sample of what odometry got wrong (:mod:`odometry_calibration`)."""
         # k's pose, in k's own frame
-        cov: FloatArray = np.asarray(np.linalg.inv(edge.information), dtype=np.float64)
+        cov = edge_covariance(edge.information)
         self.front_cov[k] = cov
         before = self.front_cov.get(k - 1)
         if before is not None:
