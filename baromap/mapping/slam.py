@@ -201,9 +201,9 @@ MATCH_SIGMA_M = 0.01
 MATCH_SIGMA_RAD = math.radians(0.2)
 LOOP_SIGMA_M = 0.02
 LOOP_SIGMA_RAD = math.radians(0.5)
-#: Information given to every direction of an edge before its covariance is taken, a standard
-#: deviation of 1 km (see :func:`edge_covariance`); the floors above cap a measured
-#: direction's at 1e4-1e5, so the inverse stays well conditioned.
+#: Information given to an edge's directions before its covariance is taken where one of them
+#: has less, a standard deviation of 1 km (see :func:`edge_covariance`); the floors above cap
+#: a measured direction's at 1e4-1e5, so the inverse stays well conditioned.
 UNMEASURED_INFORMATION = 1e-6
 #: Weight of odometry's pull in matching (see scan_matcher.Prior).
 PRIOR_WEIGHT = 0.01
@@ -391,11 +391,14 @@ def edge_covariance(information: FloatArray) -> FloatArray:
     """An edge's covariance from its information, finite where the edge measured nothing.
 
     :func:`match_information` leaves a direction a scan did not measure without information;
-    the regulariser, negligible against any measured direction, gives it a standard deviation
-    of 1 km instead of an inverse that raises.
+    such a direction (information under ``UNMEASURED_INFORMATION``) is given that much, a
+    standard deviation of 1 km, instead of an inverse that raises. An edge that measured every
+    direction is inverted as it is.
     """
-    regular = np.asarray(information, dtype=np.float64) + UNMEASURED_INFORMATION * np.eye(3)
-    cov: FloatArray = np.asarray(np.linalg.inv(regular), dtype=np.float64)
+    info = np.asarray(information, dtype=np.float64)
+    if float(np.linalg.eigvalsh(info)[0]) < UNMEASURED_INFORMATION:
+        info = info + UNMEASURED_INFORMATION * np.eye(3)
+    cov: FloatArray = np.asarray(np.linalg.inv(info), dtype=np.float64)
     return cov
 
 
