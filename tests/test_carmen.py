@@ -279,3 +279,14 @@ def test_a_backward_facing_laser_mounting_is_read_whole() -> None:
     x, y, turn = laser_offset(parse_lines(lines))
     assert (x, y) == pytest.approx((-0.25, 0.02), abs=1e-5)
     assert abs(math.remainder(turn - math.pi, math.tau)) < 1e-3
+
+
+def test_import_records_the_no_return_code_it_found(tmp_path: Path) -> None:
+    log = tmp_path / "short.log"
+    log.write_text("\n".join(_short_range_log(8.183, 10)) + "\n")
+    out = tmp_path / "run.mcap"
+    counts = import_carmen(log, out, synth_seed=0)
+    assert counts["range_limit_m"] == pytest.approx(8.178)
+    assert read_metadata(out)["baromap.carmen"]["range_limit_m"] == "8.178"
+    scans = [r.message for r in read_messages(out) if isinstance(r.message, LaserScan)]
+    assert all(s.range_max_m == pytest.approx(8.178) for s in scans)

@@ -55,6 +55,11 @@ def run_import_carmen(args: argparse.Namespace) -> int:
     print(
         f"wrote {args.output}: {counts['scans']} scans, {counts['odometry']} odometry poses"
         + (f", skipped {counts['skipped']}" if counts["skipped"] else "")
+        + (
+            f", readings from {counts['range_limit_m']:.3f} m on are no return"
+            if counts["range_limit_m"] is not None
+            else ""
+        )
     )
     return 0
 

@@ -100,6 +100,7 @@ def import_carmen(
         "odometry": "synthesised" if synth_seed is not None else "recorded",
         "synth_seed": "" if synth_seed is None else str(synth_seed),
         "laser_offset": " ".join(f"{v:.6f}" for v in offset),
+        "range_limit_m": "" if carmen.range_limit_m is None else f"{carmen.range_limit_m:.3f}",
     }
     scans = [to_laser_scan(s, i) for i, s in enumerate(carmen.scans)]
     merged: list[LaserScan | Odometry] = [*scans, *odometry]
@@ -108,4 +109,9 @@ def import_carmen(
         writer.write_metadata("baromap.carmen", metadata)
         for message in merged:
             writer.write(message)
-    return {"scans": len(scans), "odometry": len(odometry), "skipped": dict(carmen.skipped)}
+    return {
+        "scans": len(scans),
+        "odometry": len(odometry),
+        "skipped": dict(carmen.skipped),
+        "range_limit_m": carmen.range_limit_m,
+    }
