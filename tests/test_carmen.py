@@ -138,6 +138,8 @@ def _short_range_log(code: float | None, n_scans: int = 60) -> list[str]:
         ranges = rng.uniform(2.0, 12.0, 181) + rng.normal(0.0, 0.01, 181)
         if code is not None:
             ranges = np.where(ranges >= code, code, ranges)
+            if k == 3:
+                ranges[7] = 9.5  # a glitch past the code
         lines.append(_flaser_line(ranges, 10.0 + k))
     return lines
 

@@ -51,6 +51,10 @@ NO_RETURN_M = 80.0
 #: for it); mapped as a wall it would draw an arc that moves with the robot.
 NO_RETURN_CODE_MIN_SHARE = 0.001
 NO_RETURN_CODE_SPIKE = 5.0
+#: Readings above a code: at most this share of the code's own count (glitches).
+NO_RETURN_CODE_STRAY = 0.01
+#: Scans a code must appear in.
+NO_RETURN_CODE_MIN_SCANS = 10
 #: Half the width of the bin a printed code falls in (logs print to the centimetre or finer).
 NO_RETURN_CODE_BIN_M = 0.005
 #: Stamps are Unix seconds; int64 nanoseconds hold about 292 years either side of 1970.
@@ -135,22 +139,36 @@ def flaser_geometry(n: int) -> tuple[float, float]:
 
 
 def no_return_code(scans: list[CarmenScan]) -> float | None:
-    """The log's "no return" reading, if it prints one below the range its lines declare."""
+    """The log's "no return" reading, if it prints one below the range its lines declare.
+
+    The highest reading (to the millimetre) that many beams hold, with next to nothing above it
+    (a stray reading past a laser's code is a glitch, not a wall further out) and a spike
+    against the 10 cm below it.
+    """
     if not scans:
         return None
     ranges = np.concatenate([s.ranges_m for s in scans])
-    ranges = ranges[np.isfinite(ranges) & (ranges > 0.0)]
     limit = min(s.range_max_m for s in scans)
-    ranges = ranges[ranges < limit]
+    ranges = ranges[np.isfinite(ranges) & (ranges > 0.0) & (ranges < limit)]
     if ranges.size == 0:
         return None
-    top = float(ranges.max())
-    at_top = int(np.count_nonzero(ranges >= top - NO_RETURN_CODE_BIN_M))
-    below = int(np.count_nonzero((ranges >= top - 0.1) & (ranges < top - NO_RETURN_CODE_BIN_M)))
-    share = at_top / ranges.size
-    if share < NO_RETURN_CODE_MIN_SHARE or at_top < NO_RETURN_CODE_SPIKE * max(below, 1):
+    values, counts = np.unique(np.round(ranges * 1000.0).astype(np.int64), return_counts=True)
+    frequent = np.flatnonzero(counts >= max(NO_RETURN_CODE_MIN_SHARE * ranges.size, 2.0))
+    if frequent.size == 0:
         return None
-    return top - NO_RETURN_CODE_BIN_M
+    top = int(frequent[-1])
+    if counts[top + 1 :].sum() > NO_RETURN_CODE_STRAY * counts[top]:
+        return None
+    code_mm = int(values[top])
+    bin_mm = round(NO_RETURN_CODE_BIN_M * 1000)
+    at = counts[(values > code_mm - bin_mm) & (values <= code_mm)].sum()
+    below = counts[(values > code_mm - 100) & (values <= code_mm - bin_mm)].sum()
+    if at < NO_RETURN_CODE_SPIKE * max(int(below), 1):
+        return None
+    code = code_mm / 1000.0 - NO_RETURN_CODE_BIN_M
+    # a code is printed wherever the robot is; one view held still repeats its own walls
+    seen_in = sum(bool(np.any((s.ranges_m >= code) & (s.ranges_m < limit))) for s in scans)
+    return code if seen_in >= NO_RETURN_CODE_MIN_SCANS else None
 
 
 def _declared_max(params: dict[str, str]) -> float | None:
@@ -164,7 +182,8 @@ def _declared_max(params: dict[str, str]) -> float | None:
 
 def _apply_range_limit(result: CarmenLog) -> None:
     """Mark readings at the log's no-return code (or past its declared maximum) as no return."""
-    limits = [v for v in (_declared_max(result.params), no_return_code(result.scans)) if v]
+    found = (_declared_max(result.params), no_return_code(result.scans))
+    limits = [v for v in found if v is not None]
     if not limits:
         return
     limit = min(limits)
