@@ -681,6 +681,27 @@ def test_a_log_of_a_short_range_laser_maps_without_its_no_return_code_as_walls(
     assert run_prepared(short, 0).slam_ate.rms_m < 1.0
 
 
+def test_relations_in_another_time_base_are_said_to_match_nothing(
+    shared_data: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Intel's corrected log as published does not carry the relations' stamps (the abstime
+    copy does): given both, the bench scores by ATE alone and says why."""
+    from structlog.testing import capture_logs
+
+    from baromap.evaluation import laser_logs
+
+    monkeypatch.setattr(laser_logs, "LOGS", dict(laser_logs.LOGS))
+    laser = shared_data / "laser"
+    laser_logs.register_log(
+        "unstamped", laser / "intel-corrected.log.gz", laser / "intel.relations"
+    )
+    with capture_logs() as logs:
+        log = laser_logs.PreparedLog(laser, "unstamped")
+    assert log.relations is None
+    (warning,) = [e for e in logs if e["log_level"] == "warning"]
+    assert warning["relations"] > 2000 and "no relation" in warning["event"]
+
+
 def test_a_log_from_outside_the_data_directory_runs_by_name(
     shared_data: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

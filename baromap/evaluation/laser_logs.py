@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
+import structlog
 
 from baromap.errors import ConfigError
 from baromap.evaluation.consistency import (
@@ -56,6 +57,8 @@ from baromap.odometry.synthesis import synthesize_odometry
 from baromap.recording.carmen import CarmenLog, read_carmen
 from baromap.recording.carmen_import import laser_offset, to_laser_scan
 from baromap.sim.big_loop import big_loop
+
+log = structlog.get_logger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -332,6 +335,20 @@ class PreparedLog:
             # a part of a log may hold none of its relations (both ends inside): then it has none
             if scored.used:
                 self.relations, self.reference_relations = relations, scored
+            elif scans is None:
+                # a whole log with none: its stamps are not the relations' (Freiburg 079's
+                # corrected log counts from 0; the data README's abstime copy fixes that)
+                log.warning(
+                    "no relation has both ends among the log's scans; scored by ATE only",
+                    log=name,
+                    relations=scored.unused,
+                    first_scan_s=round(float(self.times[0]) / 1e9, 3) if len(self.times) else None,
+                    first_relation_s=(
+                        round(float(relations.t1_ns.min()) / 1e9, 3)
+                        if len(relations.t1_ns)
+                        else None
+                    ),
+                )
         self._revisits: Revisits | None = None
 
     def revisits(self) -> Revisits:
