@@ -125,6 +125,25 @@ def test_flaser_geometry_is_carmens_guess_for_a_sick(
     assert math.degrees(step) == pytest.approx(step_deg)
 
 
+@pytest.mark.parametrize(
+    ("n", "param", "first_deg", "step_deg"),
+    [
+        (201, "0.5", -50.0, 0.5),  # an LMS over 100 deg at half a degree, as the log says
+        (201, None, -90.0, 0.9),  # unsaid: CARMEN's guess, 180 deg
+        (181, "0.5", -90.0, 1.0),  # a count CARMEN knows keeps CARMEN's geometry
+        (201, "junk", -90.0, 0.9),
+    ],
+)
+def test_a_flaser_beam_count_carmen_cannot_place_takes_the_logs_resolution(
+    n: int, param: str | None, first_deg: float, step_deg: float
+) -> None:
+    lines = [] if param is None else [f"PARAM laser_front_laser_resolution {param} host 0"]
+    lines.append(_flaser_line(np.full(n, 2.0), 10.0))
+    (scan,) = parse_lines(lines).scans
+    assert math.degrees(scan.angle_min_rad) == pytest.approx(first_deg)
+    assert math.degrees(scan.angle_increment_rad) == pytest.approx(step_deg)
+
+
 def _flaser_line(ranges: np.ndarray, t: float) -> str:
     text = " ".join(f"{r:.3f}" for r in ranges)
     return f"FLASER {len(ranges)} {text} 0 0 0 0 0 0 {t:.6f} host {t:.6f}"

@@ -5,7 +5,8 @@ CARMEN logs are text, one message per line. Three messages matter for mapping:
 - ``FLASER n r_1..r_n laser_x laser_y laser_theta robot_x robot_y robot_theta ipc_t host log_t``
   (old front-laser format; CARMEN's reader assumes a 180 degree field of view starting at -90
   degrees, one beam per degree for 180/181 beams, half a degree for 360/361; 400/401 beams are
-  an LMS over 100 degrees at a quarter degree);
+  an LMS over 100 degrees at a quarter degree; another count takes the step of the log's
+  ``PARAM laser_front_laser_resolution``, centred, if it has one);
 - ``ROBOTLASER1 type start_angle fov resolution max_range accuracy remission_mode n r_1..r_n
   m e_1..e_m laser_x laser_y laser_theta robot_x robot_y robot_theta tv rv fwd side turn
   ipc_t host log_t`` (carries its own geometry);
@@ -124,6 +125,10 @@ def parse_time_ns(text: str) -> int:
     return sign * (int(whole or "0") * NS_PER_S + frac_ns)
 
 
+#: Beam counts CARMEN's reader knows a SICK's geometry by (``carmen_laser_guess_fov``).
+KNOWN_FLASER_BEAMS = frozenset({180, 181, 360, 361, 400, 401, 720, 721})
+
+
 def flaser_geometry(n: int) -> tuple[float, float]:
     """Start angle and increment CARMEN assumes for an FLASER line of ``n`` beams."""
     if n in (180, 181):
@@ -178,6 +183,25 @@ def _declared_max(params: dict[str, str]) -> float | None:
     except ValueError:
         return None
     return value if math.isfinite(value) and 0.0 < value < NO_RETURN_M else None
+
+
+def _apply_declared_resolution(result: CarmenLog) -> None:
+    """FLASER lines of a beam count CARMEN cannot place: the log's own
+    ``laser_front_laser_resolution`` (degrees) gives the step, the sweep centred ahead (as a
+    SICK's 100 deg modes are). Without it they stay spread over 180 deg, CARMEN's guess."""
+    try:
+        degrees = float(result.params.get("laser_front_laser_resolution", "nan"))
+    except ValueError:
+        return
+    if not (math.isfinite(degrees) and 0.0 < degrees <= 5.0):
+        return
+    step = math.radians(degrees)
+    result.scans = [
+        replace(s, angle_min_rad=-(len(s.ranges_m) - 1) * step / 2, angle_increment_rad=step)
+        if len(s.ranges_m) not in KNOWN_FLASER_BEAMS and (len(s.ranges_m) - 1) * step <= math.tau
+        else s
+        for s in result.scans
+    ]
 
 
 def _apply_range_limit(result: CarmenLog) -> None:
@@ -293,6 +317,8 @@ def parse_lines(lines: Iterator[str] | list[str]) -> CarmenLog:
         if result.scans:
             result.skipped["FLASER beside ROBOTLASER1"] += len(result.scans)
         result.scans = robot_lasers
+    else:
+        _apply_declared_resolution(result)
     result.scans.sort(key=lambda s: s.t_ns)
     result.odometry.sort(key=lambda o: o.t_ns)
     _apply_range_limit(result)
