@@ -278,7 +278,12 @@ def test_nothing_sent_was_lost_on_the_way(demo: DemoRun, truth_records: list[Fra
     start = sent_seq.index(first)
     last = sent_seq.index(recorded_seq[-1], start)
     assert recorded_seq == sent_seq[start : last + 1]
-    for device, topic in (("lms200", topics.SCAN), ("p3at", topics.ODOM)):
+    health = [
+        r.message
+        for r in read_messages(demo.recording, [topics.DIAGNOSTICS])
+        if isinstance(r.message, messages.DeviceHealth)
+    ]
+    for device, session, topic in (("lms200", "laser", topics.SCAN), ("p3at", "base", topics.ODOM)):
         stamps = np.array([r.message.t_ns for r in read_messages(demo.recording, [topic])])
         frames = np.sort(clock.unix_ns([r.t_mono_ns for r in truth_records if r.device == device]))
         # Inside the recorded span, as many frames as were sent. These frames carry no number,
@@ -287,4 +292,9 @@ def test_nothing_sent_was_lost_on_the_way(demo: DemoRun, truth_records: list[Fra
         lo, hi = stamps[0] + EDGE_NS, stamps[-1] - EDGE_NS
         recorded = np.count_nonzero((stamps >= lo) & (stamps <= hi))
         sent_inside = np.count_nonzero((frames >= lo) & (frames <= hi))
-        assert abs(recorded - sent_inside) <= 2, (device, recorded, sent_inside)
+        # a miss says what the session went through (seen once, under a machine's full load:
+        # 26 of 10,009 scans)
+        seen = [(h.t_ns, h.state.value, h.detail) for h in health if h.device == session]
+        changes = [c for k, c in enumerate(seen) if k == 0 or c[1:] != seen[k - 1][1:]]
+        last = next((dict(h.counters) for h in reversed(health) if h.device == session), {})
+        assert abs(recorded - sent_inside) <= 2, (device, recorded, sent_inside, changes, last)
