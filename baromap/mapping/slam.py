@@ -203,7 +203,7 @@ LOOP_SIGMA_M = 0.02
 LOOP_SIGMA_RAD = math.radians(0.5)
 #: Information given to an edge's directions before its covariance is taken where one of them
 #: has less, a standard deviation of 1 km (see :func:`edge_covariance`); the floors above cap
-#: a measured direction's at 1e4-1e5, so the inverse stays well conditioned.
+#: a measured direction's at 2.5e3-8e4, so the inverse stays well conditioned.
 UNMEASURED_INFORMATION = 1e-6
 #: Weight of odometry's pull in matching (see scan_matcher.Prior).
 PRIOR_WEIGHT = 0.01
