@@ -125,22 +125,19 @@ def parse_time_ns(text: str) -> int:
     return sign * (int(whole or "0") * NS_PER_S + frac_ns)
 
 
-#: Beam counts CARMEN's reader knows a SICK's geometry by (``carmen_laser_guess_fov``).
-KNOWN_FLASER_BEAMS = frozenset({180, 181, 360, 361, 400, 401, 720, 721})
+#: Start angle and increment CARMEN's reader gives a SICK by an FLASER line's beam count
+#: (``carmen_laser_guess_fov``); 400/401 beams are an LMS over 100 deg, centred, as it sweeps.
+SICK_GEOMETRY: dict[int, tuple[float, float]] = {
+    **dict.fromkeys((180, 181), (-math.pi / 2, math.radians(1.0))),
+    **dict.fromkeys((360, 361), (-math.pi / 2, math.radians(0.5))),
+    **dict.fromkeys((400, 401), (-math.radians(50.0), math.radians(0.25))),
+    **dict.fromkeys((720, 721), (-math.pi / 2, math.radians(0.25))),
+}
 
 
 def flaser_geometry(n: int) -> tuple[float, float]:
     """Start angle and increment CARMEN assumes for an FLASER line of ``n`` beams."""
-    if n in (180, 181):
-        return -math.pi / 2, math.radians(1.0)
-    if n in (360, 361):
-        return -math.pi / 2, math.radians(0.5)
-    if n in (400, 401):
-        # an LMS over 100 deg at 0.25 deg (CARMEN's guess); centred, as the scanner sweeps
-        return -math.radians(50.0), math.radians(0.25)
-    if n in (720, 721):
-        return -math.pi / 2, math.radians(0.25)
-    return -math.pi / 2, math.pi / max(n - 1, 1)
+    return SICK_GEOMETRY.get(n, (-math.pi / 2, math.pi / max(n - 1, 1)))
 
 
 def no_return_code(scans: list[CarmenScan]) -> float | None:
@@ -198,7 +195,7 @@ def _apply_declared_resolution(result: CarmenLog) -> None:
     step = math.radians(degrees)
     result.scans = [
         replace(s, angle_min_rad=-(len(s.ranges_m) - 1) * step / 2, angle_increment_rad=step)
-        if len(s.ranges_m) not in KNOWN_FLASER_BEAMS and (len(s.ranges_m) - 1) * step <= math.tau
+        if len(s.ranges_m) not in SICK_GEOMETRY and (len(s.ranges_m) - 1) * step <= math.tau
         else s
         for s in result.scans
     ]
