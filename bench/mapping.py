@@ -43,7 +43,8 @@ revisit).
 Any other CARMEN log with corrected poses (e.g. the PLE collection's ``*-corrected.log.gz``)
 runs through the same code: ``--log-file edmonton=/data/edmonton-corrected.log.gz --logs
 edmonton,edmonton/2`` (with ``,RELATIONS`` a relations file beside it); its figures are printed
-without a verdict.
+without a verdict. Without ``--logs``, the logs given by ``--log-file`` are the ones run
+(``--log-file freiburg-101=/data/freiburg-101-corrected.log.gz`` alone runs that log).
 
 Simulated run: for each seed, records it (``baromap sim record``), then runs ``build-maps`` in
 a child process (its own peak memory, ru_maxrss, plus that of the build's painter process) and
@@ -315,10 +316,11 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--logs",
-        default="intel,fr079,acapulco",
+        default=None,
         help="comma-separated: intel, fr079, acapulco (public CARMEN logs) or bigloop (a "
         "synthetic corridor ring of 60-120 m a side with a truth: the first revisit after "
-        "hundreds of metres); NAME/N keeps every N-th scan, NAME[a:b] scans a to b",
+        "hundreds of metres); NAME/N keeps every N-th scan, NAME[a:b] scans a to b "
+        "(default: intel,fr079,acapulco, or the logs of --log-file when it is given)",
     )
     parser.add_argument("--log-seeds", default="0,1,2,3,4")
     parser.add_argument("--odometry", default="default", choices=("default", "strong", "varied"))
@@ -347,6 +349,7 @@ def main() -> int:
         from baromap.errors import ConfigError
         from baromap.evaluation.laser_logs import LOGS, parse_log_spec, register_log
 
+        given = []
         for text in args.log_file:
             name, _, paths = text.partition("=")
             log_path, _, relations = paths.partition(",")
@@ -354,7 +357,9 @@ def main() -> int:
                 register_log(name, log_path, relations or None)
             except ConfigError as exc:
                 parser.error(f"--log-file {text}: {exc}")
-        specs = args.logs.split(",")
+            given.append(name)
+        # a log given by path is meant to be run: without --logs, those are the inputs
+        specs = args.logs.split(",") if args.logs else given or ["intel", "fr079", "acapulco"]
         if not LASER.is_dir():
             # the synthetic logs and those of --log-file (absolute paths) need no data directory
             known = [(s, LOGS[parse_log_spec(s).name]) for s in specs]

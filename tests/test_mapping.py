@@ -721,7 +721,10 @@ def test_a_log_from_outside_the_data_directory_runs_by_name(
     theirs = laser_logs.PreparedLog(tmp_path / "absent", spec.name, scans=spec.scans, stride=3)
     assert np.array_equal(theirs.reference, ours.reference)
     assert np.array_equal(theirs.block.ranges_m, ours.block.ranges_m, equal_nan=True)
-    for name, path in (("elsewhere", copy), ("no-dash", copy), ("gone", tmp_path / "x.log")):
+    # named as its file is: the PLE collection's names hold dashes
+    laser_logs.register_log("freiburg-101.v2", copy)
+    assert laser_logs.parse_log_spec("freiburg-101.v2/2").stride == 2
+    for name, path in (("elsewhere", copy), ("no/slash", copy), ("gone", tmp_path / "x.log")):
         with pytest.raises(ConfigError):
             laser_logs.register_log(name, path)
     with pytest.raises(ConfigError):

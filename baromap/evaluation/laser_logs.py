@@ -111,7 +111,9 @@ def read_log(data_dir: str | Path, spec: LaserLog) -> CarmenLog:
     return read_carmen(path)
 
 
-_LOG_NAME = re.compile(r"^[A-Za-z0-9_]+$")
+#: a log's name: what its file is called, as ``freiburg-101`` (no ``/`` or ``[``, which a spec
+#: uses for a stride and a part)
+_LOG_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 
 def register_log(
@@ -122,7 +124,7 @@ def register_log(
     ``*-corrected.log.gz``), with Kuemmerle relations if there are any. So the logs issue 14
     keeps outside the repository run through exactly the code the three here do."""
     if not _LOG_NAME.match(name):
-        raise ConfigError(f"a log's name is letters, digits and _, got {name!r}")
+        raise ConfigError(f"a log's name is letters, digits, _, . and -, got {name!r}")
     if name in LOGS:
         raise ConfigError(f"{name!r} already names a log")
     log_file = Path(log_path).expanduser().resolve()
@@ -250,7 +252,7 @@ class LogSpec:
 
 
 _SPEC = re.compile(
-    r"^(?P<name>[A-Za-z0-9_]+)(?:/(?P<stride>[0-9]+))?(?:\[(?P<a>[0-9]*):(?P<b>[0-9]*)\])?$"
+    r"^(?P<name>[A-Za-z0-9_.-]+)(?:/(?P<stride>[0-9]+))?(?:\[(?P<a>[0-9]*):(?P<b>[0-9]*)\])?$"
 )
 
 
