@@ -173,6 +173,27 @@ def test_a_pooled_field_bounds_every_shift_of_up_to_half_its_step(
             assert coarse.data[crow, ccol] >= near
 
 
+@given(st.integers(min_value=0, max_value=2**16), st.integers(min_value=1, max_value=50))
+def test_a_field_stamped_in_parts_is_the_field_stamped_at_once(seed: int, chunk: int) -> None:
+    """A whole run's points are stamped a few thousand at a time (memory): the field must not
+    depend on where the parts split, overlapping kernels and duplicate points included."""
+    from baromap.mapping import scan_matcher
+
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(0.0, 2.0, (int(rng.integers(1, 120)), 2))
+    points = np.vstack([points, points[: len(points) // 3]])
+    whole = np.zeros((50, 50), dtype=np.float32)
+    scan_matcher._stamp_part(whole, (-0.2, -0.2), 0.05, 0.05, points)
+    parts = np.zeros_like(whole)
+    original = scan_matcher.STAMP_CHUNK
+    try:
+        scan_matcher.STAMP_CHUNK = chunk
+        scan_matcher.stamp(parts, (-0.2, -0.2), 0.05, 0.05, points)
+    finally:
+        scan_matcher.STAMP_CHUNK = original
+    assert np.array_equal(parts, whole) and whole.max() > 0.7
+
+
 def test_branch_and_bound_finds_an_offset_of_metres() -> None:
     """A loop closure after a long stretch without one: the guess is metres and degrees off,
     further than the lattice search's window (LOOP_MAX_M) reaches."""
