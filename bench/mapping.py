@@ -82,6 +82,10 @@ REAL_TIME_RATIO = 100.0
 PEAK_MB = 1024.0
 
 
+#: The logs issue 14's bar is on, run when neither --logs nor --log-file says otherwise.
+PUBLISHED_LOGS = "intel,fr079,acapulco"
+
+
 def _quiet() -> None:
     import logging
 
@@ -320,7 +324,7 @@ def main() -> int:
         help="comma-separated: intel, fr079, acapulco (public CARMEN logs) or bigloop (a "
         "synthetic corridor ring of 60-120 m a side with a truth: the first revisit after "
         "hundreds of metres); NAME/N keeps every N-th scan, NAME[a:b] scans a to b "
-        "(default: intel,fr079,acapulco, or the logs of --log-file when it is given)",
+        f"(default: {PUBLISHED_LOGS}, or the logs of --log-file when it is given)",
     )
     parser.add_argument("--log-seeds", default="0,1,2,3,4")
     parser.add_argument("--odometry", default="default", choices=("default", "strong", "varied"))
@@ -359,7 +363,7 @@ def main() -> int:
                 parser.error(f"--log-file {text}: {exc}")
             given.append(name)
         # a log given by path is meant to be run: without --logs, those are the inputs
-        specs = args.logs.split(",") if args.logs else given or ["intel", "fr079", "acapulco"]
+        specs = (args.logs or ",".join(given) or PUBLISHED_LOGS).split(",")
         if not LASER.is_dir():
             # the synthetic logs and those of --log-file (absolute paths) need no data directory
             known = [(s, LOGS[parse_log_spec(s).name]) for s in specs]

@@ -113,7 +113,8 @@ def read_log(data_dir: str | Path, spec: LaserLog) -> CarmenLog:
 
 #: a log's name: what its file is called, as ``freiburg-101`` (no ``/`` or ``[``, which a spec
 #: uses for a stride and a part)
-_LOG_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+_NAME = r"[A-Za-z0-9_.-]+"
+_LOG_NAME = re.compile(rf"^{_NAME}$")
 
 
 def register_log(
@@ -252,7 +253,7 @@ class LogSpec:
 
 
 _SPEC = re.compile(
-    r"^(?P<name>[A-Za-z0-9_.-]+)(?:/(?P<stride>[0-9]+))?(?:\[(?P<a>[0-9]*):(?P<b>[0-9]*)\])?$"
+    rf"^(?P<name>{_NAME})(?:/(?P<stride>[0-9]+))?(?:\[(?P<a>[0-9]*):(?P<b>[0-9]*)\])?$"
 )
 
 
