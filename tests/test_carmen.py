@@ -277,6 +277,31 @@ def test_import_writes_scans_and_odometry(tmp_path: Path) -> None:
     assert read_metadata(out)["baromap.carmen"]["odometry"] == "synthesised"
 
 
+def test_a_raw_log_s_laser_lines_are_its_odometry_when_asked(tmp_path: Path) -> None:
+    """A raw log (the pose on its laser lines is the wheels' own) with no ODOM lines: imported
+    as it is when asked, never degraded a second time, and refused with both ways out named
+    when not asked."""
+    log = tmp_path / "raw.log"
+    lines = [
+        FLASER.replace("976052890.244111", f"{100 + k}.5").replace("1.1 2.1 0.5", f"{k} 0.5 0.1")
+        for k in range(5)
+    ]
+    log.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "raw.mcap"
+    with pytest.raises(ConfigError, match=r"--odometry-from laser.*--synth-odometry"):
+        import_carmen(log, out)
+    with pytest.raises(ConfigError, match="one or the other"):
+        import_carmen(log, out, synth_seed=0, odometry_from="laser")
+    with pytest.raises(ConfigError, match="odometry source"):
+        import_carmen(log, out, odometry_from="wheels")
+    counts = import_carmen(log, out, odometry_from="laser")
+    assert counts["odometry"] == 5
+    odom = [r.message for r in read_messages(out) if isinstance(r.message, Odometry)]
+    got = [(o.x_m, o.y_m, o.theta_rad) for o in odom]
+    assert np.allclose(got, [(k, 0.5, 0.1) for k in range(5)], atol=1e-9)
+    assert read_metadata(out)["baromap.carmen"]["odometry"] == "laser lines"
+
+
 def test_intel_log_parses(shared_data: Path) -> None:
     log = read_carmen(shared_data / "laser" / "intel-corrected-abstime.log.gz")
     assert len(log.scans) == 910

@@ -36,6 +36,13 @@ def register(subparsers: Any) -> None:
         help="replace missing odometry by the reference poses degraded with a seeded error "
         "model (5 %% scale, 2 deg/m heading drift, random noise)",
     )
+    carmen.add_argument(
+        "--odometry-from",
+        choices=("odom", "laser"),
+        default="odom",
+        help="where the log's own odometry is: its ODOM lines (default), or the robot pose "
+        "its laser lines print, which in a raw log is the wheels' own",
+    )
     carmen.set_defaults(run=run_import_carmen)
     csv = kinds.add_parser(
         "csv", help="import a time_s,pressure_pa[,temperature_c] CSV as a recording"
@@ -51,7 +58,7 @@ def register(subparsers: Any) -> None:
 def run_import_carmen(args: argparse.Namespace) -> int:
     from baromap.recording.carmen_import import import_carmen
 
-    counts = import_carmen(args.log, args.output, args.synth_odometry)
+    counts = import_carmen(args.log, args.output, args.synth_odometry, args.odometry_from)
     print(
         f"wrote {args.output}: {counts['scans']} scans, {counts['odometry']} odometry poses"
         + (f", skipped {counts['skipped']}" if counts["skipped"] else "")

@@ -35,10 +35,22 @@ def to_laser_scan(scan: CarmenScan, index: int) -> LaserScan:
     )
 
 
-def odometry_messages(carmen: CarmenLog, synth_seed: int | None) -> list[Odometry]:
-    """The log's own odometry, or odometry synthesised from its reference poses."""
-    if synth_seed is not None:
-        poses = synthesize_odometry(carmen.reference_poses(), synth_seed)
+#: Where a log's odometry is read from: its ``ODOM`` lines, or the robot pose its laser lines
+#: print (in a raw log that pose is the wheels' own; in a "corrected" one it is a SLAM solution).
+ODOMETRY_SOURCES = ("odom", "laser")
+
+
+def odometry_messages(
+    carmen: CarmenLog, synth_seed: int | None, source: str = "odom"
+) -> list[Odometry]:
+    """The log's own odometry (from ``source``), or odometry synthesised from its reference
+    poses when ``synth_seed`` is given."""
+    if source not in ODOMETRY_SOURCES:
+        raise ConfigError(f"odometry source {source!r}: expected one of {ODOMETRY_SOURCES}")
+    if synth_seed is not None or source == "laser":
+        poses = carmen.reference_poses()
+        if synth_seed is not None:
+            poses = synthesize_odometry(poses, synth_seed)
         times = carmen.scan_times_ns()
         return [
             Odometry(t_ns=int(t), x_m=float(p[0]), y_m=float(p[1]), theta_rad=float(p[2]))
@@ -47,7 +59,9 @@ def odometry_messages(carmen: CarmenLog, synth_seed: int | None) -> list[Odometr
     if not carmen.has_odometry():
         raise ConfigError(
             "this log carries no raw odometry (its ODOM lines are missing or all zero); "
-            "pass --synth-odometry SEED to synthesise it from the reference poses"
+            "pass --odometry-from laser if the pose its laser lines print is the wheels' own "
+            "(a raw log), or --synth-odometry SEED to synthesise odometry from those poses "
+            "(a corrected log)"
         )
     return [
         Odometry(
@@ -87,17 +101,30 @@ def laser_offset(carmen: CarmenLog) -> tuple[float, float, float]:
 
 
 def import_carmen(
-    log_path: str | Path, out_path: str | Path, synth_seed: int | None = None
+    log_path: str | Path,
+    out_path: str | Path,
+    synth_seed: int | None = None,
+    odometry_from: str = "odom",
 ) -> dict[str, Any]:
-    """Write a CARMEN log as a baromap recording; returns counts for the caller to print."""
+    """Write a CARMEN log as a baromap recording; returns counts for the caller to print.
+    ``odometry_from`` is one of :data:`ODOMETRY_SOURCES`; ``synth_seed`` degrades the laser
+    lines' poses instead (a corrected log)."""
     from baromap.recording import RecordingWriter
 
+    if synth_seed is not None and odometry_from != "odom":
+        raise ConfigError("synthesised odometry replaces the log's own: give one or the other")
     carmen = read_carmen(log_path)
-    odometry = odometry_messages(carmen, synth_seed)
+    odometry = odometry_messages(carmen, synth_seed, odometry_from)
     offset = laser_offset(carmen)
     metadata = {
         "source": str(log_path),
-        "odometry": "synthesised" if synth_seed is not None else "recorded",
+        "odometry": (
+            "synthesised"
+            if synth_seed is not None
+            else "laser lines"
+            if odometry_from == "laser"
+            else "recorded"
+        ),
         "synth_seed": "" if synth_seed is None else str(synth_seed),
         "laser_offset": " ".join(f"{v:.6f}" for v in offset),
         "range_limit_m": "" if carmen.range_limit_m is None else f"{carmen.range_limit_m:.3f}",
