@@ -4,7 +4,7 @@ timed against issue 14's bar.
     .venv/bin/python bench/mapping.py [--logs intel,fr079,acapulco] [--log-seeds 0,1,2,3,4]
                                       [--odometry default|strong|varied] [--sim-seeds 0,1,2]
                                       [--minutes M] [--skip-logs] [--skip-sim] [--keep DIR]
-                                      [--log-file NAME=PATH[,RELATIONS] ...]
+                                      [--log-file NAME=PATH[,RELATIONS] ...] [--draws K]
                                       (--logs also takes bigloop: a synthetic 434 m loop)
 
 Public logs (../shared/data/laser, or $BAROMAP_SHARED_DATA/laser): for each seed, odometry
@@ -39,6 +39,14 @@ the correction is beyond the capped window), those kept against a one-sided map 
 visit ends and how many of them were taken (none where a closure framed on both sides came
 after), the accepted, and the largest correction one made (the front end's drift at the
 revisit).
+
+One run's figure is one draw of a spread: the SLAM's discrete choices (which candidate a
+search keeps, which closure passes its threshold) flip under changes of the input far below any
+sensor's noise. ``--draws K`` runs every seed K times, the odometry of draws 1..K-1 perturbed by
+half a micrometre (``laser_logs.DRAW_PERTURBATION``: the rounding of a log printed to six
+decimals), and prints each seed's spread under its row and the spread of the worst seed's
+figure over its draws beside the verdict; the verdict itself is on draw 0, the odometry as
+synthesised.
 
 Any other CARMEN log with corrected poses (e.g. the PLE collection's ``*-corrected.log.gz``)
 runs through the same code: ``--log-file edmonton=/data/edmonton-corrected.log.gz --logs
@@ -204,7 +212,14 @@ def bench_sim(seed: int, minutes: float, keep: Path | None) -> bool:
     return bool(data["passed_building"]) and fast
 
 
-def bench_logs(specs: list[str], seeds: list[int], odometry: str = "default") -> bool:
+def _spread(values: list[float], digits: int) -> str:
+    low, mid, high = min(values), float(np.median(values)), max(values)
+    return f"{low:.{digits}f}-{mid:.{digits}f}-{high:.{digits}f}"
+
+
+def bench_logs(
+    specs: list[str], seeds: list[int], odometry: str = "default", draws: int = 1
+) -> bool:
     _quiet()
     from baromap.evaluation.laser_logs import (
         LOGS,
@@ -224,6 +239,8 @@ def bench_logs(specs: list[str], seeds: list[int], odometry: str = "default") ->
         name_shown = shown if odometry == "default" else f"{shown} ({odometry} odometry)"
         print(f"{name_shown}: {'seed':>4}  {'odometry alone':>34}  {'SLAM':>34}  {'time':>6}")
         rel_t, rel_r, ates, cons = [], [], [], []
+        # per seed, every draw's ATE and relation errors (draw 0 first)
+        drawn: list[tuple[list[float], list[float], list[float]]] = []
         # the scans, relations and the corrected poses' revisit score are every seed's: once
         prepared = PreparedLog(LASER, name, scans=spec.scans, stride=spec.stride)
         for seed in seeds:
@@ -264,6 +281,19 @@ def bench_logs(specs: list[str], seeds: list[int], odometry: str = "default") ->
                 f"{st.get('loop_deferred_taken', 0)} of them taken; {st.get('loops', 0)} "
                 f"accepted, largest correction {st.get('loop_max_correction_mm', 0) / 1000:.2f} m"
             )
+            if draws > 1:
+                d_ate, d_t, d_r = [ates[-1]], rel_t[-1:], rel_r[-1:]
+                for draw in range(1, draws):
+                    more = run_prepared(prepared, seed, odometry=model, draw=draw)
+                    d_ate.append(more.slam_ate.rms_m)
+                    if more.slam_relations is not None:
+                        d_t.append(more.slam_relations.trans_mean)
+                        d_r.append(more.slam_relations.rot_mean)
+                drawn.append((d_ate, d_t, d_r))
+                text = f"ATE {_spread(d_ate, 3)} m"
+                if d_t:
+                    text += f", rel {_spread(d_t, 4)} m {_spread(d_r, 3)} deg"
+                print(f"{'':{len(name_shown)}}        {draws} draws (min-median-max): {text}")
             if odometry == "varied":
                 # the drawn model, and what the SLAM's odometry calibration learnt of it
                 dist, turn, creep = rep.result.odometry_correction
@@ -300,6 +330,17 @@ def bench_logs(specs: list[str], seeds: list[int], odometry: str = "default") ->
         elif name not in ATE_BAR_M and name != "intel":
             verdict.append(f"ATE worst {max(ates):.3f} m (no bar: a log given by --log-file)")
         verdict.append(f"ATE mean {np.mean(ates):.3f} m")
+        if drawn:
+            worst = [max(d_ate) for d_ate, _, _ in drawn]
+            verdict.append(
+                f"over {draws} draws the worst seed's ATE {max(worst):.3f} m, the mean of every "
+                f"draw {np.mean([v for d_ate, _, _ in drawn for v in d_ate]):.3f} m"
+            )
+            if all(d_t for _, d_t, _ in drawn):
+                verdict.append(
+                    f"relations worst over the draws {max(max(d_t) for _, d_t, _ in drawn):.4f} m,"
+                    f" {max(max(d_r) for _, _, d_r in drawn):.3f} deg"
+                )
         if cons:
             ours, ref = np.array(cons).T * 1000
             verdict.append(
@@ -340,8 +381,18 @@ def main() -> int:
         metavar="NAME=PATH[,RELATIONS]",
         help="a CARMEN log with corrected poses, then named in --logs",
     )
+    parser.add_argument(
+        "--draws",
+        type=int,
+        default=1,
+        metavar="K",
+        help="run every log seed K times, draws 1.. with the odometry perturbed by half a "
+        "micrometre, and print the spread (default 1: the odometry as synthesised only)",
+    )
     parser.add_argument("--child-build", nargs=2, metavar=("RUN", "OUT"), help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.draws < 1:
+        parser.error("--draws: at least 1")
     if args.child_build:
         child_build(*args.child_build)
         return 0
@@ -373,7 +424,7 @@ def main() -> int:
             print(f"laser logs not found at {LASER}: skipped {', '.join(set(specs) - set(kept))}")
             specs = kept
         if specs:
-            ok &= bench_logs(specs, _ints(args.log_seeds), args.odometry)
+            ok &= bench_logs(specs, _ints(args.log_seeds), args.odometry, args.draws)
     # figures are printed either way; the exit status says whether every target was met
     return 0 if ok else 1
 

@@ -611,6 +611,19 @@ def test_a_bad_log_spec_is_a_config_error(text: str) -> None:
         parse_log_spec(text)
 
 
+def test_a_draw_moves_odometry_by_under_a_micrometre_and_repeats() -> None:
+    from baromap.evaluation.laser_logs import DRAW_PERTURBATION, perturbed
+
+    odom = np.random.default_rng(0).normal(0.0, 10.0, (50, 3))
+    assert perturbed(odom, 3, 0) is odom
+    first = perturbed(odom, 3, 1)
+    assert np.all(np.abs(first - odom) <= DRAW_PERTURBATION)
+    assert np.any(first != odom)
+    np.testing.assert_array_equal(first, perturbed(odom, 3, 1))
+    assert not np.array_equal(first, perturbed(odom, 3, 2))
+    assert not np.array_equal(first, perturbed(odom, 4, 1))
+
+
 def test_front_end_holds_on_a_sparse_log(shared_data: Path) -> None:
     """The first 300 scans of the Intel log, every third kept: 100 scans over 179 m, a scan
     every 2.2 m (median; up to 3.1 m) and turns of up to 125 degrees between scans, sparser
