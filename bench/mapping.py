@@ -44,9 +44,9 @@ One run's figure is one draw of a spread: the SLAM's discrete choices (which can
 search keeps, which closure passes its threshold) flip under changes of the input far below any
 sensor's noise. ``--draws K`` runs every seed K times, the odometry of draws 1..K-1 perturbed by
 half a micrometre (``laser_logs.DRAW_PERTURBATION``: the rounding of a log printed to six
-decimals), and prints each seed's spread under its row and the spread of the worst seed's
-figure over its draws beside the verdict; the verdict itself is on draw 0, the odometry as
-synthesised.
+decimals), and prints each seed's spread (min-median-max) under its row and, beside the
+verdict, the worst figures over every seed's draws; the verdict itself is on draw 0, the
+odometry as synthesised.
 
 Any other CARMEN log with corrected poses (e.g. the PLE collection's ``*-corrected.log.gz``)
 runs through the same code: ``--log-file edmonton=/data/edmonton-corrected.log.gz --logs

@@ -256,13 +256,19 @@ def test_synth_odometry_without_error_is_the_reference(seed: int) -> None:
     np.testing.assert_allclose(synthesize_odometry(ref, seed, model), ref, atol=1e-9)
 
 
-def test_import_writes_scans_and_odometry(tmp_path: Path) -> None:
-    log = tmp_path / "run.log"
+def _moving_log(path: Path, pose: str) -> Path:
+    """Five FLASER lines a second apart, the robot's pose ``pose`` with ``{k}`` the line's
+    number, and no ODOM line."""
     lines = [
-        FLASER.replace("976052890.244111", f"{100 + k}.5").replace("1.1 2.1 0.5", f"{k} 0 0")
+        FLASER.replace("976052890.244111", f"{100 + k}.5").replace("1.1 2.1 0.5", pose.format(k=k))
         for k in range(5)
     ]
-    log.write_text("\n".join(lines) + "\n")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_import_writes_scans_and_odometry(tmp_path: Path) -> None:
+    log = _moving_log(tmp_path / "run.log", "{k} 0 0")
     out = tmp_path / "run.mcap"
     with pytest.raises(ConfigError):
         import_carmen(log, out)  # no odometry and none asked for
@@ -281,12 +287,7 @@ def test_a_raw_log_s_laser_lines_are_its_odometry_when_asked(tmp_path: Path) -> 
     """A raw log (the pose on its laser lines is the wheels' own) with no ODOM lines: imported
     as it is when asked, never degraded a second time, and refused with both ways out named
     when not asked."""
-    log = tmp_path / "raw.log"
-    lines = [
-        FLASER.replace("976052890.244111", f"{100 + k}.5").replace("1.1 2.1 0.5", f"{k} 0.5 0.1")
-        for k in range(5)
-    ]
-    log.write_text("\n".join(lines) + "\n")
+    log = _moving_log(tmp_path / "raw.log", "{k} 0.5 0.1")
     out = tmp_path / "raw.mcap"
     with pytest.raises(ConfigError, match=r"--odometry-from laser.*--synth-odometry"):
         import_carmen(log, out)
