@@ -37,7 +37,9 @@ def to_laser_scan(scan: CarmenScan, index: int) -> LaserScan:
 
 #: Where a log's odometry is read from: its ``ODOM`` lines, or the robot pose its laser lines
 #: print (in a raw log that pose is the wheels' own; in a "corrected" one it is a SLAM solution).
-ODOMETRY_SOURCES = ("odom", "laser")
+#: The recording's metadata names each source by its label here.
+_SOURCE_LABEL = {"odom": "recorded", "laser": "laser lines"}
+ODOMETRY_SOURCES = tuple(_SOURCE_LABEL)
 
 
 def odometry_messages(
@@ -118,13 +120,7 @@ def import_carmen(
     offset = laser_offset(carmen)
     metadata = {
         "source": str(log_path),
-        "odometry": (
-            "synthesised"
-            if synth_seed is not None
-            else "laser lines"
-            if odometry_from == "laser"
-            else "recorded"
-        ),
+        "odometry": "synthesised" if synth_seed is not None else _SOURCE_LABEL[odometry_from],
         "synth_seed": "" if synth_seed is None else str(synth_seed),
         "laser_offset": " ".join(f"{v:.6f}" for v in offset),
         "range_limit_m": "" if carmen.range_limit_m is None else f"{carmen.range_limit_m:.3f}",
