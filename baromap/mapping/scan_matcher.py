@@ -207,6 +207,7 @@ class MatchResult:
     score: float  # mean field value over the points at ``pose``, in [0, 1]
     information: FloatArray  # (3, 3) Gauss-Newton information of the fit, world frame
     runner_up: float = 0.0  # best score of a clearly different pose (ambiguity), 0 if none
+    runner_up_pose: FloatArray | None = None  # that pose (on the search lattice), None if none
 
 
 @dataclass(frozen=True, slots=True)
@@ -292,6 +293,7 @@ class SearchResult:
     pose: FloatArray
     score: float
     runner_up: float  # score of the best clearly different pose less its prior handicap
+    runner_up_pose: FloatArray | None = None
 
 
 def _window_angles(guess: FloatArray, window: SearchWindow) -> FloatArray:
@@ -345,10 +347,13 @@ def correlative_search(
         )
         best_objective = float(objective[a, iy, ix])
         runner_up = 0.0
+        runner_pose = None
         if far.any():
-            other = float(np.max(np.where(far, objective, -np.inf)))
-            runner_up = float(scores[a, iy, ix]) - (best_objective - other)
-        return SearchResult(pose, float(scores[a, iy, ix]), max(runner_up, 0.0))
+            masked = np.where(far, objective, -np.inf)
+            ra, ry, rx = np.unravel_index(int(np.argmax(masked)), masked.shape)
+            runner_up = float(scores[a, iy, ix]) - (best_objective - float(masked[ra, ry, rx]))
+            runner_pose = np.array([xs[rx], ys[ry], angles[ra]])
+        return SearchResult(pose, float(scores[a, iy, ix]), max(runner_up, 0.0), runner_pose)
     coarse_half = math.ceil(half_cells / step)
     coarse_offsets = np.arange(-coarse_half, coarse_half + 1)
     coarse = _score_grid(coarse_field, points, guess, angles, coarse_offsets)
@@ -394,11 +399,13 @@ def correlative_search(
     found.sort(key=lambda f: f[0], reverse=True)
     best_objective, best_score, best_pose = found[0]
     runner_up = 0.0
+    runner_pose = None
     for objective_value, _, pose in found[1:]:
         if _distinct(pose, best_pose):
             runner_up = best_score - (best_objective - objective_value)
+            runner_pose = pose
             break
-    return SearchResult(best_pose, best_score, max(runner_up, 0.0))
+    return SearchResult(best_pose, best_score, max(runner_up, 0.0), runner_pose)
 
 
 #: Node sizes of the branch-and-bound search, in cells, coarsest first: a node of 16 cells
@@ -458,6 +465,7 @@ def branch_and_bound_search(
     order = np.argsort(flat_bounds)[::-1]
     best: tuple[float, float, FloatArray] | None = None  # objective, score, pose
     runner_up = -np.inf  # objective of the best cell distinct from the best
+    runner_pose: FloatArray | None = None
     split = 0
     # the top nodes best bound first, each searched depth first before the next
     for top_node in order:
@@ -494,17 +502,17 @@ def branch_and_bound_search(
                 value = float(objective[jy, jx])
                 pose = np.array([cx[jx], cy[jy], angles[a]])
                 if best is None or value > best[0]:
-                    if best is not None and _distinct(pose, best[2]):
-                        runner_up = max(runner_up, best[0])
+                    if best is not None and _distinct(pose, best[2]) and best[0] > runner_up:
+                        runner_up, runner_pose = best[0], best[2]
                     best = (value, float(scores[jy, jx]), pose)
                 elif value <= runner_up:
                     break  # the rest of this node's cells are lower still
                 elif _distinct(pose, best[2]):
-                    runner_up = value
+                    runner_up, runner_pose = value, pose
     if best is None:
         return SearchResult(np.asarray(guess, dtype=np.float64).copy(), 0.0, 0.0)
     runner = best[1] - (best[0] - runner_up) if np.isfinite(runner_up) else 0.0
-    return SearchResult(best[2], best[1], max(runner, 0.0))
+    return SearchResult(best[2], best[1], max(runner, 0.0), runner_pose)
 
 
 @dataclass(slots=True)
@@ -605,6 +613,37 @@ def refine(
     return current, fit.score, information(fit)
 
 
+def score_at(field: LikelihoodField, points: FloatArray, pose: FloatArray) -> float:
+    """Mean field value of the points placed at ``pose``: the score :func:`refine` reports."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    world = np.column_stack(
+        [
+            pose[0] + c * points[:, 0] - s * points[:, 1],
+            pose[1] + s * points[:, 0] + c * points[:, 1],
+        ]
+    )
+    value, _, _ = field.interpolate(world)
+    return float(value.mean()) if len(value) else 0.0
+
+
+def lowest_between(
+    field: LikelihoodField, points: FloatArray, a: FloatArray, b: FloatArray, samples: int = 3
+) -> float:
+    """The lowest score at ``samples`` poses evenly spaced strictly between poses a and b.
+
+    Two answers of a search that score alike are either two peaks (the next door along a
+    corridor, a room turned by its symmetry), with a valley between them, or two ends of one
+    ridge (a sparse scan in a hall fits equally well anywhere over a few decimetres), along
+    which the score stays up: this tells which.
+    """
+    turn = float(se2.wrap(b[2] - a[2]))
+    lowest = math.inf
+    for t in np.arange(1, samples + 1) / (samples + 1):
+        pose = np.array([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), a[2] + t * turn])
+        lowest = min(lowest, score_at(field, points, pose))
+    return lowest
+
+
 def match(
     field: LikelihoodField,
     points: FloatArray,
@@ -642,4 +681,4 @@ def match(
     slack = 0.0 if prior is None else PRIOR_SCORE_SLACK
     if score < lattice_score - slack or moved > 2 * field.resolution:
         pose, score, info = lattice_pose, lattice_score, lattice_info
-    return MatchResult(pose, score, info, runner_up)
+    return MatchResult(pose, score, info, runner_up, found.runner_up_pose)

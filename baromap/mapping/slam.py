@@ -74,11 +74,14 @@ from baromap.mapping.odometry_calibration import (
 from baromap.mapping.pose_graph import Edge, PoseGraph
 from baromap.mapping.refine import Pull, concatenate, refine_batch
 from baromap.mapping.scan_matcher import (
+    DISTINCT_RAD,
     LikelihoodField,
     MatchResult,
     Prior,
     SearchWindow,
+    lowest_between,
     match,
+    score_at,
 )
 from baromap.mapping.scans import ScanBlock, voxel_filter
 from baromap.mapping.submaps import Submap, SubmapCache
@@ -213,6 +216,9 @@ LOOP_PRIOR_SIGMA_M = 0.5
 LOOP_PRIOR_SIGMA_RAD = math.radians(5.0)
 #: A match is ambiguous when a clearly different pose scores within this ratio of the best.
 FRONT_MAX_AMBIGUITY = 0.97
+#: ... unless every pose between the two scores at least this share of the lower of them: one
+#: ridge, not two peaks (see :meth:`_Slam._ridge`).
+FRONT_RIDGE_SHARE = 0.9
 LOOP_MAX_AMBIGUITY = 0.95
 #: The loop window's floor (the front end is never better tied than this) and ceiling.
 LOOP_BASE_M = 0.1
@@ -407,6 +413,18 @@ def match_information(information: FloatArray, sigma_xy: float, sigma_theta: flo
     return symmetric
 
 
+def spread_information(information: FloatArray, spread: FloatArray) -> FloatArray:
+    """Information of a measurement whose covariance is widened by ``spread spread^T``: it
+    says nothing more precise than the spread along that direction, and as much as before
+    across it. Sherman-Morrison, ``H - H d (H d)^T / (1 + d^T H d)``, so a singular ``H`` (a
+    direction the scan did not measure) needs no inverse."""
+    h = np.asarray(information, dtype=np.float64)
+    hd = h @ spread
+    out: FloatArray = h - np.outer(hd, hd) / (1.0 + float(spread @ hd))
+    symmetric: FloatArray = (out + out.T) / 2
+    return symmetric
+
+
 def edge_covariance(information: FloatArray) -> FloatArray:
     """An edge's covariance from its information, finite where the edge measured nothing.
 
@@ -420,6 +438,21 @@ def edge_covariance(information: FloatArray) -> FloatArray:
         info = info + UNMEASURED_INFORMATION * np.eye(3)
     cov: FloatArray = np.asarray(np.linalg.inv(info), dtype=np.float64)
     return cov
+
+
+def place_on_ridge(
+    guess: FloatArray, guess_info: FloatArray, best: FloatArray, spread: FloatArray
+) -> FloatArray:
+    """The pose on the ridge from ``best`` to ``best + spread`` that odometry's ``guess``
+    (weighed by its information) likes best. The ridge was seen between its two ends only:
+    a pose beyond them is where the scan fits worse, so the choice stops at the ends."""
+    miss = guess - best
+    miss[2] = float(se2.wrap(miss[2]))
+    along = float(spread @ guess_info @ spread)
+    t = float(np.clip(spread @ guess_info @ miss / along, 0.0, 1.0)) if along > 0 else 0.0
+    out: FloatArray = best + t * spread
+    out[2] = float(se2.wrap(out[2]))
+    return out
 
 
 def _rotate_info(info: FloatArray, theta: float) -> FloatArray:
@@ -1000,11 +1033,16 @@ class _Slam:
             window = SearchWindow(window.linear_m, window.angular_rad, MIN_ANGLE_STEP_RAD)
             result = match(fld, points, local_guess, window, prior=prior)
         else:
+            fld = sub.field
             coarse = sub.coarse(window.coarse_step_cells) if window.coarse_step_cells > 1 else None
-            result = match(sub.field, points, local_guess, window, coarse_field=coarse, prior=prior)
+            result = match(fld, points, local_guess, window, coarse_field=coarse, prior=prior)
             if result.score < FRONT_RETRY_BELOW and abs(read[2]) > FRONT_RETRY_TURN_RAD:
                 result = self._retry_after_turn(k, sub.anchor, result, window=window, prior=prior)
         ambiguous = result.runner_up >= FRONT_MAX_AMBIGUITY * result.score
+        spread = self._ridge(fld, points, result) if ambiguous else None
+        if spread is not None:
+            ambiguous = False
+            self.stats["front_ridges"] += 1
         if result.score < FRONT_RETRY_BELOW or ambiguous:
             self.last_doubtful = k
         if result.score < config.front_min_score:
@@ -1013,8 +1051,11 @@ class _Slam:
         if ambiguous:
             self.stats["front_ambiguous"] += 1
             return
-        self.graph.poses[k] = se2.compose(anchor, result.pose)
-        edge = self._match_edge(sub.anchor, k, result, kind="match")
+        edge = self._match_edge(sub.anchor, k, result, kind="match", spread=spread)
+        placed = result.pose
+        if spread is not None:
+            placed = place_on_ridge(local_guess, _info(sigma_xy, sigma_theta), result.pose, spread)
+        self.graph.poses[k] = se2.compose(anchor, placed)
         # the measurement is expressed from the previous keyframe, whose pose the submap
         # holds as the graph last had it: a solve that bends the run between the anchor and
         # the previous keyframe then moves this edge with it
@@ -1089,7 +1130,42 @@ class _Slam:
         res = self.config.resolution_m / 2
         return LikelihoodField.from_points(np.concatenate(clouds), res, res)
 
-    def _match_edge(self, anchor: int, k: int, result: MatchResult, *, kind: str) -> Edge:
+    def _ridge(
+        self, fld: LikelihoodField, points: FloatArray, result: MatchResult
+    ) -> FloatArray | None:
+        """An ambiguous match's runner-up minus its best, when the two are ends of one ridge.
+
+        A sparse scan in a hall (a metre or two from the last, its beams a degree apart and
+        tens of metres long) fits about as well anywhere over a few decimetres: the search's
+        best and a runner-up 0.3 m off score alike, and both hold the heading. Refused, the
+        keyframe stood where odometry put it, degrees off after a turn, and the next scans
+        matched against it (`acapulco/2` seed 0 of the varied odometry: one such keyframe
+        3.8 deg off turned the first 200 m of the run, 0.96 m ATE). Two peaks with a valley
+        between them (the next door along a corridor) stay ambiguous, and so do two answers
+        turned against each other: a scan that cannot tell its heading to 5 degrees has not
+        measured it (taken in a first version, such keyframes of `intel/4` were placed 3.3-15.7
+        degrees off where odometry was 0.3-2.5 degrees off).
+        """
+        other = result.runner_up_pose
+        if other is None or abs(float(se2.wrap(other[2] - result.pose[2]))) > DISTINCT_RAD:
+            # turned against each other, they are two answers of the heading, not one ridge
+            return None
+        ends = min(score_at(fld, points, result.pose), score_at(fld, points, other))
+        if lowest_between(fld, points, result.pose, other) < FRONT_RIDGE_SHARE * ends:
+            return None
+        spread: FloatArray = other - result.pose
+        spread[2] = float(se2.wrap(spread[2]))
+        return spread
+
+    def _match_edge(
+        self,
+        anchor: int,
+        k: int,
+        result: MatchResult,
+        *,
+        kind: str,
+        spread: FloatArray | None = None,
+    ) -> Edge:
         """Edge anchor -> k from a match of keyframe k made in the anchor's frame.
 
         Front-end and car edges are trusted (plain least squares); loop closures get the
@@ -1101,6 +1177,8 @@ class _Slam:
             LOOP_SIGMA_M if loop else MATCH_SIGMA_M,
             LOOP_SIGMA_RAD if loop else MATCH_SIGMA_RAD,
         )
+        if spread is not None:
+            info = spread_information(info, spread)
         return Edge(
             anchor,
             k,
