@@ -1148,7 +1148,6 @@ class _Slam:
         """
         other = result.runner_up_pose
         if other is None or abs(float(se2.wrap(other[2] - result.pose[2]))) > DISTINCT_RAD:
-            # turned against each other, they are two answers of the heading, not one ridge
             return None
         ends = min(score_at(fld, points, result.pose), score_at(fld, points, other))
         if lowest_between(fld, points, result.pose, other) < FRONT_RIDGE_SHARE * ends:
