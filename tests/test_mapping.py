@@ -802,7 +802,7 @@ def test_front_end_holds_through_turns_of_a_sparse_log(shared_data: Path) -> Non
 def test_a_sparse_scan_that_fits_along_a_ridge_is_matched_not_left_to_odometry(
     shared_data: Path,
 ) -> None:
-    """Acapulco, every second scan kept (430 scans, 2 m apart in open halls), odometry of the
+    """Acapulco, every second scan kept (431 scans, 2 m apart in open halls), odometry of the
     varied family, seed 0. Keyframe 99's scan fits equally well anywhere over 0.3 m: the
     search's best and runner-up scored 0.576 and 0.581, both within 0.17 m and 0.7 degrees
     of GMapping's pose. Refused as ambiguous, the keyframe stood where odometry put it, 3.8
