@@ -615,14 +615,7 @@ def refine(
 
 def score_at(field: LikelihoodField, points: FloatArray, pose: FloatArray) -> float:
     """Mean field value of the points placed at ``pose``: the score :func:`refine` reports."""
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    world = np.column_stack(
-        [
-            pose[0] + c * points[:, 0] - s * points[:, 1],
-            pose[1] + s * points[:, 0] + c * points[:, 1],
-        ]
-    )
-    value, _, _ = field.interpolate(world)
+    value, _, _ = field.interpolate(se2.transform_points(pose, points))
     return float(value.mean()) if len(value) else 0.0
 
 

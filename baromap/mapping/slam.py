@@ -390,11 +390,12 @@ def _info(sigma_xy: float, sigma_theta: float) -> FloatArray:
     return np.diag([1 / sigma_xy**2, 1 / sigma_xy**2, 1 / sigma_theta**2])
 
 
-def _finished_map_field(points: FloatArray, resolution: float) -> LikelihoodField:
+def _finished_map_field(world: FloatArray, resolution: float) -> LikelihoodField:
     """The field a keyframe or scan is refined against once the graph holds the map (see
-    FINISHED_MAP_FIELD_SCALE)."""
+    FINISHED_MAP_FIELD_SCALE), of the map's points thinned to one per half front-end cell:
+    passes through one place repeat their points."""
     fine = resolution * FINISHED_MAP_FIELD_SCALE
-    return LikelihoodField.from_points(points, fine, fine)
+    return LikelihoodField.from_points(voxel_filter(world, resolution / 2), fine, fine)
 
 
 def match_information(information: FloatArray, sigma_xy: float, sigma_theta: float) -> FloatArray:
@@ -762,8 +763,6 @@ class _Slam:
                 world = np.concatenate(
                     [se2.transform_points(poses[k], self.clouds.surfaces[k]) for k in other]
                 )
-                # passes through one place repeat its points: one per half cell is enough
-                world = voxel_filter(world, config.resolution_m / 2)
                 fld = _finished_map_field(world, config.resolution_m)
                 points, owner = concatenate([self.clouds.points[k] for k in mine])
                 out = refine_batch(fld, points, owner, poses[mine])
@@ -852,7 +851,7 @@ class _Slam:
                 pts = se2.transform_points(poses[k], self.clouds.surfaces[k])
                 keep = np.hypot(pts[:, 0] - center[0], pts[:, 1] - center[1]) < CORE_REACH_M
                 clouds.append(se2.transform_points(se2.inverse(poses[anchor]), pts[keep]))
-            fld = _finished_map_field(voxel_filter(np.concatenate(clouds), res / 2), res)
+            fld = _finished_map_field(np.concatenate(clouds), res)
             others = np.concatenate([o for w, o in visits.items() if w != v])
             if len(others) == 0:
                 continue
@@ -920,9 +919,7 @@ class _Slam:
             world = np.concatenate(
                 [se2.transform_points(kf_poses[k], self.clouds.surfaces[k]) for k in ids]
             )
-            fld = _finished_map_field(
-                voxel_filter(world, config.resolution_m / 2), config.resolution_m
-            )
+            fld = _finished_map_field(world, config.resolution_m)
             points, owner = scans.sampled_endpoints(todo, config.max_range_m, REGISTER_BEAMS)
             d = to_kf[todo]
             if self.noise is not None:
@@ -1149,7 +1146,7 @@ class _Slam:
         other = result.runner_up_pose
         if other is None or abs(float(se2.wrap(other[2] - result.pose[2]))) > DISTINCT_RAD:
             return None
-        ends = min(score_at(fld, points, result.pose), score_at(fld, points, other))
+        ends = min(result.score, score_at(fld, points, other))
         if lowest_between(fld, points, result.pose, other) < FRONT_RIDGE_SHARE * ends:
             return None
         spread: FloatArray = other - result.pose
