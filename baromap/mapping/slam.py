@@ -534,6 +534,8 @@ class _Slam:
         self.unsolved: list[int] = []  # loop edges added since the last solve
         #: closures under the threshold waiting for another to agree (see _propose)
         self.pending: list[tuple[Edge, float]] = []
+        #: those of them beyond the drift model, searched for again (see _follow_beyond)
+        self.beyond: list[tuple[Edge, float]] = []
         #: closures against a target the run frames on one side only, kept until the visit
         #: ends in case no closure framed on both sides comes (see _settle_deferred)
         self.deferred: list[tuple[Edge, float]] = []
@@ -1272,10 +1274,27 @@ class _Slam:
         if len(points) < CAR_MIN_POINTS or not self.finished:
             return
         index = self.finished_index
-        poses = self.graph.poses
-        here = poses[k]
         travelled = float(self.clouds.distance[k])
         since_closure = self.clouds.path_m(self.last_closure, k)
+        near = index.last_keyframe <= k - LOOP_MIN_SEPARATION
+        near &= travelled - index.tried_at >= LOOP_RETRY_M
+        for n, nearest_kf, repeat in self._loop_candidates(
+            k, self.graph.poses[k], since_closure, near
+        ):
+            index.tried_at[n] = travelled
+            if not repeat:
+                self._try_loop(k, self.finished[n], nearest_kf, since_closure)
+        self._follow_beyond(k)
+
+    def _loop_candidates(
+        self, k: int, here: FloatArray, since_closure: float, near: npt.NDArray[np.bool_]
+    ) -> list[tuple[int, int, bool]]:
+        """The finished submaps (of those ``near`` allows) a revisit at ``here`` may match,
+        nearest first, at most LOOP_TARGETS: (submap, revisited keyframe, repeat). Two small
+        submaps sharing the revisited keyframe stand for the same target (the keyframes
+        around it): the second is a repeat, one match of the target is enough."""
+        index = self.finished_index
+        poses = self.graph.poses
         reach = self.config.loop_radius_m + min(
             LOOP_WIDE_M, self.config.drift_m_per_m * since_closure
         )
@@ -1284,10 +1303,8 @@ class _Slam:
         c, s = np.cos(anchors[:, 2]), np.sin(anchors[:, 2])
         cx = anchors[:, 0] + c * index.center[:, 0] - s * index.center[:, 1]
         cy = anchors[:, 1] + s * index.center[:, 0] + c * index.center[:, 1]
-        near = np.hypot(cx - here[0], cy - here[1]) < index.radius + reach
+        near = near & (np.hypot(cx - here[0], cy - here[1]) < index.radius + reach)
         near &= index.floor == self.kf_floor[k]
-        near &= index.last_keyframe <= k - LOOP_MIN_SEPARATION
-        near &= travelled - index.tried_at >= LOOP_RETRY_M
         candidates: list[tuple[float, int, int]] = []
         for m in np.flatnonzero(near):
             sub = self.finished[m]
@@ -1301,17 +1318,61 @@ class _Slam:
             ):
                 candidates.append((float(dist[nearest]), int(m), sub.keyframes[nearest]))
         candidates.sort(key=lambda c: c[0])
-        tried: set[int] = set()
+        chosen: list[tuple[int, int, bool]] = []
+        small: set[int] = set()
         for _, n, nearest_kf in candidates[:LOOP_TARGETS]:
-            index.tried_at[n] = travelled
-            sub = self.finished[n]
-            if len(sub.keyframes) < LOOP_MIN_KEYFRAMES:
-                # two small submaps sharing the revisited keyframe stand for the same target
-                # (the keyframes around it): one match of it is enough
-                if nearest_kf in tried:
-                    continue
-                tried.add(nearest_kf)
-            self._try_loop(k, sub, nearest_kf, since_closure)
+            repeat = False
+            if len(self.finished[n].keyframes) < LOOP_MIN_KEYFRAMES:
+                repeat = nearest_kf in small
+                small.add(nearest_kf)
+            chosen.append((n, nearest_kf, repeat))
+        return chosen
+
+    def _follow_beyond(self, k: int) -> None:
+        """A closure beyond the drift model still waiting for a partner: searched for again
+        from keyframe k as if it were right.
+
+        A front-end match gone wrong after a turn (degrees, on a sparse log) leaves the
+        estimate further off than the loop window, which is sized by the drift model, can
+        reach: a keyframe that finds the correction anyway (beyond, proposed) needs another
+        that agrees, and the next keyframes, searching around the same wrong estimate,
+        cannot see it (`fr079/30` varied seed 1: keyframe 151 scored 0.79 at a 22 degree
+        correction, the next windows reached 16-17 degrees, and the run ended 2 m off).
+        Searched around where the proposal puts keyframe k (the window sized by the drift
+        since the proposal, never wide), the next scan either fits there as a loop does
+        (score past loop_min_score, unambiguous, within that drift) and the two must still
+        agree, or does not and the proposal lapses as before: the window says where to
+        look, the scans decide. Only until a closure is taken at or after the proposal's
+        keyframe: the graph has then placed the run anew (following on after that, a
+        proposal whose sibling was taken confirmed itself through weak targets).
+        """
+        # a closure taken since (here or after the proposal) has placed the run anew: the
+        # proposal is then either what the graph holds or contradicted, nothing to follow
+        self.beyond = [
+            (edge, score)
+            for edge, score in self.beyond
+            if edge.j > self.last_closure
+            and k - edge.j <= LOOP_GROUP_KEYFRAMES
+            and any(edge is e for e, _ in self.pending)
+        ]
+        earlier = [(edge, score) for edge, score in self.beyond if edge.j < k]
+        if not earlier:
+            return
+        proposal = max(earlier, key=lambda p: p[1])[0]
+        poses = self.graph.poses
+        # keyframe k, moved with the keyframe the proposal places
+        placed = se2.compose(poses[proposal.i], proposal.z)
+        guess = se2.compose(placed, se2.between(poses[proposal.j], poses[k]))
+        since = self.clouds.path_m(proposal.j, k)
+        near = self.finished_index.last_keyframe <= k - LOOP_MIN_SEPARATION
+        for n, nearest_kf, repeat in self._loop_candidates(k, guess, since, near):
+            if repeat:
+                continue
+            self.stats["loop_follows"] += 1
+            self._try_loop(k, self.finished[n], nearest_kf, since, guess=guess)
+            if not any(proposal is other for other, _ in self.pending):
+                self.stats["loop_followed"] += 1
+                return
 
     def _try_loop(
         self,
@@ -1322,7 +1383,11 @@ class _Slam:
         *,
         capped: bool = False,
         defer: bool = False,
+        guess: FloatArray | None = None,
     ) -> None:
+        """Match keyframe k against a finished submap it may revisit, and take, propose or
+        refuse the closure. ``guess`` is where to search from when not k's estimate (a
+        proposal followed, :meth:`_follow_beyond`): what it finds is then only proposed."""
         config = self.config
         poses = self.graph.poses
         drift = min(since_closure, self.clouds.path_m(nearest_kf, k))
@@ -1336,7 +1401,8 @@ class _Slam:
         # run around the revisit, and where the correction turns out within LOOP_MAX_M the
         # capped search decides, alone, as before (docs/mapping.md)
         sparse_target = len(sub.keyframes) < LOOP_MIN_KEYFRAMES
-        wide = bound_m > LOOP_MAX_M and not capped
+        # a followed proposal is looked for where it puts k, not searched for afresh
+        wide = bound_m > LOOP_MAX_M and not capped and guess is None
         stretch = None
         one_sided = False
         if wide and not sparse_target:
@@ -1354,7 +1420,7 @@ class _Slam:
         else:
             target, fld, coarse = self._loop_target(sub, nearest_kf, k, window.coarse_step_cells)
         anchor = poses[target]
-        local_guess = se2.between(anchor, poses[k])
+        local_guess = se2.between(anchor, poses[k] if guess is None else guess)
         # the pull towards the estimate costs as much at the wide window's edge as at the
         # capped one's
         prior_m = LOOP_PRIOR_SIGMA_M * max(1.0, linear / LOOP_MAX_M)
@@ -1383,6 +1449,10 @@ class _Slam:
             self.stats["loop_unframed"] += 1
             return
         low = LOOP_GROUP_MIN_SCORE if sparse_target else config.loop_min_score
+        if guess is not None:
+            # the window is centred on the proposal: only a scan that fits there as a
+            # loop does (a weak one fits anywhere near) says the proposal is right
+            low = config.loop_min_score
         if result.score < low:
             return
         turned = abs(float(se2.wrap(result.pose[2] - local_guess[2])))
@@ -1395,7 +1465,8 @@ class _Slam:
         # only when another keyframe's closure agrees
         beyond = moved > bound_m + config.resolution_m or turned > bound_rad + window.angle_step_rad
         if beyond and (
-            self.last_doubtful <= max(self.last_closure, nearest_kf)
+            guess is not None
+            or self.last_doubtful <= max(self.last_closure, nearest_kf)
             or result.score < config.loop_min_score
             or moved > LOOP_MAX_M
             or turned > MAX_FRONT_WINDOW_RAD
@@ -1410,9 +1481,10 @@ class _Slam:
             self.deferred.append((edge, result.score))
             self.stats["loop_deferred"] += 1
             return
-        if result.score < config.loop_min_score or wide or beyond:
+        if result.score < config.loop_min_score or wide or beyond or guess is not None:
             if beyond:
                 self.stats["loop_beyond_drift"] += 1
+                self.beyond.append((edge, result.score))
             self._propose(edge, result.score)
             return
         self._accept_loop(edge, result.score)
