@@ -535,7 +535,7 @@ class _Slam:
         #: closures under the threshold waiting for another to agree (see _propose)
         self.pending: list[tuple[Edge, float]] = []
         #: those of them beyond the drift model, searched for again (see _follow_beyond)
-        self.beyond: list[tuple[Edge, float]] = []
+        self.beyond: list[Edge] = []
         #: closures against a target the run frames on one side only, kept until the visit
         #: ends in case no closure framed on both sides comes (see _settle_deferred)
         self.deferred: list[tuple[Edge, float]] = []
@@ -1349,13 +1349,13 @@ class _Slam:
         # a closure taken since (here or after the proposal) has placed the run anew: the
         # proposal is then either what the graph holds or contradicted, nothing to follow
         self.beyond = [
-            (edge, score)
-            for edge, score in self.beyond
-            if edge.j > self.last_closure
-            and k - edge.j <= LOOP_GROUP_KEYFRAMES
-            and any(edge is e for e, _ in self.pending)
+            e for e in self.beyond if e.j > self.last_closure and k - e.j <= LOOP_GROUP_KEYFRAMES
         ]
-        earlier = [(edge, score) for edge, score in self.beyond if edge.j < k]
+        earlier = [
+            (edge, score)
+            for edge, score in self.pending
+            if edge.j < k and any(edge is e for e in self.beyond)
+        ]
         if not earlier:
             return
         proposal = max(earlier, key=lambda p: p[1])[0]
@@ -1390,6 +1390,7 @@ class _Slam:
         proposal followed, :meth:`_follow_beyond`): what it finds is then only proposed."""
         config = self.config
         poses = self.graph.poses
+        following = guess is not None
         drift = min(since_closure, self.clouds.path_m(nearest_kf, k))
         bound_m = LOOP_BASE_M + config.drift_m_per_m * drift
         bound_rad = LOOP_BASE_RAD + math.radians(config.drift_deg_per_m) * drift
@@ -1402,7 +1403,7 @@ class _Slam:
         # capped search decides, alone, as before (docs/mapping.md)
         sparse_target = len(sub.keyframes) < LOOP_MIN_KEYFRAMES
         # a followed proposal is looked for where it puts k, not searched for afresh
-        wide = bound_m > LOOP_MAX_M and not capped and guess is None
+        wide = bound_m > LOOP_MAX_M and not capped and not following
         stretch = None
         one_sided = False
         if wide and not sparse_target:
@@ -1449,7 +1450,7 @@ class _Slam:
             self.stats["loop_unframed"] += 1
             return
         low = LOOP_GROUP_MIN_SCORE if sparse_target else config.loop_min_score
-        if guess is not None:
+        if following:
             # the window is centred on the proposal: only a scan that fits there as a
             # loop does (a weak one fits anywhere near) says the proposal is right
             low = config.loop_min_score
@@ -1465,7 +1466,7 @@ class _Slam:
         # only when another keyframe's closure agrees
         beyond = moved > bound_m + config.resolution_m or turned > bound_rad + window.angle_step_rad
         if beyond and (
-            guess is not None
+            following
             or self.last_doubtful <= max(self.last_closure, nearest_kf)
             or result.score < config.loop_min_score
             or moved > LOOP_MAX_M
@@ -1481,10 +1482,10 @@ class _Slam:
             self.deferred.append((edge, result.score))
             self.stats["loop_deferred"] += 1
             return
-        if result.score < config.loop_min_score or wide or beyond or guess is not None:
+        if result.score < config.loop_min_score or wide or beyond or following:
             if beyond:
                 self.stats["loop_beyond_drift"] += 1
-                self.beyond.append((edge, result.score))
+                self.beyond.append(edge)
             self._propose(edge, result.score)
             return
         self._accept_loop(edge, result.score)
