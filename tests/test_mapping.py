@@ -198,6 +198,42 @@ def test_a_field_stamped_in_parts_is_the_field_stamped_at_once(seed: int, chunk:
     assert np.array_equal(parts, whole) and whole.max() > 0.7
 
 
+@given(st.integers(min_value=0, max_value=2**16), st.integers(min_value=1, max_value=4000))
+def test_a_lattice_scored_in_blocks_of_angles_is_the_lattice_scored_at_once(
+    seed: int, cells: int
+) -> None:
+    """A wide front-end window is scored a block of angles at a time (memory: scored whole,
+    one window took 2 GB): the scores must not depend on where the blocks split, with one
+    centre for all angles or one per angle."""
+    from baromap.mapping import scan_matcher
+
+    rng = np.random.default_rng(seed)
+    field = LikelihoodField.from_points(rng.uniform(0.0, 4.0, (200, 2)), 0.05, 0.05)
+    points = rng.uniform(0.5, 3.5, (int(rng.integers(1, 40)), 2)) - 2.0
+    angles = np.linspace(-0.5, 0.5, int(rng.integers(1, 30)))
+    offsets = np.arange(-3, 4, dtype=np.int64)
+    one_centre = np.array([2.0, 2.0])
+    per_angle = 2.0 + rng.uniform(-0.1, 0.1, (len(angles), 2))
+    original = scan_matcher.LATTICE_BLOCK_CELLS
+    try:
+        scan_matcher.LATTICE_BLOCK_CELLS = 1 << 40
+        whole = [
+            scan_matcher._score_grid(field, points, c, angles, offsets)
+            for c in (one_centre, per_angle)
+        ]
+        scan_matcher.LATTICE_BLOCK_CELLS = cells
+        blocks = [
+            scan_matcher._score_grid(field, points, c, angles, offsets)
+            for c in (one_centre, per_angle)
+        ]
+    finally:
+        scan_matcher.LATTICE_BLOCK_CELLS = original
+    for w, b in zip(whole, blocks, strict=True):
+        assert w.shape == (len(angles), 7, 7)
+        assert np.array_equal(w, b)
+    assert whole[0].max() > 0
+
+
 def test_branch_and_bound_finds_an_offset_of_metres() -> None:
     """A loop closure after a long stretch without one: the guess is metres and degrees off,
     further than the lattice search's window (LOOP_MAX_M) reaches."""
