@@ -254,43 +254,26 @@ def _score_grid(
     """
     per_angle = max(1, len(points) * len(offsets) ** 2)
     block = max(1, LATTICE_BLOCK_CELLS // per_angle)
-    if len(angles) <= block:
-        return _score_block(field, points, center, angles, offsets)
-    return np.concatenate(
-        [
-            _score_block(
-                field,
-                points,
-                center if center.ndim == 1 else center[i : i + block],
-                angles[i : i + block],
-                offsets,
-            )
-            for i in range(0, len(angles), block)
-        ]
-    )
-
-
-def _score_block(
-    field: LikelihoodField,
-    points: FloatArray,
-    center: FloatArray,
-    angles: FloatArray,
-    offsets: npt.NDArray[np.int64],
-) -> Float32Array:
-    c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
-    cx, cy = (center[0], center[1]) if center.ndim == 1 else (center[:, :1], center[:, 1:2])
-    x = cx + c * points[None, :, 0] - s * points[None, :, 1]
-    y = cy + s * points[None, :, 0] + c * points[None, :, 1]
-    cols = np.rint((x - field.origin_xy[0]) / field.resolution).astype(np.int64)
-    rows = np.rint((y - field.origin_xy[1]) / field.resolution).astype(np.int64)
     h, w = field.data.shape
-    # a shifted point beyond the field reads the zero border
-    shifted_c = np.clip(cols[:, :, None] + offsets[None, None, :], 0, w - 1)  # (A, N, T)
-    shifted_r = np.clip(rows[:, :, None] + offsets[None, None, :], 0, h - 1) * w
-    flat = shifted_r[:, :, :, None] + shifted_c[:, :, None, :]  # (A, N, T dy, T dx)
-    values = field.data.reshape(-1)[flat]
-    scores: Float32Array = values.mean(axis=1, dtype=np.float32)
-    return scores
+    flat_field = field.data.reshape(-1)
+    parts: list[Float32Array] = []
+    for first in range(0, max(1, len(angles)), block):
+        part = angles[first : first + block]
+        c, s = np.cos(part)[:, None], np.sin(part)[:, None]
+        if center.ndim == 1:
+            cx, cy = center[0], center[1]
+        else:
+            cx, cy = center[first : first + block, :1], center[first : first + block, 1:2]
+        x = cx + c * points[None, :, 0] - s * points[None, :, 1]
+        y = cy + s * points[None, :, 0] + c * points[None, :, 1]
+        cols = np.rint((x - field.origin_xy[0]) / field.resolution).astype(np.int64)
+        rows = np.rint((y - field.origin_xy[1]) / field.resolution).astype(np.int64)
+        # a shifted point beyond the field reads the zero border
+        shifted_c = np.clip(cols[:, :, None] + offsets[None, None, :], 0, w - 1)  # (A, N, T)
+        shifted_r = np.clip(rows[:, :, None] + offsets[None, None, :], 0, h - 1) * w
+        flat = shifted_r[:, :, :, None] + shifted_c[:, :, None, :]  # (A, N, T dy, T dx)
+        parts.append(flat_field[flat].mean(axis=1, dtype=np.float32))
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
 def _prior_penalty(
