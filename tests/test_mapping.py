@@ -835,6 +835,30 @@ def test_front_end_holds_through_turns_of_a_sparse_log(shared_data: Path) -> Non
     assert report.slam_ate.rms_m < 0.4
 
 
+def _check_thinned_log_run(
+    shared_data: Path,
+    name: str,
+    stride: int,
+    odometry: tuple[str, int],
+    *,
+    scans: int,
+    stat: str,
+    ate_below: float,
+) -> None:
+    """A real log with every ``stride``-th scan kept and odometry of a family drawn by a
+    seed: the run keeps ``scans`` scans, uses the mechanism that ``stat`` counts, and ends
+    within ``ate_below`` of GMapping's poses."""
+    from baromap.evaluation.laser_logs import odometry_model, run_log
+
+    family, seed = odometry
+    report = run_log(
+        shared_data / "laser", name, seed=seed, stride=stride, odometry=odometry_model(family, seed)
+    )
+    assert report.scans == scans
+    assert report.result.stats[stat] > 0
+    assert report.slam_ate.rms_m < ate_below
+
+
 def test_a_sparse_scan_that_fits_along_a_ridge_is_matched_not_left_to_odometry(
     shared_data: Path,
 ) -> None:
@@ -846,14 +870,9 @@ def test_a_sparse_scan_that_fits_along_a_ridge_is_matched_not_left_to_odometry(
     of the run stayed turned: 0.96 m ATE (max 3.0 m). Taken as one ridge (the score stays
     up between the two), its covariance reaching the runner-up and the keyframe placed on
     the ridge where odometry likes it best: 0.18 m."""
-    from baromap.evaluation.laser_logs import odometry_model, run_log
-
-    report = run_log(
-        shared_data / "laser", "acapulco", seed=0, stride=2, odometry=odometry_model("varied", 0)
+    _check_thinned_log_run(
+        shared_data, "acapulco", 2, ("varied", 0), scans=431, stat="front_ridges", ate_below=0.4
     )
-    assert report.scans == 431
-    assert report.result.stats["front_ridges"] > 0
-    assert report.slam_ate.rms_m < 0.4
 
 
 def test_a_closure_beyond_the_drift_model_puts_a_wrong_front_end_turn_right(
@@ -885,14 +904,15 @@ def test_one_scan_matching_two_submaps_beyond_the_drift_model_confirms_itself(
     Held until another keyframe agreed, it was never taken while the next keyframes searched
     around the turned estimate: the run ended 2 m off, 0.63 m ATE. Two closures of one scan
     against different submaps, both scoring as loops, now confirm each other."""
-    from baromap.evaluation.laser_logs import odometry_model, run_log
-
-    report = run_log(
-        shared_data / "laser", "fr079", seed=1, stride=30, odometry=odometry_model("varied", 1)
+    _check_thinned_log_run(
+        shared_data,
+        "fr079",
+        30,
+        ("varied", 1),
+        scans=160,
+        stat="loop_groups_one_scan",
+        ate_below=0.3,
     )
-    assert report.scans == 160
-    assert report.result.stats["loop_groups_one_scan"] > 0
-    assert report.slam_ate.rms_m < 0.3
 
 
 def test_a_closure_beyond_the_drift_model_is_looked_for_again_where_it_puts_the_robot(
@@ -903,14 +923,9 @@ def test_a_closure_beyond_the_drift_model_is_looked_for_again_where_it_puts_the_
     proposed it; keyframe 170, searched around its estimate (a window of 4 degrees), could
     not confirm it (0.36 and 0.10). Searched where the proposal puts it, it matches submap 19
     at 0.69, 0.04 m from the truth, and both are taken: 0.155 m ATE, 0.319 m without."""
-    from baromap.evaluation.laser_logs import odometry_model, run_log
-
-    report = run_log(
-        shared_data / "laser", "intel", seed=7, stride=4, odometry=odometry_model("strong", 7)
+    _check_thinned_log_run(
+        shared_data, "intel", 4, ("strong", 7), scans=228, stat="loop_followed", ate_below=0.25
     )
-    assert report.scans == 228
-    assert report.result.stats["loop_followed"] > 0
-    assert report.slam_ate.rms_m < 0.25
 
 
 def test_a_front_end_match_odometry_cannot_explain_yields_in_the_last_solve(
