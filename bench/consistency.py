@@ -1,4 +1,4 @@
-"""Revisit consistency (baromap.evaluation.consistency) of several trajectories on the public
+"""Revisit consistency (baromap.mapping.revisits) of several trajectories on the public
 laser logs, beside their ground-truth relation errors and their ATE against GMapping.
 
     .venv/bin/python bench/consistency.py [--logs intel,fr079,acapulco] [--seeds 0,1,2,3,4]
@@ -45,19 +45,19 @@ import structlog
 from scipy.spatial import cKDTree
 from scipy.stats import kendalltau
 
-from baromap.evaluation.consistency import (
+from baromap.evaluation.consistency import revisit_corrections
+from baromap.evaluation.laser_logs import PreparedLog, run_prepared
+from baromap.evaluation.trajectory import trajectory_error
+from baromap.mapping import se2
+from baromap.mapping.relations import Relations, relation_errors
+from baromap.mapping.revisits import (
     MIN_TRAVEL_M,
     TRUNCATE_M,
     Consistency,
     ScanGeometry,
     consistency,
-    revisit_corrections,
     revisit_partners,
 )
-from baromap.evaluation.laser_logs import PreparedLog, run_prepared
-from baromap.evaluation.trajectory import trajectory_error
-from baromap.mapping import se2
-from baromap.mapping.relations import Relations, relation_errors
 from baromap.mapping.slam import SlamConfig
 from baromap.odometry.synthesis import synthesize_odometry
 

@@ -9,14 +9,14 @@ import math
 import numpy as np
 import pytest
 
-from baromap.evaluation.consistency import (
+from baromap.evaluation.consistency import revisit_corrections
+from baromap.mapping import se2
+from baromap.mapping.revisits import (
     ScanGeometry,
     consistency,
-    revisit_corrections,
     revisit_partners,
     travel_m,
 )
-from baromap.mapping import se2
 from baromap.mapping.scans import ScanBlock
 from baromap.sim.laser import cast
 
@@ -136,3 +136,18 @@ def test_revisit_moves_find_the_bend(
     turn = math.degrees(float(np.nanmedian(bent[:, 1])))
     assert 0.5 * lap_deg < turn < 1.5 * lap_deg
     assert np.nanmedian(bent[:, 0]) > 0.02  # and centimetres of shift on a 20 x 12 m ring
+
+
+def test_partners_stay_on_their_own_floor(
+    ring: tuple[np.ndarray, ScanGeometry, list[np.ndarray]],
+) -> None:
+    """Two laps of one ring given as two floors: the same coordinates, not the same walls."""
+    truth, geometry, partners = ring
+    lap = len(truth) // 2
+    floors = np.repeat([0, 1], [lap, len(truth) - lap])
+    one_floor = revisit_partners(truth, geometry.radius_m, group=np.zeros(len(truth), np.int64))
+    assert all(np.array_equal(a, b) for a, b in zip(one_floor, partners, strict=True))
+    assert not any(len(p) for p in revisit_partners(truth, geometry.radius_m, group=floors))
+    # scans on no floor (between floors) have none, and are nobody's
+    between = np.where(np.arange(len(truth)) < lap, -1, 0)
+    assert not any(len(p) for p in revisit_partners(truth, geometry.radius_m, group=between))

@@ -37,12 +37,6 @@ import numpy.typing as npt
 import structlog
 
 from baromap.errors import ConfigError
-from baromap.evaluation.consistency import (
-    Consistency,
-    ScanGeometry,
-    consistency,
-    revisit_partners,
-)
 from baromap.evaluation.trajectory import TrajectoryError, trajectory_error
 from baromap.mapping.relations import (
     RelationErrors,
@@ -50,8 +44,15 @@ from baromap.mapping.relations import (
     read_relations,
     relation_errors,
 )
+from baromap.mapping.restarts import run_slam_best_of
+from baromap.mapping.revisits import (
+    Consistency,
+    ScanGeometry,
+    consistency,
+    revisit_partners,
+)
 from baromap.mapping.scans import ScanBlock
-from baromap.mapping.slam import SlamConfig, SlamResult, run_slam
+from baromap.mapping.slam import SlamConfig, SlamResult
 from baromap.odometry.errors import OdometryErrorModel
 from baromap.odometry.synthesis import synthesize_odometry
 from baromap.recording.carmen import CarmenLog, read_carmen
@@ -293,7 +294,7 @@ class LogReport:
     reference_relations: RelationErrors | None
     result: SlamResult
     seconds: float  # SLAM wall time, for the bench to print
-    #: revisit consistency (baromap.evaluation.consistency) of the SLAM's poses and of the
+    #: revisit consistency (baromap.mapping.revisits) of the SLAM's poses and of the
     #: corrected poses, on the same pairs of scans: which of the two agrees better with the
     #: scans, where the ATE cannot say; None unless asked for
     slam_consistency: Consistency | None = None
@@ -382,15 +383,22 @@ def run_log(
     stride: int = 1,
     odometry: OdometryErrorModel | None = None,
     score_consistency: bool = False,
+    runs: int = 1,
 ) -> LogReport:
     """SLAM on log ``name`` with odometry synthesised by ``seed``; ``scans`` takes a part,
     ``stride`` keeps every so many scans of it, ``odometry`` is the error model (default:
     the synthesis default); ``score_consistency`` adds both trajectories' revisit
-    consistency (a few seconds on Freiburg 079). Several seeds of one log: read it once
-    (:class:`PreparedLog`) and call :func:`run_prepared`."""
+    consistency (a few seconds on Freiburg 079); ``runs`` > 1 keeps the best agreeing of that
+    many runs (:func:`baromap.mapping.restarts.run_slam_best_of`). Several seeds of one log:
+    read it once (:class:`PreparedLog`) and call :func:`run_prepared`."""
     prepared = PreparedLog(data_dir, name, scans=scans, stride=stride)
     return run_prepared(
-        prepared, seed, config=config, odometry=odometry, score_consistency=score_consistency
+        prepared,
+        seed,
+        config=config,
+        odometry=odometry,
+        score_consistency=score_consistency,
+        runs=runs,
     )
 
 
@@ -412,14 +420,16 @@ def run_prepared(
     odometry: OdometryErrorModel | None = None,
     score_consistency: bool = False,
     draw: int = 0,
+    runs: int = 1,
 ) -> LogReport:
     """:func:`run_log` on a log read once for many seeds; ``draw`` > 0 perturbs the odometry
-    by :data:`DRAW_PERTURBATION` (its own seeded draw), to see a figure's spread."""
+    by :data:`DRAW_PERTURBATION` (its own seeded draw), to see a figure's spread; ``runs``
+    as :func:`run_log`'s (``seconds`` counts them all)."""
     reference = log.reference
     odom = perturbed(synthesize_odometry(reference, seed, odometry), seed, draw)
     zeros = np.zeros(len(log.times), dtype=np.int64)
     start = time.perf_counter()
-    result = run_slam(log.block, odom, zeros, zeros, config=config)
+    result = run_slam_best_of(log.block, odom, zeros, zeros, runs=runs, config=config)
     seconds = time.perf_counter() - start
     slam_rel = odom_rel = None
     if log.relations is not None:

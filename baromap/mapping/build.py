@@ -29,10 +29,11 @@ from baromap.mapping import export, figures
 from baromap.mapping.foxglove_maps import write_maps_mcap
 from baromap.mapping.keyframes import motion_spaced
 from baromap.mapping.occupancy import OccupancyGrid, build_grid
+from baromap.mapping.restarts import run_slam_best_of
 from baromap.mapping.run_data import RunData, load_scans, load_series, run_data
 from baromap.mapping.scans import ScanBlock
 from baromap.mapping.segmentation import Segmentation, segment_run
-from baromap.mapping.slam import BETWEEN_FLOORS, SlamConfig, SlamResult, run_slam
+from baromap.mapping.slam import BETWEEN_FLOORS, SlamConfig, SlamResult
 
 log = structlog.get_logger(__name__)
 
@@ -78,9 +79,11 @@ def map_floors(
     config: SlamConfig | None = None,
     resolution: float = 0.05,
     progress: bool = False,
+    runs: int = 1,
 ) -> tuple[SlamResult, dict[int, OccupancyGrid]]:
-    """SLAM over the run and one grid per floor, in one frame."""
-    slam = _slam(run, segmentation, config, progress)
+    """SLAM over the run (the best agreeing of ``runs``: :mod:`baromap.mapping.restarts`)
+    and one grid per floor, in one frame."""
+    slam = _slam(run, segmentation, config, progress, runs)
     grids: dict[int, OccupancyGrid] = {}
     for info in segmentation.floors:
         job = _grid_job(run, segmentation, slam, info.index, resolution=resolution, config=config)
@@ -90,15 +93,20 @@ def map_floors(
 
 
 def _slam(
-    run: RunData, segmentation: Segmentation, config: SlamConfig | None, progress: bool
+    run: RunData,
+    segmentation: Segmentation,
+    config: SlamConfig | None,
+    progress: bool,
+    runs: int,
 ) -> SlamResult:
     update, bar = _progress_bar(len(run.scans), progress)
     try:
-        return run_slam(
+        return run_slam_best_of(
             run.scans,
             run.odom,
             segmentation.scan_floor,
             segmentation.scan_visit,
+            runs=runs,
             config=config,
             progress=update,
         )
@@ -164,8 +172,10 @@ def build_maps(
     method: str = "online",
     progress: bool = False,
     config: SlamConfig | None = None,
+    runs: int = 1,
 ) -> BuildResult:
-    """Run the whole pipeline and write every output file into ``out_dir``."""
+    """Run the whole pipeline and write every output file into ``out_dir``; the SLAM keeps
+    the best agreeing of ``runs`` runs (:mod:`baromap.mapping.restarts`)."""
     if not 0.005 <= resolution <= 1.0:
         raise ConfigError(f"resolution {resolution} m is outside 0.005..1")
     out = Path(out_dir)
@@ -182,6 +192,7 @@ def build_maps(
             method=method,
             progress=progress,
             config=config,
+            runs=runs,
         )
     except BaseException:
         # a failed build leaves nothing behind where there was nothing before
@@ -198,6 +209,7 @@ def _build(
     method: str,
     progress: bool,
     config: SlamConfig | None,
+    runs: int,
 ) -> BuildResult:
     timings: dict[str, float] = {}
     with _Painter() as painter:
@@ -224,7 +236,7 @@ def _build(
         pressure_png = out / "pressure.png"
         painter.submit(figures.pressure_figure, pressure_png, **_pressure_args(run, segmentation))
         t0 = time.perf_counter()
-        slam = _slam(run, segmentation, config, progress)
+        slam = _slam(run, segmentation, config, progress, runs)
         timings["slam"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         result = BuildResult(run, segmentation, slam, {}, timings_s=timings)

@@ -1,0 +1,59 @@
+"""The SLAM run more than once, the run whose revisits agree best with the scans kept."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from baromap.errors import ConfigError
+from baromap.evaluation.laser_logs import PreparedLog, odometry_model, run_prepared
+from baromap.mapping.restarts import run_slam_best_of
+from baromap.mapping.revisits import ScanGeometry, consistency, revisit_partners
+
+
+def test_a_run_gone_wrong_is_replaced_by_one_whose_revisits_agree_better(
+    shared_data: Path,
+) -> None:
+    """Freiburg 079 with every 30th scan kept (a scan every 2-3 m), default odometry, seed 9:
+    the one run went 0.45 m from GMapping's poses (a wrong turn the closures did not put
+    right). Of three runs the one kept agrees better with its own scans at the revisits and
+    is within 0.2 m."""
+    log = PreparedLog(shared_data / "laser", "fr079", stride=30)
+    model = odometry_model("default", 9)
+    one = run_prepared(log, 9, odometry=model)
+    assert one.result.stats["runs"] == 1
+    assert one.slam_ate.rms_m > 0.3
+    best = run_prepared(log, 9, odometry=model, runs=3)
+    assert best.result.stats["runs"] == 3
+    assert best.result.stats["run_kept"] > 0
+    assert best.slam_ate.rms_m < 0.2
+    # judged on the pairs the first run chose, as the restarts judge every run
+    geometry = ScanGeometry(log.block)
+    partners = revisit_partners(one.result.scan_poses, geometry.radius_m)
+    first = consistency(geometry, one.result.scan_poses, partners).mean_m
+    assert best.result.stats["revisits_mm"] < first * 1000
+    assert best.result.stats["revisits_mm"] == pytest.approx(
+        consistency(geometry, best.result.scan_poses, partners).mean_m * 1000
+    )
+
+
+def test_a_run_with_no_revisit_is_not_restarted(shared_data: Path) -> None:
+    """Freiburg 079's first 600 scans, every tenth: a corridor driven once, no place seen
+    again after a long way round, so nothing could tell two runs apart; the first is kept
+    and no other is made."""
+    log = PreparedLog(shared_data / "laser", "fr079", scans=slice(0, 600), stride=10)
+    once = run_prepared(log, 0)
+    asked = run_prepared(log, 0, runs=3)
+    assert asked.result.stats["runs"] == 1
+    assert np.isnan(asked.result.stats["revisits_mm"])
+    np.testing.assert_array_equal(asked.result.scan_poses, once.result.scan_poses)
+
+
+@pytest.mark.parametrize("runs", [0, -1, 1.5, True])
+def test_runs_must_be_a_whole_number_of_at_least_one(runs: object) -> None:
+    empty = np.zeros((0, 3))
+    none = np.zeros(0, dtype=np.int64)
+    with pytest.raises(ConfigError, match="runs"):
+        run_slam_best_of(None, empty, none, none, runs=runs)  # type: ignore[arg-type]
