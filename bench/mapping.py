@@ -5,6 +5,7 @@ timed against issue 14's bar.
                                       [--odometry default|strong|varied] [--sim-seeds 0,1,2]
                                       [--minutes M] [--skip-logs] [--skip-sim] [--keep DIR]
                                       [--log-file NAME=PATH[,RELATIONS] ...] [--draws K]
+                                      [--runs K]
                                       (--logs also takes bigloop: a synthetic 434 m loop)
 
 Public logs (../shared/data/laser, or $BAROMAP_SHARED_DATA/laser): for each seed, odometry
@@ -47,6 +48,13 @@ half a micrometre (``laser_logs.DRAW_PERTURBATION``: the rounding of a log print
 decimals), and prints each seed's spread (min-median-max) under its row and, beside the
 verdict, the worst figures over every seed's draws; the verdict itself is on draw 0, the
 odometry as synthesised.
+
+Each seed (and each draw) is mapped ``--runs K`` times (default 3), runs 2.. with the odometry
+moved by a micrometre, and the run whose revisits agree best with the scans is kept
+(baromap.mapping.restarts; no reference is used to choose): a sparse log's wrong turn that the
+closures did not put right is one draw, not the log's figure. ``--runs 1`` maps once; a log
+costs K times its run. A line under the seed's row says which run was kept. The simulated run
+is built as ``baromap build-maps`` builds it, once.
 
 Any other CARMEN log with corrected poses (e.g. the PLE collection's ``*-corrected.log.gz``)
 runs through the same code: ``--log-file edmonton=/data/edmonton-corrected.log.gz --logs

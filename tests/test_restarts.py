@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -11,6 +12,7 @@ from baromap.errors import ConfigError
 from baromap.evaluation.laser_logs import PreparedLog, odometry_model, run_prepared
 from baromap.mapping.restarts import run_slam_best_of
 from baromap.mapping.revisits import ScanGeometry, consistency, revisit_partners
+from baromap.mapping.slam import SlamResult
 
 
 def test_a_run_gone_wrong_is_replaced_by_one_whose_revisits_agree_better(
@@ -57,3 +59,43 @@ def test_runs_must_be_a_whole_number_of_at_least_one(runs: object) -> None:
     none = np.zeros(0, dtype=np.int64)
     with pytest.raises(ConfigError, match="runs"):
         run_slam_best_of(None, empty, none, none, runs=runs)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("scores_mm", "kept"),
+    [
+        ([100.0, 99.0, 98.5], 0),  # within 2 %: the runs agree about equally, the first stays
+        ([100.0, 97.0, 96.5], 2),  # a better run, then a better one still
+        ([100.0, 97.9, 99.0], 1),
+        ([100.0, 101.0, 97.5], 2),
+    ],
+)
+def test_a_later_run_replaces_the_first_only_if_it_agrees_clearly_better(
+    monkeypatch: pytest.MonkeyPatch, scores_mm: list[float], kept: int
+) -> None:
+    """The choice alone: each run's poses tell which run it was, each run's score is given."""
+    import baromap.mapping.restarts as restarts
+    from baromap.mapping.revisits import Consistency
+
+    made: list[int] = []
+
+    def fake_run(*args: object, **kwargs: object) -> SlamResult:
+        made.append(len(made))
+        poses = np.full((4, 3), float(made[-1]))
+        graph: Any = None
+        return SlamResult(np.arange(4), keyframe_poses=poses, scan_poses=poses, graph=graph)
+
+    def fake_score(geometry: object, poses: np.ndarray, partners: object) -> Consistency:
+        per_scan = np.full(4, scores_mm[int(poses[0, 0])] / 1000)
+        return Consistency(per_scan_m=per_scan, overlap=np.ones(4))
+
+    monkeypatch.setattr(restarts, "run_slam", fake_run)
+    monkeypatch.setattr(restarts, "ScanGeometry", lambda scans: type("G", (), {"radius_m": 1.0}))
+    monkeypatch.setattr(restarts, "revisit_partners", lambda *a, **k: [])
+    monkeypatch.setattr(restarts, "consistency", fake_score)
+    zeros = np.zeros(4, dtype=np.int64)
+    result = run_slam_best_of(None, np.zeros((4, 3)), zeros, zeros, runs=3)  # type: ignore[arg-type]
+    assert made == [0, 1, 2]
+    assert result.stats["run_kept"] == kept
+    assert result.scan_poses[0, 0] == kept
+    assert result.stats["revisits_mm"] == pytest.approx(scores_mm[kept])

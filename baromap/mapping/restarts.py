@@ -41,6 +41,14 @@ log = structlog.get_logger(__name__)
 #: SLAM's discrete choices to fall anew (a change of 5e-7 already does, docs/mapping.md
 #: "One run is one draw").
 RESTART_JITTER = 1e-6
+#: A later run replaces the first only if its revisits agree better by more than this share.
+#: Runs of one quality differ by up to 1 % (Acapulco, Intel and Freiburg 079 as published:
+#: 0.1-1.0 % over four runs, their ATE within its spread of a centimetre), a run gone wrong
+#: at a revisit by 5-80 %; when the runs agree about equally the score cannot tell them
+#: apart, and the first run, the odometry as given, is kept. Over four runs of 57 runs of
+#: sparse and published logs, 2 % lost 0-5 mm of the mean ATE against no margin
+#: (fr079/30 strong 0.167 -> 0.172 m) and still kept every run gone wrong out.
+RESTART_MARGIN = 0.02
 #: Mixed into the seed of each run's jitter, so it is its own stream, apart from the bench's
 #: draws (``laser_logs.perturbed``).
 _RESTART_STREAM = 2611
@@ -57,7 +65,8 @@ def run_slam_best_of(
     progress: Callable[[int], None] | None = None,
 ) -> SlamResult:
     """:func:`run_slam` ``runs`` times, the odometry of runs 2.. jittered by
-    :data:`RESTART_JITTER`; the run whose revisits agree best with the scans is returned.
+    :data:`RESTART_JITTER`; the run whose revisits agree best with the scans is returned, the
+    first unless another agrees better by more than :data:`RESTART_MARGIN`.
 
     Its ``stats`` gain ``runs`` (made), ``run_kept`` (0-based) and ``revisits_mm`` (the kept
     run's score; NaN when there was nothing to score). ``progress`` follows the first run.
@@ -81,7 +90,7 @@ def run_slam_best_of(
         jittered = odom + rng.uniform(-RESTART_JITTER, RESTART_JITTER, np.shape(odom))
         result = run_slam(scans, jittered, floor, visit, config=config)
         scores.append(consistency(geometry, result.scan_poses, partners).mean_m)
-        if scores[-1] < scores[kept]:
+        if scores[-1] < min(scores[:-1]) and scores[-1] < scores[0] * (1 - RESTART_MARGIN):
             best, kept = result, run
     best.stats.update(runs=runs, run_kept=kept, revisits_mm=scores[kept] * 1000)
     log.info(
