@@ -99,3 +99,11 @@ def test_a_later_run_replaces_the_first_only_if_it_agrees_clearly_better(
     assert result.stats["run_kept"] == kept
     assert result.scan_poses[0, 0] == kept
     assert result.stats["revisits_mm"] == pytest.approx(scores_mm[kept])
+
+
+def test_build_maps_refuses_no_runs_before_reading_the_recording(tmp_path: Path) -> None:
+    from baromap.mapping.build import build_maps
+
+    with pytest.raises(ConfigError, match="runs"):
+        build_maps(tmp_path / "missing.mcap", tmp_path / "out", runs=0)
+    assert not (tmp_path / "out").exists()

@@ -29,7 +29,7 @@ from baromap.mapping import export, figures
 from baromap.mapping.foxglove_maps import write_maps_mcap
 from baromap.mapping.keyframes import motion_spaced
 from baromap.mapping.occupancy import OccupancyGrid, build_grid
-from baromap.mapping.restarts import run_slam_best_of
+from baromap.mapping.restarts import check_runs, run_slam_best_of
 from baromap.mapping.run_data import RunData, load_scans, load_series, run_data
 from baromap.mapping.scans import ScanBlock
 from baromap.mapping.segmentation import Segmentation, segment_run
@@ -178,6 +178,7 @@ def build_maps(
     the best agreeing of ``runs`` runs (:mod:`baromap.mapping.restarts`)."""
     if not 0.005 <= resolution <= 1.0:
         raise ConfigError(f"resolution {resolution} m is outside 0.005..1")
+    check_runs(runs)
     out = Path(out_dir)
     created = not out.exists()
     try:
