@@ -296,11 +296,14 @@ def bench_logs(
                 f"accepted, largest correction {st.get('loop_max_correction_mm', 0) / 1000:.2f} m"
             )
             if runs > 1:
-                kept = rep.result.stats["run_kept"]
-                print(
-                    f"{'':{len(name_shown)}}        runs: {runs}, kept run {int(kept) + 1} "
-                    f"(its revisits {rep.result.stats['revisits_mm']:.1f} mm)"
+                made, kept = int(rep.result.stats["runs"]), int(rep.result.stats["run_kept"])
+                text = (
+                    f"{made} of {runs}, kept run {kept + 1} (its revisits "
+                    f"{rep.result.stats['revisits_mm']:.1f} mm)"
+                    if made > 1
+                    else f"1 of {runs}: no revisit to choose by"
                 )
+                print(f"{'':{len(name_shown)}}        runs: {text}")
             if draws > 1:
                 d_ate, d_t, d_r = [ates[-1]], rel_t[-1:], rel_r[-1:]
                 for draw in range(1, draws):
