@@ -362,10 +362,18 @@ class PreparedLog:
                     ),
                 )
         self._revisits: Revisits | None = None
+        self._geometry: ScanGeometry | None = None
+
+    def geometry(self) -> ScanGeometry:
+        """The scans prepared for revisit scoring, made once: every seed's restarts and
+        revisit score use them (0.7 s on Freiburg 079)."""
+        if self._geometry is None:
+            self._geometry = ScanGeometry(self.block)
+        return self._geometry
 
     def revisits(self) -> Revisits:
         if self._revisits is None:
-            geometry = ScanGeometry(self.block)
+            geometry = self.geometry()
             partners = revisit_partners(self.reference, geometry.radius_m)
             self._revisits = Revisits(
                 geometry, partners, consistency(geometry, self.reference, partners)
@@ -429,7 +437,10 @@ def run_prepared(
     odom = perturbed(synthesize_odometry(reference, seed, odometry), seed, draw)
     zeros = np.zeros(len(log.times), dtype=np.int64)
     start = time.perf_counter()
-    result = run_slam_best_of(log.block, odom, zeros, zeros, runs=runs, config=config)
+    geometry = log.geometry() if runs > 1 else None
+    result = run_slam_best_of(
+        log.block, odom, zeros, zeros, runs=runs, config=config, geometry=geometry
+    )
     seconds = time.perf_counter() - start
     slam_rel = odom_rel = None
     if log.relations is not None:

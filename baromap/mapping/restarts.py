@@ -69,6 +69,7 @@ def run_slam_best_of(
     runs: int = 1,
     config: SlamConfig | None = None,
     progress: Callable[[int], None] | None = None,
+    geometry: ScanGeometry | None = None,
 ) -> SlamResult:
     """:func:`run_slam` ``runs`` times, the odometry of runs 2.. jittered by
     :data:`RESTART_JITTER`; the run whose revisits agree best with the scans is returned, the
@@ -76,13 +77,15 @@ def run_slam_best_of(
 
     Its ``stats`` gain ``runs`` (made), ``run_kept`` (0-based) and ``revisits_mm`` (the kept
     run's score; NaN when there was nothing to score). ``progress`` follows the first run.
+    ``geometry``: ``scans`` prepared for scoring, by a caller that holds them already (a log
+    mapped for several seeds); made here otherwise.
     """
     check_runs(runs)
     first = run_slam(scans, odom, floor, visit, config=config, progress=progress)
     first.stats.update(runs=1, run_kept=0, revisits_mm=float("nan"))
     if runs == 1:
         return first
-    geometry = ScanGeometry(scans)
+    geometry = geometry or ScanGeometry(scans)
     group = np.where(np.asarray(floor) == BETWEEN_FLOORS, -1, floor)
     partners = revisit_partners(first.scan_poses, geometry.radius_m, group=group)
     scores = [consistency(geometry, first.scan_poses, partners).mean_m]

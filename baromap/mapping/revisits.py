@@ -1,6 +1,6 @@
 """How well a trajectory agrees with its own scans where the robot came back: a score that
 needs no reference, so the SLAM can use it to choose between runs of itself
-(:func:`baromap.mapping.slam.run_slam`'s restarts) and the bench to judge trajectories whose
+(:mod:`baromap.mapping.restarts`) and the bench to judge trajectories whose
 reference is itself an estimate.
 
 The public logs' absolute trajectory error is measured against GMapping's poses, an estimate
