@@ -429,17 +429,26 @@ def run_prepared(
     score_consistency: bool = False,
     draw: int = 0,
     runs: int = 1,
+    workers: int = 1,
 ) -> LogReport:
     """:func:`run_log` on a log read once for many seeds; ``draw`` > 0 perturbs the odometry
     by :data:`DRAW_PERTURBATION` (its own seeded draw), to see a figure's spread; ``runs``
-    as :func:`run_log`'s (``seconds`` counts them all)."""
+    as :func:`run_log`'s (``seconds`` counts them all, wall time), made in up to ``workers``
+    processes (the same runs whatever their number)."""
     reference = log.reference
     odom = perturbed(synthesize_odometry(reference, seed, odometry), seed, draw)
     zeros = np.zeros(len(log.times), dtype=np.int64)
     start = time.perf_counter()
     geometry = log.geometry() if runs > 1 else None
     result = run_slam_best_of(
-        log.block, odom, zeros, zeros, runs=runs, config=config, geometry=geometry
+        log.block,
+        odom,
+        zeros,
+        zeros,
+        runs=runs,
+        config=config,
+        geometry=geometry,
+        workers=workers,
     )
     seconds = time.perf_counter() - start
     slam_rel = odom_rel = None
