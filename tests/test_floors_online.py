@@ -178,6 +178,33 @@ def test_detect_floors_result_is_consistent() -> None:
     assert all(a.t_end_ns <= b.t_start_ns for a, b in itertools.pairwise(segments))
 
 
+@pytest.mark.parametrize("every", [5, 10, 20])
+def test_a_barometer_read_slowly_still_finds_its_floors(every: int) -> None:
+    """Every 5th, 10th, 20th sample kept: 2, 1 and 0.5 Hz. With a sample every 1.5 s or
+    more, the shortest run of samples spanning the settle window (1.5 s) held two, fewer than
+    the three a stillness test needs, and the detector never settled on a floor at all (and
+    detect_floors then failed building a floor it had no name for)."""
+    plan = [(0.0, 60), (2 * STOREY_M, 60), (STOREY_M, 60)]
+    t, p = series(plan)
+    t, p = t[::every], p[::every]
+    detection = detect_floors(t, p, np.full(t.shape, 15.0))
+    assert [(tr.from_floor, tr.to_floor) for tr in detection.transitions] == [(0, 2), (2, 1)]
+    elevations = [f.elevation_m for f in detection.floors]
+    np.testing.assert_allclose(elevations, [0.0, STOREY_M, 2 * STOREY_M], atol=0.15)
+    assert [f.name for f in detection.floors] == ["0", "1", "2"]
+
+
+def test_a_run_that_never_comes_to_rest_has_one_floor_without_a_name() -> None:
+    """Pressure that never stays still for the settle window (a barometer going up and down
+    by a metre every few seconds): no floor is ever known by name, and that is the answer,
+    not a failure."""
+    t = (np.arange(0, 120, 0.1) * NS_PER_S).astype(np.int64)
+    p = P0 + 12.0 * np.sin(np.arange(t.size) * 0.35)
+    detection = detect_floors(t, p, np.full(t.shape, 15.0))
+    assert detection.transitions == ()
+    assert [f.name for f in detection.floors] == [""]
+
+
 def test_paper_method_on_a_clean_run_and_its_failure_under_drift() -> None:
     plan = [(0.0, 120), (STOREY_M, 120), (0.0, 120)]
     t, p = series(plan, noise_pa=0.2)
@@ -320,14 +347,15 @@ def test_samples_before_a_gap_do_not_count_as_stillness() -> None:
         st.tuples(st.floats(0.001, 8.0), st.floats(-50.0, 50.0), st.floats(-5.0, 5.0)),
         min_size=1,
         max_size=300,
-    )
+    ),
+    st.integers(1, 4),
 )
 def test_still_window_matches_a_direct_computation(
-    steps: list[tuple[float, float, float]],
+    steps: list[tuple[float, float, float]], min_samples: int
 ) -> None:
     """Running sums and monotonic queues agree with a fit over the samples kept."""
     window_ns = round(1.5 * NS_PER_S)
-    window = StillWindow(window_ns)
+    window = StillWindow(window_ns, min_samples)
     times: list[int] = []
     raw: list[float] = []
     smooth: list[float] = []
@@ -338,9 +366,10 @@ def test_still_window_matches_a_direct_computation(
         raw.append(97_000.0 + p)
         smooth.append(97_000.0 + p + s)
         window.push(t, raw[-1], smooth[-1])
-        # the shortest run of latest samples that spans the window (or all there are)
+        # the shortest run of latest samples that spans the window and holds min_samples
+        # (or all there are)
         k = len(times) - 1
-        while k > 0 and times[-1] - times[k] < window_ns:
+        while k > 0 and (times[-1] - times[k] < window_ns or len(times) - k < min_samples):
             k -= 1
         assert window.count == len(times) - k
         assert window.start_ns == times[k]

@@ -348,7 +348,8 @@ def _assemble(
             level_pa=float(base_level + relative_pa[i]),
             elevation_m=float(heights[i] - lowest),
             visits=visits[i],
-            name=names[i] if names is not None else "",
+            # a run that never settled anywhere knows no floor by name: its one floor has none
+            name=names[i] if names is not None and i < len(names) else "",
         )
         for i in order
     )

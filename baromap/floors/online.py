@@ -83,6 +83,9 @@ log = structlog.get_logger(__name__)
 #: Fastest weather trend the drift tracker will follow, Pa/s (7 hPa/h, beyond a strong storm).
 MAX_WEATHER_RATE_PA_S = 0.2
 #: Fewest samples in the settle window: a line through two points says nothing about stillness.
+#: A barometer read more slowly than that (a sample every 1.5 s or more against the window's
+#: 1.5 s) has the window stretched past ``settle_s`` to hold this many; before, it never held
+#: three, and such a run never settled on a floor at all.
 MIN_WINDOW_SAMPLES = 3
 
 _UNKNOWN, _SETTLED, _CHANGING, _STOPPED = 0, 1, 2, 3
@@ -159,7 +162,7 @@ class OnlineFloorDetector:
         self._phase = _UNKNOWN
         self._since = 0
         self._calm_ns = 0  # last time the pressure was quiet where the robot is
-        self._window = StillWindow(self._settle_ns)
+        self._window = StillWindow(self._settle_ns, MIN_WINDOW_SAMPLES)
         # Where the robot is: the tracked level there, and the current floor's level.
         self._anchor = math.nan
         self._drift = 0.0  # Pa/s

@@ -20,7 +20,9 @@ _REBASE_NS = 60 * NS_PER_S
 class StillWindow:
     """The latest samples spanning at least ``window_ns``: were they still all along?
 
-    Holds the shortest run of recent samples that spans the window, with running sums for a
+    Holds the shortest run of recent samples that spans the window and counts at least
+    ``min_samples`` (a barometer read more slowly than that many per window, every 2 s
+    against a window of 1.5 s, still gets a line through enough points), with running sums for a
     least-squares line through the raw pressures (:meth:`slope`) and monotonic queues for the
     highest and lowest smoothed pressure (:meth:`spread`), so each sample costs O(1) amortised
     at any sample rate. Sums are taken about an origin that is moved every ``_REBASE_NS``, so
@@ -37,11 +39,13 @@ class StillWindow:
         "_sxy",
         "_sy",
         "_t0",
+        "min_samples",
         "window_ns",
     )
 
-    def __init__(self, window_ns: int) -> None:
+    def __init__(self, window_ns: int, min_samples: int = 1) -> None:
         self.window_ns = window_ns
+        self.min_samples = min_samples
         self._samples: deque[tuple[int, float, float]] = deque()  # (t_ns, x s, y Pa)
         self._highs: deque[tuple[int, float]] = deque()  # (t_ns, smoothed), decreasing
         self._lows: deque[tuple[int, float]] = deque()  # (t_ns, smoothed), increasing
@@ -86,7 +90,8 @@ class StillWindow:
             lows.pop()
         lows.append((t, smoothed))
         limit = t - self.window_ns
-        while len(samples) > 1 and samples[1][0] <= limit:
+        keep = max(1, self.min_samples)
+        while len(samples) > keep and samples[1][0] <= limit:
             _, x, y = samples.popleft()
             self._sx -= x
             self._sxx -= x * x
