@@ -755,6 +755,43 @@ def test_a_log_of_a_short_range_laser_maps_without_its_no_return_code_as_walls(
     assert run_prepared(short, 0).slam_ate.rms_m < 1.0
 
 
+def test_a_laser_that_sees_nothing_for_a_while_is_driven_through_on_odometry(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    """Thirty Intel scans (about 20 m) with no return on any beam, the laser blinded: the
+    submap the front end then matched against held no point, and the lookup in its empty
+    grid raised an IndexError. Now an empty submap scores nothing, the matches are refused as
+    any poor one is, the stretch is driven on odometry, and the scans after it are placed
+    again (the first 300 scans, seed 0: 0.041 m ATE; 0.046 m with the scans intact)."""
+    import gzip
+
+    from baromap.evaluation.laser_logs import LOGS, PreparedLog, run_prepared
+
+    name = LOGS["intel"].log_file
+    with gzip.open(shared_data / "laser" / name, "rt") as src:
+        lines = src.readlines()
+    scan = 0
+    with gzip.open(tmp_path / name, "wt") as dst:
+        for line in lines:
+            tokens = line.split()
+            out = line
+            if tokens and tokens[0] == "FLASER":
+                if 100 <= scan < 130:
+                    n = int(tokens[1])
+                    tokens[2 : 2 + n] = ["81.91"] * n
+                    out = " ".join(tokens) + "\n"
+                scan += 1
+            dst.write(out)
+    relations = LOGS["intel"].relations_file
+    assert relations is not None
+    (tmp_path / relations).write_bytes((shared_data / "laser" / relations).read_bytes())
+    blinded = PreparedLog(tmp_path, "intel", scans=slice(0, 300))
+    assert np.isnan(blinded.block.ranges_m[100:130]).all()
+    report = run_prepared(blinded, 0)
+    assert report.slam_ate.rms_m < 0.1
+    assert report.result.stats["front_skipped"] >= 25
+
+
 def test_relations_in_another_time_base_are_said_to_match_nothing(
     shared_data: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

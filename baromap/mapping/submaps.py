@@ -127,6 +127,11 @@ class Submap:
     def field(self) -> LikelihoodField:
         if not self._resident:
             self._restamp()
+        if not self._data.size:
+            # keyframes that saw nothing (the laser blinded, or looking into a hall beyond its
+            # range): a field of zeros, against which every pose scores nothing, so a match
+            # is refused as any poor one is, instead of a lookup in an empty grid
+            return LikelihoodField(np.zeros((2, 2), np.float32), self._origin, self.resolution)
         return LikelihoodField(self._data, self._origin, self.resolution)
 
     def coarse(self, step: int) -> LikelihoodField:
