@@ -568,6 +568,15 @@ class _Slam:
         # odometry always enters the graph: along a featureless corridor it is the only
         # measurement of the motion, and the match edge's information says so
         graph.add_edge(Edge(k - 1, k, step, _info(sigma_xy, sigma_theta), "odometry"))
+        if not new_visit and WINDOW_SIGMAS * sigma_xy > MAX_FRONT_WINDOW_M:
+            # a step longer than the front end's widest window can search odometry's doubt
+            # over (the laser silent while the robot drove on: unplugged, power-cycled): the
+            # scan is not matched against the submaps from before it, where a capped window
+            # holds only aliases; it begins new ones, and loop closure, whose search widens
+            # with the drift, ties them back
+            self.stats["front_after_gap"] += 1
+            while self.active:
+                self._finish_submap(self.active.pop(0))
         if new_visit:
             self.visit_start = k
             self.last_closure = k
