@@ -56,8 +56,15 @@ def test_missing_file_is_an_input_error(tmp_path: Path) -> None:
 
 def test_not_ipin() -> None:
     assert not looks_like_ipin("time_s,pressure_pa\n0,97000\n")
-    with pytest.raises(InputFormatError):
+    with pytest.raises(InputFormatError, match="no PRES lines"):
         parse_ipin(["% nothing\n", "ACCE;1;2;3;4;5;6\n"])
+
+
+def test_a_log_whose_every_pressure_is_unusable_says_so() -> None:
+    """PRES lines all reading 0 hPa (a sensor that never started): the error names them
+    instead of calling the file something else than an IPIN log."""
+    with pytest.raises(InputFormatError, match="no usable PRES line: 2 unreadable or outside"):
+        parse_ipin(["PRES;0.1;1.0;0.0;3\n", "PRES;0.2;1.1;0.0;3\n"])
 
 
 def test_real_logs(shared_data: Path) -> None:

@@ -132,6 +132,11 @@ def parse_ipin(lines: Iterable[str], source: str = "<ipin>") -> IpinLog:
             except (IndexError, ValueError, OverflowError):  # int(inf) overflows
                 skipped["bad POSI"] += 1
     if not pressure:
+        if skipped["bad PRES"]:
+            raise InputFormatError(
+                f"{source}: no usable PRES line: {skipped['bad PRES']} unreadable or outside "
+                "300-1200 hPa"
+            )
         raise InputFormatError(f"{source}: no PRES lines, not an IPIN pressure log")
     t_ns = _app_clock_ns(np.asarray(app_s), np.asarray(sensor_s))
     p = np.asarray(pressure, dtype=np.float64)
