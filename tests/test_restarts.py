@@ -170,3 +170,21 @@ def test_a_run_its_worker_could_not_deliver_is_made_here(monkeypatch: pytest.Mon
     assert result.stats["run_kept"] == 2
     assert result.stats["run_processes"] == processes
     assert multiprocessing.active_children() == []
+
+
+def test_without_fork_the_runs_are_made_here(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A platform that cannot fork (get_context("fork") raises ValueError): the runs are made
+    in the caller's process, and the choice is the same."""
+    import baromap.mapping.restarts as restarts
+
+    made = _fake_runs(monkeypatch, [100.0, 97.0, 96.5])
+
+    def no_fork(method: str) -> object:
+        raise ValueError(f"cannot find context for {method!r}")
+
+    monkeypatch.setattr(restarts, "get_context", no_fork)
+    zeros = np.zeros(4, dtype=np.int64)
+    result = run_slam_best_of(None, np.zeros((4, 3)), zeros, zeros, runs=3, workers=2)  # type: ignore[arg-type]
+    assert made == [0, 1, 2]
+    assert result.stats["run_kept"] == 2
+    assert result.stats["run_processes"] == 1

@@ -123,7 +123,11 @@ class _Workers:
             # live publisher): the runs are made here
             log.info("slam restarts made in one process: this one runs other threads")
             return
-        context = get_context("fork")
+        try:
+            context = get_context("fork")
+        except ValueError as exc:  # a platform without fork: the runs are made here
+            log.info("slam restarts made in one process", error=str(exc))
+            return
         for share in (runs[i::workers] for i in range(workers)):
             if not share:
                 continue
@@ -131,7 +135,7 @@ class _Workers:
             process = context.Process(target=_make_runs, args=(send, inputs, share), daemon=True)
             try:
                 process.start()
-            except OSError as exc:  # no more processes: what is not started is made here
+            except (OSError, RuntimeError) as exc:  # no more processes: made here instead
                 log.warning("slam restarts made in fewer processes", error=str(exc))
                 receive.close()
                 send.close()
