@@ -153,7 +153,14 @@ def test_a_laser_silent_for_a_minute_is_not_matched_against_the_submaps_before(
     record_run(run, seed=0, progress=False)
     silent = tmp_path / "silent.mcap"
     assert _without_scans(run, silent, 600.0, 660.0) > 500
-    result = build_maps(silent, tmp_path / "maps")
+    from structlog.testing import capture_logs
+
+    with capture_logs() as logs:
+        result = build_maps(silent, tmp_path / "maps")
+    said = [e for e in logs if e["event"] == "laser silent"]
+    assert len(said) == 1 and said[0]["stretches"] == 1
+    assert said[0]["longest_s"] == pytest.approx(60.0, abs=0.5)
+    assert said[0]["first_after_s"] == pytest.approx(600.0, abs=0.5)
     assert result.slam.stats["front_after_gap"] == 1
     report = evaluate_recording(result, silent)
     assert report.trajectory_rms_m < 0.1

@@ -29,6 +29,11 @@ from baromap.recording import (
 
 log = structlog.get_logger(__name__)
 
+#: Scans further apart than this are a stretch the laser was silent (a 2D laser sends 5-75
+#: scans a second; the daemon closes one that stops and opens it again): said in the log, as
+#: the map of that stretch rests on odometry alone.
+LASER_SILENCE_S = 1.0
+
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
@@ -120,12 +125,27 @@ def load_run(path: str | Path) -> RunData:
     return run_data(block, metadata, load_series(path))
 
 
+def _say_silences(t_ns: npt.NDArray[np.int64]) -> None:
+    """A warning for the stretches without scans, if any: how many, the longest, the first."""
+    gaps = np.diff(t_ns) / 1e9
+    silent = np.flatnonzero(gaps > LASER_SILENCE_S)
+    if len(silent):
+        log.warning(
+            "laser silent",
+            stretches=len(silent),
+            longest_s=round(float(gaps[silent].max()), 1),
+            first_after_s=round(float(t_ns[silent[0]] - t_ns[0]) / 1e9, 1),
+            seconds=round(float(gaps[silent].sum()), 1),
+        )
+
+
 def run_data(block: ScanBlock, metadata: dict[str, dict[str, str]], series: RunSeries) -> RunData:
     """The run from its scans and series: odometry interpolated at every scan's stamp."""
     pressure, odometry, reference = series.pressure, series.odometry, series.reference
     odometry_poses = odometry.poses()
     odom = interpolate_poses(odometry.t_ns, odometry_poses, block.t_ns)
     log.info("run loaded", scans=len(block), odometry=len(odometry), pressure=len(pressure.t_ns))
+    _say_silences(block.t_ns)
     return RunData(
         scans=block,
         odom=odom,
