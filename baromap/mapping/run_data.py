@@ -29,10 +29,15 @@ from baromap.recording import (
 
 log = structlog.get_logger(__name__)
 
-#: Scans further apart than this are a stretch the laser was silent (a 2D laser sends 5-75
-#: scans a second; the daemon closes one that stops and opens it again): said in the log, as
-#: the map of that stretch rests on odometry alone.
+#: Scans further apart than this, and than SILENCE_INTERVALS of the recording's usual
+#: interval, while the robot moved more than SILENCE_MOVED_M, are a stretch the laser was
+#: silent (a 2D laser sends 5-75 scans a second; the daemon closes one that stops and opens
+#: it again): said in the log, as the map of that stretch rests on odometry alone. A log kept
+#: at a scan a metre (a scan every 1-2 s, some 15 s apart where the robot stood) is sparse by
+#: design, not silent.
 LASER_SILENCE_S = 1.0
+SILENCE_INTERVALS = 10.0
+SILENCE_MOVED_M = 2.0
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -125,10 +130,15 @@ def load_run(path: str | Path) -> RunData:
     return run_data(block, metadata, load_series(path))
 
 
-def _say_silences(t_ns: npt.NDArray[np.int64]) -> None:
-    """A warning for the stretches without scans, if any: how many, the longest, the first."""
+def _say_silences(t_ns: npt.NDArray[np.int64], odom: npt.NDArray[np.float64]) -> None:
+    """A warning for the stretches without scans while the robot moved, if any: how many,
+    the longest, the first."""
     gaps = np.diff(t_ns) / 1e9
-    silent = np.flatnonzero(gaps > LASER_SILENCE_S)
+    if not len(gaps):
+        return
+    limit = max(LASER_SILENCE_S, SILENCE_INTERVALS * float(np.median(gaps)))
+    moved = np.hypot(*np.diff(odom[:, :2], axis=0).T)
+    silent = np.flatnonzero((gaps > limit) & (moved > SILENCE_MOVED_M))
     if len(silent):
         log.warning(
             "laser silent",
@@ -145,7 +155,7 @@ def run_data(block: ScanBlock, metadata: dict[str, dict[str, str]], series: RunS
     odometry_poses = odometry.poses()
     odom = interpolate_poses(odometry.t_ns, odometry_poses, block.t_ns)
     log.info("run loaded", scans=len(block), odometry=len(odometry), pressure=len(pressure.t_ns))
-    _say_silences(block.t_ns)
+    _say_silences(block.t_ns, odom)
     return RunData(
         scans=block,
         odom=odom,
