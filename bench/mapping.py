@@ -391,11 +391,12 @@ def bench_logs(
         print(f"{'':{len(name_shown)}}  " + "; ".join(verdict) + f"; {_load()}")
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"logs' peak memory {peak_mb:.0f} MB (this process: imports plus the runs above)")
-    if workers > 1 and runs > 1:
+    helpers = min(workers, runs) - 1  # runs 2.. shared among at most this many
+    if helpers > 0:
         worker_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
         print(
-            f"the restarts' worker processes: {workers - 1}, the largest's peak {worker_mb:.0f} MB"
-            " (forked: what it shares with this process counts in both)"
+            f"the restarts' worker processes: up to {helpers}, the largest's peak "
+            f"{worker_mb:.0f} MB (forked: what it shares with this process counts in both)"
         )
     return ok
 

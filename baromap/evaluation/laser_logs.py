@@ -44,7 +44,7 @@ from baromap.mapping.relations import (
     read_relations,
     relation_errors,
 )
-from baromap.mapping.restarts import run_slam_best_of
+from baromap.mapping.restarts import jittered, run_slam_best_of
 from baromap.mapping.revisits import (
     Consistency,
     ScanGeometry,
@@ -413,11 +413,7 @@ def run_log(
 def perturbed(odom: FloatArray, seed: int, draw: int) -> FloatArray:
     """Odometry as draw ``draw`` of seed ``seed`` sees it: itself for draw 0, else moved by at
     most :data:`DRAW_PERTURBATION` in every coordinate, the same for the same seed and draw."""
-    if draw == 0:
-        return odom
-    rng = np.random.default_rng([seed, draw])
-    moved: FloatArray = odom + rng.uniform(-DRAW_PERTURBATION, DRAW_PERTURBATION, odom.shape)
-    return moved
+    return odom if draw == 0 else jittered(odom, [seed, draw], DRAW_PERTURBATION)
 
 
 def run_prepared(
@@ -438,8 +434,8 @@ def run_prepared(
     reference = log.reference
     odom = perturbed(synthesize_odometry(reference, seed, odometry), seed, draw)
     zeros = np.zeros(len(log.times), dtype=np.int64)
-    start = time.perf_counter()
     geometry = log.geometry() if runs > 1 else None
+    start = time.perf_counter()
     result = run_slam_best_of(
         log.block,
         odom,

@@ -73,13 +73,18 @@ def check_runs(runs: int, workers: int = 1) -> None:
             )
 
 
+def jittered(odom: FloatArray, stream: list[int], amount: float) -> FloatArray:
+    """``odom`` moved by at most ``amount`` in every coordinate, the same for the same
+    ``stream`` (the seed words of its own generator): a change no sensor could tell apart, for
+    the SLAM's discrete choices to fall anew (these runs, the bench's draws)."""
+    rng = np.random.default_rng(stream)
+    moved: FloatArray = odom + rng.uniform(-amount, amount, np.shape(odom))
+    return moved
+
+
 def _jittered(odom: FloatArray, run: int) -> FloatArray:
     """Run ``run``'s odometry (0-based; run 0 sees it as given)."""
-    if run == 0:
-        return odom
-    rng = np.random.default_rng([_RESTART_STREAM, run])
-    moved: FloatArray = odom + rng.uniform(-RESTART_JITTER, RESTART_JITTER, np.shape(odom))
-    return moved
+    return odom if run == 0 else jittered(odom, [_RESTART_STREAM, run], RESTART_JITTER)
 
 
 @dataclass(frozen=True, slots=True)

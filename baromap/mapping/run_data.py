@@ -130,7 +130,7 @@ def load_run(path: str | Path) -> RunData:
     return run_data(block, metadata, load_series(path))
 
 
-def _say_silences(t_ns: npt.NDArray[np.int64], odom: npt.NDArray[np.float64]) -> None:
+def _say_silences(t_ns: IntArray, odom: FloatArray) -> None:
     """A warning for the stretches without scans while the robot moved, if any: how many,
     the longest, the first."""
     gaps = np.diff(t_ns) / 1e9

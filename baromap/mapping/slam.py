@@ -575,8 +575,7 @@ class _Slam:
             # holds only aliases; it begins new ones, and loop closure, whose search widens
             # with the drift, ties them back
             self.stats["front_after_gap"] += 1
-            while self.active:
-                self._finish_submap(self.active.pop(0))
+            self._finish_active()
         if new_visit:
             self.visit_start = k
             self.last_closure = k
@@ -990,6 +989,10 @@ class _Slam:
 
     def _end_visit(self) -> None:
         self._settle_deferred()
+        self._finish_active()
+
+    def _finish_active(self) -> None:
+        """The submaps being built are finished: the next keyframe begins new ones."""
         while self.active:
             self._finish_submap(self.active.pop(0))
 
