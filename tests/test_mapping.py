@@ -529,6 +529,28 @@ def test_bad_laser_mount_metadata_is_an_input_error(record: dict[str, str]) -> N
         laser_offset_from_metadata({"x": record})
 
 
+def test_odometric_travel_counts_the_drive_between_scans_not_only_where_it_ended() -> None:
+    """Two scans 40 s apart, the laser silent between: the robot drove a 2 m square, turning
+    left at each corner, then a quarter turn right and back. Where it ended says 0 m and 0
+    degrees; the drive was 8 m and 540 degrees of turning, the doubt odometry carries."""
+    from baromap.mapping.run_data import odometric_travel
+
+    corners = [(0, 0, 0), (2, 0, 0), (2, 0, 90), (2, 2, 90), (2, 2, 180), (0, 2, 180)]
+    corners += [(0, 2, 270), (0, 0, 270), (0, 0, 360), (0, 0, 270), (0, 0, 360)]
+    poses = np.array([(x, y, math.radians(t)) for x, y, t in corners], dtype=np.float64)
+    poses[:, 2] = (poses[:, 2] + math.pi) % (2 * math.pi) - math.pi  # as odometry wraps it
+    t = np.arange(len(poses), dtype=np.int64) * 4_000_000_000
+    at = odometric_travel(t, poses, np.array([0, t[-1], t[-1] + 10**9], dtype=np.int64))
+    assert at[0].tolist() == [0.0, 0.0]
+    assert at[1, 0] == pytest.approx(8.0)
+    assert math.degrees(at[1, 1]) == pytest.approx(540.0)
+    assert at[2].tolist() == at[1].tolist()  # held after the stream's end
+    halfway = odometric_travel(t, poses, np.array([2_000_000_000], dtype=np.int64))
+    assert halfway[0, 0] == pytest.approx(1.0)
+    none = odometric_travel(t[:1], poses[:1], t)
+    assert none.shape == (len(t), 2) and not none.any()
+
+
 def test_odometry_calibration_learns_the_systematic_errors_where_scans_pin_the_motion() -> None:
     """Steps read 3 % long, turns 4 % long and creeping 1 deg/m; matches measure the true
     step with 1 cm / 0.2 deg noise, except in a corridor, where the match only repeats

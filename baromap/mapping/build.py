@@ -109,6 +109,7 @@ def _slam(
             runs=runs,
             config=config,
             progress=update,
+            travel=run.travel(),
         )
     finally:
         if bar is not None:

@@ -96,11 +96,17 @@ class _Inputs:
     floor: IntArray
     visit: IntArray
     config: SlamConfig | None
+    travel: FloatArray | None
 
     def run(self, run: int) -> SlamResult:
         """Run ``run`` (0-based) of the SLAM on these inputs."""
         return run_slam(
-            self.scans, _jittered(self.odom, run), self.floor, self.visit, config=self.config
+            self.scans,
+            _jittered(self.odom, run),
+            self.floor,
+            self.visit,
+            config=self.config,
+            travel=self.travel,
         )
 
 
@@ -193,6 +199,7 @@ def run_slam_best_of(
     progress: Callable[[int], None] | None = None,
     geometry: ScanGeometry | None = None,
     workers: int = 1,
+    travel: FloatArray | None = None,
 ) -> SlamResult:
     """:func:`run_slam` ``runs`` times, the odometry of runs 2.. jittered by
     :data:`RESTART_JITTER`; the run whose revisits agree best with the scans is returned, the
@@ -204,15 +211,16 @@ def run_slam_best_of(
     ``geometry``: ``scans`` prepared for scoring, by a caller that holds them already (a log
     mapped for several seeds); made here otherwise. ``workers``: processes to make the runs
     in, this one among them (runs 2.. go to the others; the result does not depend on it).
+    ``travel``: the odometry's drive up to each scan, for every run (see :func:`run_slam`).
     """
     check_runs(runs, workers)
     later = list(range(1, runs))
     # runs 2.. start in other processes before the first is made here, and are stopped
     # unread if nothing can be scored
-    inputs = _Inputs(scans, odom, floor, visit, config)
+    inputs = _Inputs(scans, odom, floor, visit, config, travel)
     pool = _Workers(workers - 1, later, inputs) if workers > 1 and later else None
     try:
-        first = run_slam(scans, odom, floor, visit, config=config, progress=progress)
+        first = run_slam(scans, odom, floor, visit, config=config, progress=progress, travel=travel)
         processes = 1 if pool is None else pool.processes
         first.stats.update(runs=1, run_kept=0, revisits_mm=float("nan"), run_processes=1)
         if runs == 1:

@@ -512,9 +512,11 @@ class _Slam:
         kf_floor: IntArray,
         kf_visit: IntArray,
         config: SlamConfig,
+        travel: FloatArray | None = None,
     ) -> None:
         self.config = config
         self.odom = odom
+        self.travel = travel
         self.kf_scan = kf_scan
         self.kf_floor = kf_floor
         self.kf_visit = kf_visit
@@ -565,9 +567,12 @@ class _Slam:
         guess = se2.compose(graph.poses[k - 1], step)
         graph.add_node(guess)
         sigma_xy, sigma_theta = self._odometry_sigmas(step)
-        # odometry always enters the graph: along a featureless corridor it is the only
-        # measurement of the motion, and the match edge's information says so
-        graph.add_edge(Edge(k - 1, k, step, _info(sigma_xy, sigma_theta), "odometry"))
+        drive = self._drive(k)
+        if drive is not None:
+            drive_xy, drive_theta = self._odometry_sigmas(drive)
+            if WINDOW_SIGMAS * drive_xy > MAX_FRONT_WINDOW_M:
+                # a drive beyond the window: its doubt is the whole drive's, not its end's
+                sigma_xy, sigma_theta = max(sigma_xy, drive_xy), max(sigma_theta, drive_theta)
         if not new_visit and WINDOW_SIGMAS * sigma_xy > MAX_FRONT_WINDOW_M:
             # a step longer than the front end's widest window can search odometry's doubt
             # over (the laser silent while the robot drove on: unplugged, power-cycled): the
@@ -576,6 +581,9 @@ class _Slam:
             # with the drift, ties them back
             self.stats["front_after_gap"] += 1
             self._finish_active()
+        # odometry always enters the graph: along a featureless corridor it is the only
+        # measurement of the motion, and the match edge's information says so
+        graph.add_edge(Edge(k - 1, k, step, _info(sigma_xy, sigma_theta), "odometry"))
         if new_visit:
             self.visit_start = k
             self.last_closure = k
@@ -943,6 +951,15 @@ class _Slam:
             poses[todo[out.usable]] = out.poses[out.usable]
             self.stats["registered"] += int(out.usable.sum())
         return poses
+
+    def _drive(self, k: int) -> FloatArray | None:
+        """The step to keyframe k as the odometry drove it: its path and every turn on the
+        way, as a step (path, 0, turn); None when the odometry came only with the scans."""
+        if self.travel is None:
+            return None
+        step = self._odometry_step(k - 1, k)
+        path, turn = self.travel[self.kf_scan[k]] - self.travel[self.kf_scan[k - 1]]
+        return np.array([max(path, math.hypot(step[0], step[1])), 0.0, max(turn, abs(step[2]))])
 
     def _odometry_sigmas(self, step: FloatArray) -> tuple[float, float]:
         config = self.config
@@ -1709,14 +1726,26 @@ def run_slam(
     *,
     config: SlamConfig | None = None,
     progress: Callable[[int], None] | None = None,
+    travel: FloatArray | None = None,
 ) -> SlamResult:
-    """SLAM over a run: scans, odometry poses at the scan times, floor and visit per scan."""
+    """SLAM over a run: scans, odometry poses at the scan times, floor and visit per scan.
+
+    ``travel``: the odometry's path and turning up to each scan, as the odometry came
+    (:meth:`~baromap.mapping.run_data.RunData.travel`), where it came more often than the
+    scans; it tells a silence of the laser by the drive inside it, not only by where the
+    drive ended (None: the scans' own odometry is all there is)."""
     config = config or SlamConfig()
     kf_scan = select_keyframes(odom, visit, floor, config)
     if len(kf_scan) == 0:
         raise MappingError("no scan is on a floor: nothing to map")
     slam = _Slam(
-        scans, odom, kf_scan, kf_floor=floor[kf_scan], kf_visit=visit[kf_scan], config=config
+        scans,
+        odom,
+        kf_scan,
+        kf_floor=floor[kf_scan],
+        kf_visit=visit[kf_scan],
+        config=config,
+        travel=travel,
     )
     for k in range(len(kf_scan)):
         slam.add(k)
