@@ -662,6 +662,7 @@ def match(
     coarse_field: LikelihoodField | None = None,
     prior: Prior | None = None,
     wide: bool = False,
+    budget: int | None = None,
 ) -> MatchResult:
     """Search the window, then refine; the refined pose is kept unless refinement went astray.
 
@@ -676,7 +677,7 @@ def match(
     # all of them, and refinement then uses every point
     sparse = points[:: max(1, math.ceil(len(points) / LATTICE_POINTS))]
     if wide:
-        found = branch_and_bound_search(field, sparse, guess, window, prior=prior)
+        found = branch_and_bound_search(field, sparse, guess, window, prior=prior, budget=budget)
     else:
         found = correlative_search(
             field, sparse, guess, window, coarse_field=coarse_field, prior=prior

@@ -264,6 +264,23 @@ CORE_REACH_M = 6.0
 #: How far the car at a ride can be from where the rides' chain of car matches puts it.
 CAR_WINDOW_M = 0.3
 CAR_WINDOW_RAD = math.radians(5.0)
+#: A ride none of whose car keyframes is found within CAR_WINDOW is looked for this far out
+#: (:meth:`_Slam._car_beyond`): a minute's drive without the laser at half a metre a second
+#: leaves odometry metres and tens of degrees off (6 m and 19 degrees in the simulated run),
+#: and a turn of 45 degrees stays clear of the box's own symmetries (a half turn, a quarter
+#: turn of a square car).
+CAR_FAR_WINDOW_M = 10.0
+CAR_FAR_WINDOW_RAD = math.radians(45.0)
+#: ... in the car's field at the map's resolution, by branch and bound with this many node
+#: splits (the loops' 300 run out long before a window this size is settled: the best
+#: within it scored 0.6 where the true pose scores 0.95), about 3 s a keyframe, for at most
+#: this many keyframes of each such ride.
+CAR_FAR_BUDGET = 30_000
+CAR_FAR_ANGLE_STEP_RAD = math.radians(1.0)
+CAR_FAR_PER_RIDE = 3
+#: Far matches count as one correction of the chain when they agree this well.
+CAR_FAR_AGREE_M = 0.15
+CAR_FAR_AGREE_RAD = math.radians(2.0)
 #: A submap also ends after this many keyframes (a robot turning on the spot).
 SUBMAP_MAX_KEYFRAMES = 30
 #: Memory the fields of finished submaps may hold; beyond it the least recently used are
@@ -384,6 +401,27 @@ def _graph(poses: FloatArray, edges: list[Edge]) -> PoseGraph:
     for edge in edges:
         graph.add_edge(edge)
     return graph
+
+
+@dataclass(frozen=True, slots=True)
+class _Car:
+    """The closed car's model: its walls seen from the first ride, in the anchor's frame."""
+
+    anchor: int
+    fine: LikelihoodField  # at half the map's cells: the car's walls are a metre away
+    far: LikelihoodField  # at the map's cells, for the search beyond the chain's window
+    coarse: LikelihoodField = field(init=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "coarse", self.fine.pooled(COARSE_STEP_CELLS))
+
+
+def _same_shift(a: FloatArray, b: FloatArray) -> bool:
+    """Two rigid corrections of the chain that agree (CAR_FAR_AGREE)."""
+    d = se2.between(a, b)
+    return bool(
+        math.hypot(d[0], d[1]) <= CAR_FAR_AGREE_M and abs(se2.wrap(d[2])) <= CAR_FAR_AGREE_RAD
+    )
 
 
 def _info(sigma_xy: float, sigma_theta: float) -> FloatArray:
@@ -542,6 +580,8 @@ class _Slam:
         #: ends in case no closure framed on both sides comes (see _settle_deferred)
         self.deferred: list[tuple[Edge, float]] = []
         self.car_edges: list[tuple[int, int]] = []
+        #: keyframes reached by a step beyond the front end's window (see :meth:`add`)
+        self.silent_steps: set[int] = set()
         #: odometry's systematic errors, learnt from front-end matches (see the module)
         self.calibration = OdometryCalibration()
         #: covariance of each front-matched keyframe's pose (its own frame), for calibration
@@ -580,6 +620,7 @@ class _Slam:
             # holds only aliases; it begins new ones, and loop closure, whose search widens
             # with the drift, ties them back
             self.stats["front_after_gap"] += 1
+            self.silent_steps.add(k)
             self._finish_active()
         # odometry always enters the graph: along a featureless corridor it is the only
         # measurement of the motion, and the match edge's information says so
@@ -649,6 +690,11 @@ class _Slam:
         turn floors by fractions of a degree. The fitted noise includes the matches' own
         errors, so it is an upper bound of odometry's, never a guess below what the run shows
         (in the refinement it is inflated, see REFINE_ODOMETRY_INFLATION).
+
+        A step over a silence of the laser (``silent_steps``) keeps the front end's sigmas:
+        the noise was fitted to keyframe steps of half a metre, and a minute's drive is far
+        outside them (the simulated one was 6 m and 19 degrees off, a hundred sigmas of the
+        fit). Weighed by the fit, that one edge held every floor after it against the car.
         """
         edges = self.graph.edges
         for e in edges:
@@ -656,7 +702,7 @@ class _Slam:
                 continue
             read = self._odometry_step(e.i, e.j)
             e.z = self.calibration.correct(read)
-            if noise is not None:
+            if noise is not None and e.j not in self.silent_steps:
                 sigma_xy, sigma_theta = noise.sigmas(math.hypot(read[0], read[1]), read[2])
                 e.information = _info(inflation * sigma_xy, inflation * sigma_theta)
         self.graph = _graph(self.graph.poses, edges)
@@ -1265,7 +1311,9 @@ class _Slam:
         shaft, on whatever floor, so all floors share one frame through it.
 
         The car's model is made of the car keyframes of the first ride (the robot turning in
-        it sees it from several sides), in the frame of the first of them.
+        it sees it from several sides), in the frame of the first of them. A ride whose car
+        is nowhere near where the chain puts it (the laser silent while the robot drove to
+        the lift) is looked for further out (:meth:`_car_beyond`).
         """
         rides = self._car_ends()
         if len(rides) < 2:
@@ -1279,22 +1327,98 @@ class _Slam:
                 for m in model
             ]
         )
-        fld = LikelihoodField.from_points(points, res, res)
-        coarse = fld.pooled(COARSE_STEP_CELLS)
+        car = _Car(
+            anchor,
+            LikelihoodField.from_points(points, res, res),
+            LikelihoodField.from_points(points, 2 * res, 2 * res),
+        )
+        missed = [ride for ride in rides[1:] if not self._car_closures(car, ride)]
+        self.stats["car_rides_missed"] = len(missed)
+        if missed and self._car_beyond(car, missed):
+            for ride in missed:
+                self._car_closures(car, ride)
+
+    def _car_closures(self, car: _Car, ride: list[int]) -> int:
+        """Each car keyframe of a ride matched against the car's model, within CAR_WINDOW of
+        where the graph puts it; returns how many closures were taken."""
         window = SearchWindow(
             CAR_WINDOW_M, CAR_WINDOW_RAD, MIN_ANGLE_STEP_RAD, coarse_step_cells=COARSE_STEP_CELLS
         )
-        for ride in rides[1:]:
+        taken = 0
+        for b in ride:
+            result = self._car_search(car, b, window)
+            if result is None or result.score < CAR_MIN_SCORE:
+                continue
+            self.graph.add_edge(self._match_edge(car.anchor, b, result, kind="car"))
+            self.car_edges.append((car.anchor, b))
+            self.stats["car_closures"] += 1
+            taken += 1
+        return taken
+
+    def _car_search(
+        self, car: _Car, b: int, window: SearchWindow, *, wide: bool = False
+    ) -> MatchResult | None:
+        """Car keyframe b matched against the car's model; None when ambiguous."""
+        local = se2.between(self.graph.poses[car.anchor], self.graph.poses[b])
+        if wide:
+            result = match(
+                car.far, self.clouds.points[b], local, window, wide=True, budget=CAR_FAR_BUDGET
+            )
+        else:
+            result = match(car.fine, self.clouds.points[b], local, window, coarse_field=car.coarse)
+        if result.runner_up >= LOOP_MAX_AMBIGUITY * result.score:
+            return None
+        return result
+
+    def _car_beyond(self, car: _Car, missed: list[list[int]]) -> bool:
+        """The rides whose car was not where the chain put it, looked for as far as a drive
+        without the laser can have carried the chain (CAR_FAR_WINDOW).
+
+        A silence of a minute on the way to the lift leaves the chain metres and tens of
+        degrees off at the ride, and every floor after it with it: matched within
+        CAR_WINDOW the car is not found, and a closure metres off, among edges that all
+        agree with the chain, is what the robust kernel is for, so it would be given no
+        weight. Far out, a box can match a wall or a corner of itself, so a far match is
+        taken only where another far match (the same ride's other keyframes, a later ride)
+        asks for the same rigid correction of the chain. The agreeing matches then pull the
+        graph in one plain least-squares solve: the correction goes where the graph is
+        weakest, the silent step's odometry, and the car is matched again within CAR_WINDOW
+        from there as at every other ride. Returns whether the graph was moved.
+        """
+        window = SearchWindow(CAR_FAR_WINDOW_M, CAR_FAR_WINDOW_RAD, CAR_FAR_ANGLE_STEP_RAD)
+        poses = self.graph.poses
+        found: list[tuple[int, MatchResult, FloatArray]] = []
+        for ride in missed:
+            mine = 0
             for b in ride:
-                local = se2.between(poses[anchor], poses[b])
-                result = match(fld, self.clouds.points[b], local, window, coarse_field=coarse)
-                if result.score < CAR_MIN_SCORE:
+                if mine == CAR_FAR_PER_RIDE:
+                    break
+                result = self._car_search(car, b, window, wide=True)
+                if result is None or result.score < CAR_MIN_SCORE:
                     continue
-                if result.runner_up >= LOOP_MAX_AMBIGUITY * result.score:
-                    continue
-                self.graph.add_edge(self._match_edge(anchor, b, result, kind="car"))
-                self.car_edges.append((anchor, b))
-                self.stats["car_closures"] += 1
+                moved = se2.compose(poses[car.anchor], result.pose)
+                found.append((b, result, se2.compose(moved, se2.inverse(poses[b]))))
+                mine += 1
+        pulls = []
+        for b, result, shift in found:
+            if any(other is not shift and _same_shift(shift, other) for _, _, other in found):
+                edge = self._match_edge(car.anchor, b, result, kind="car")
+                edge.robust_c = None
+                pulls.append(edge)
+        self.stats["car_far_matches"] = len(pulls)
+        if not pulls:
+            return False
+        log.info(
+            "the car found beyond the chain's window",
+            rides=len(missed),
+            matches=len(pulls),
+            shift_m=round(float(np.hypot(*found[0][2][:2])), 2),
+        )
+        kept = list(self.graph.edges)
+        self.graph = _graph(poses, kept + pulls)
+        self.graph.optimize(iterations=FINAL_ITERATIONS)
+        self.graph = _graph(self.graph.poses, kept)
+        return True
 
     # ------------------------------------------------------------------ loops
 
