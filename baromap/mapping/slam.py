@@ -610,10 +610,16 @@ class _Slam:
         drive = self._drive(k)
         if drive is not None:
             drive_xy, drive_theta = self._odometry_sigmas(drive)
-            if WINDOW_SIGMAS * drive_xy > MAX_FRONT_WINDOW_M:
+            if (
+                WINDOW_SIGMAS * drive_xy > MAX_FRONT_WINDOW_M
+                or WINDOW_SIGMAS * drive_theta > MAX_FRONT_WINDOW_RAD
+            ):
                 # a drive beyond the window: its doubt is the whole drive's, not its end's
                 sigma_xy, sigma_theta = max(sigma_xy, drive_xy), max(sigma_theta, drive_theta)
-        if not new_visit and WINDOW_SIGMAS * sigma_xy > MAX_FRONT_WINDOW_M:
+        if not new_visit and (
+            WINDOW_SIGMAS * sigma_xy > MAX_FRONT_WINDOW_M
+            or (drive is not None and WINDOW_SIGMAS * sigma_theta > MAX_FRONT_WINDOW_RAD)
+        ):
             # a step longer than the front end's widest window can search odometry's doubt
             # over (the laser silent while the robot drove on: unplugged, power-cycled): the
             # scan is not matched against the submaps from before it, where a capped window
