@@ -160,6 +160,12 @@ def child_build(recording: str, out: str) -> None:
     )
 
 
+def _stat(value: float) -> str:
+    """A SLAM stat as printed: counts as integers, the rest (a score, NaN where there was
+    nothing to score) as they are."""
+    return str(int(value)) if float(value).is_integer() else f"{value:.1f}"
+
+
 def bench_sim(seed: int, minutes: float, keep: Path | None) -> bool:
     work = keep or Path(tempfile.mkdtemp(prefix="baromap-bench-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -214,7 +220,7 @@ def bench_sim(seed: int, minutes: float, keep: Path | None) -> bool:
         f"{data['painter_peak_mb']:.0f} MB painter"
     )
     print("  stages: " + ", ".join(f"{k} {v:.1f} s" for k, v in data["timings"].items()))
-    print("  " + ", ".join(f"{k} {int(v)}" for k, v in data["stats"].items()))
+    print("  " + ", ".join(f"{k} {_stat(v)}" for k, v in data["stats"].items()))
     for line in data["report"]:
         print("  " + line)
     print(
