@@ -551,6 +551,23 @@ def test_odometric_travel_counts_the_drive_between_scans_not_only_where_it_ended
     assert none.shape == (len(t), 2) and not none.any()
 
 
+def test_odometry_blind_marks_the_scans_inside_a_gap_in_the_odometry() -> None:
+    """Odometry at 10 Hz with 5 s missing, scans at 4 Hz: the scans inside the gap, and
+    those more than a second past the stream's end, are the ones it said nothing about; a
+    gap of two samples is not one, and no stream at all leaves every scan blind."""
+    from baromap.mapping.run_data import odometry_blind
+
+    odom = np.arange(0, 20_000_000_000, 100_000_000, dtype=np.int64)
+    odom = odom[(odom < 5_000_000_000) | (odom >= 10_000_000_000)]
+    odom = odom[(odom < 12_000_000_000) | (odom >= 12_200_000_000)]  # a sample lost
+    scans = np.arange(0, 22_000_000_000, 250_000_000, dtype=np.int64)
+    blind = odometry_blind(odom, scans)
+    inside = (scans > 4_900_000_000) & (scans < 10_000_000_000)
+    late = scans > 19_900_000_000 + 1_000_000_000
+    assert blind.tolist() == (inside | late).tolist()
+    assert odometry_blind(np.zeros(0, dtype=np.int64), scans).all()
+
+
 def test_odometry_calibration_learns_the_systematic_errors_where_scans_pin_the_motion() -> None:
     """Steps read 3 % long, turns 4 % long and creeping 1 deg/m; matches measure the true
     step with 1 cm / 0.2 deg noise, except in a corridor, where the match only repeats

@@ -96,9 +96,10 @@ def test_short_run_meets_the_geometry_bars(short_run: Path, tmp_path: Path) -> N
         assert floor.free_iou >= 0.85
 
 
-def _without_scans(src: Path, dst: Path, start_s: float, end_s: float) -> int:
-    """A copy of a recording with the laser silent from ``start_s`` to ``end_s`` after its
-    first message (unplugged, power-cycled); returns how many scans were left out."""
+def _without(src: Path, dst: Path, start_s: float, end_s: float, topic: str = "/scan") -> int:
+    """A copy of a recording with a device silent from ``start_s`` to ``end_s`` after its
+    first message (unplugged, power-cycled): no ``topic`` message; returns how many were
+    left out."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
@@ -126,7 +127,7 @@ def _without_scans(src: Path, dst: Path, start_s: float, end_s: float) -> int:
         for _, channel, message in reader.iter_messages(log_time_order=True):
             first = message.log_time if first is None else first
             at = (message.log_time - first) / 1e9
-            if channel.topic == "/scan" and start_s <= at < end_s:
+            if channel.topic == topic and start_s <= at < end_s:
                 dropped += 1
                 continue
             writer.add_message(
@@ -155,9 +156,9 @@ def test_a_laser_silent_for_a_minute_twice_is_driven_through(tmp_path: Path) -> 
     run = tmp_path / "run.mcap"
     record_run(run, seed=0, progress=False)
     once = tmp_path / "once.mcap"
-    assert _without_scans(run, once, 600.0, 660.0) > 500
+    assert _without(run, once, 600.0, 660.0) > 500
     silent = tmp_path / "silent.mcap"
-    assert _without_scans(once, silent, 1500.0, 1560.0) > 500
+    assert _without(once, silent, 1500.0, 1560.0) > 500
     from structlog.testing import capture_logs
 
     with capture_logs() as logs:
@@ -173,6 +174,47 @@ def test_a_laser_silent_for_a_minute_twice_is_driven_through(tmp_path: Path) -> 
     assert report.trajectory_rms_m < 0.1
     assert report.one_map_per_floor()
     assert max(f.lobby_error_m for f in report.floors) < 0.1
+
+
+def test_odometry_silent_for_a_minute_is_left_out_of_the_map_and_tied_back(
+    tmp_path: Path,
+) -> None:
+    """The simulated 46-minute run, seed 0, with no odometry from 600 to 660 s while the
+    laser goes on (the base's serial link power-cycled). Odometry drawn as a straight line
+    across the minute held the scans there to it and bent floor 5 (0.123 m RMS over the
+    other scans, max 0.73 m). The scans inside are left out of the map and the step across
+    is begun again as after a laser silence: 0.033 m, max 0.14 m over the other scans."""
+    from structlog.testing import capture_logs
+
+    from baromap.evaluation.mapping import fit_rigid, truth_at
+    from baromap.mapping import se2
+
+    run = tmp_path / "run.mcap"
+    record_run(run, seed=0, progress=False)
+    silent = tmp_path / "silent.mcap"
+    assert _without(run, silent, 600.0, 660.0, topic="/odom") > 500
+    with capture_logs() as logs:
+        result = build_maps(silent, tmp_path / "maps")
+    said = [e for e in logs if e["event"] == "odometry silent"]
+    assert len(said) == 1 and said[0]["stretches"] == 1
+    assert said[0]["seconds"] == pytest.approx(60.0, abs=0.5)
+    assert result.slam.stats["odometry_gaps"] == 1
+    blind = result.run.odometry_blind()
+    assert 500 < blind.sum() < 700
+    truth = [r.message for r in read_messages(silent, ["/truth/pose"])]
+    true_pose, _ = truth_at(
+        np.array([m.t_ns for m in truth]),
+        np.array([(m.x_m, m.y_m, m.theta_rad) for m in truth]),
+        np.array([m.floor for m in truth]),
+        result.run.scans.t_ns,
+    )
+    kept = (result.segmentation.scan_floor >= 0) & ~blind
+    est = result.slam.scan_poses
+    aligned = se2.compose(fit_rigid(est[kept, :2], true_pose[kept, :2])[None, :], est)
+    errors = np.hypot(*(aligned[kept, :2] - true_pose[kept, :2]).T)
+    assert float(np.sqrt(np.mean(errors**2))) < 0.06
+    assert float(errors.max()) < 0.3
+    assert evaluate_recording(result, silent).one_map_per_floor()
 
 
 def test_relation_metric_reproduces_gmappings_published_score(shared_data: Path) -> None:

@@ -110,6 +110,7 @@ def _slam(
             config=config,
             progress=update,
             travel=run.travel(),
+            blind=run.odometry_blind(),
         )
     finally:
         if bar is not None:
@@ -136,7 +137,9 @@ def _grid_job(
 ) -> tuple[ScanBlock, FloatArray, float, float] | None:
     """What :func:`floor_grid` needs for one floor, small enough to hand to another process:
     only that floor's grid scans."""
-    chosen = grid_scans(slam.scan_poses, segmentation.scan_floor == floor)
+    # a scan the odometry said nothing about has a pose drawn across the gap (see
+    # run_slam's ``blind``): it is left out of the map
+    chosen = grid_scans(slam.scan_poses, (segmentation.scan_floor == floor) & ~run.odometry_blind())
     if len(chosen) == 0:
         return None
     max_range = (config or SlamConfig()).max_range_m

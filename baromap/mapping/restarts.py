@@ -36,6 +36,7 @@ from baromap.mapping.revisits import ScanGeometry, consistency, revisit_partners
 from baromap.mapping.scans import ScanBlock
 from baromap.mapping.slam import (
     BETWEEN_FLOORS,
+    BoolArray,
     FloatArray,
     IntArray,
     SlamConfig,
@@ -97,6 +98,7 @@ class _Inputs:
     visit: IntArray
     config: SlamConfig | None
     travel: FloatArray | None
+    blind: BoolArray | None
 
     def run(self, run: int) -> SlamResult:
         """Run ``run`` (0-based) of the SLAM on these inputs."""
@@ -107,6 +109,7 @@ class _Inputs:
             self.visit,
             config=self.config,
             travel=self.travel,
+            blind=self.blind,
         )
 
 
@@ -200,6 +203,7 @@ def run_slam_best_of(
     geometry: ScanGeometry | None = None,
     workers: int = 1,
     travel: FloatArray | None = None,
+    blind: BoolArray | None = None,
 ) -> SlamResult:
     """:func:`run_slam` ``runs`` times, the odometry of runs 2.. jittered by
     :data:`RESTART_JITTER`; the run whose revisits agree best with the scans is returned, the
@@ -211,16 +215,19 @@ def run_slam_best_of(
     ``geometry``: ``scans`` prepared for scoring, by a caller that holds them already (a log
     mapped for several seeds); made here otherwise. ``workers``: processes to make the runs
     in, this one among them (runs 2.. go to the others; the result does not depend on it).
-    ``travel``: the odometry's drive up to each scan, for every run (see :func:`run_slam`).
+    ``travel``, ``blind``: the odometry's drive up to each scan and the scans it said nothing
+    about, for every run (see :func:`run_slam`).
     """
     check_runs(runs, workers)
     later = list(range(1, runs))
     # runs 2.. start in other processes before the first is made here, and are stopped
     # unread if nothing can be scored
-    inputs = _Inputs(scans, odom, floor, visit, config, travel)
+    inputs = _Inputs(scans, odom, floor, visit, config, travel, blind)
     pool = _Workers(workers - 1, later, inputs) if workers > 1 and later else None
     try:
-        first = run_slam(scans, odom, floor, visit, config=config, progress=progress, travel=travel)
+        first = run_slam(
+            scans, odom, floor, visit, config=config, progress=progress, travel=travel, blind=blind
+        )
         processes = 1 if pool is None else pool.processes
         first.stats.update(runs=1, run_kept=0, revisits_mm=float("nan"), run_processes=1)
         if runs == 1:

@@ -38,9 +38,14 @@ log = structlog.get_logger(__name__)
 LASER_SILENCE_S = 1.0
 SILENCE_INTERVALS = 10.0
 SILENCE_MOVED_M = 2.0
+#: The odometry is silent over a gap between its samples longer than this and this many of
+#: its usual intervals (a base at 10 Hz: a second).
+ODOMETRY_GAP_S = 1.0
+ODOMETRY_GAP_INTERVALS = 10.0
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,6 +70,32 @@ class RunData:
         degrees to end 6 m on carries the doubt of the whole drive.
         """
         return odometric_travel(self.odometry_t_ns, self.odometry_poses, self.scans.t_ns)
+
+    def odometry_blind(self) -> BoolArray:
+        """(S,): scans the odometry said nothing about (see :func:`odometry_blind`)."""
+        return odometry_blind(self.odometry_t_ns, self.scans.t_ns)
+
+
+def odometry_blind(t_src: IntArray, t_query: IntArray) -> BoolArray:
+    """Which of the ``t_query`` stamps fall where the odometry stream said nothing: inside a
+    gap between two samples longer than ODOMETRY_GAP_S and ten of the stream's usual
+    intervals, or further than that before its first sample or after its last (the base
+    unplugged or power-cycled while the laser went on). Odometry at such a stamp is a straight
+    line drawn across the gap, not a measurement. An empty stream: every stamp."""
+    blind = np.zeros(len(t_query), dtype=bool)
+    if len(t_src) < 2:
+        blind[:] = len(t_src) == 0
+        return blind
+    t = np.sort(t_src)
+    limit = max(ODOMETRY_GAP_S * 1e9, ODOMETRY_GAP_INTERVALS * float(np.median(np.diff(t))))
+    after = np.searchsorted(t, t_query, side="right")
+    inside = (after > 0) & (after < len(t))
+    prev_t = t[np.clip(after - 1, 0, len(t) - 1)]
+    next_t = t[np.clip(after, 0, len(t) - 1)]
+    blind |= inside & (next_t - prev_t > limit)
+    blind |= (after == 0) & (t[0] - t_query > limit)
+    blind |= (after == len(t)) & (t_query - t[-1] > limit)
+    return blind
 
 
 def odometric_travel(t_src: IntArray, poses: FloatArray, t_query: IntArray) -> FloatArray:
@@ -177,6 +208,22 @@ def _say_silences(t_ns: IntArray, odom: FloatArray) -> None:
         )
 
 
+def _say_odometry_silences(t_ns: IntArray, blind: BoolArray) -> None:
+    """A warning for the scans the odometry said nothing about, if any: how many stretches,
+    how long in all, the first."""
+    if not blind.any():
+        return
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], blind.astype(np.int8), [0]])))
+    starts, ends = edges[::2], edges[1::2] - 1
+    log.warning(
+        "odometry silent",
+        stretches=len(starts),
+        scans=int(blind.sum()),
+        seconds=round(float((t_ns[ends] - t_ns[starts]).sum()) / 1e9, 1),
+        first_after_s=round(float(t_ns[starts[0]] - t_ns[0]) / 1e9, 1),
+    )
+
+
 def run_data(block: ScanBlock, metadata: dict[str, dict[str, str]], series: RunSeries) -> RunData:
     """The run from its scans and series: odometry interpolated at every scan's stamp."""
     pressure, odometry, reference = series.pressure, series.odometry, series.reference
@@ -184,6 +231,7 @@ def run_data(block: ScanBlock, metadata: dict[str, dict[str, str]], series: RunS
     odom = interpolate_poses(odometry.t_ns, odometry_poses, block.t_ns)
     log.info("run loaded", scans=len(block), odometry=len(odometry), pressure=len(pressure.t_ns))
     _say_silences(block.t_ns, odom)
+    _say_odometry_silences(block.t_ns, odometry_blind(odometry.t_ns, block.t_ns))
     return RunData(
         scans=block,
         odom=odom,

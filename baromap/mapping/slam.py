@@ -90,6 +90,7 @@ log = structlog.get_logger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
 
 #: Floor label of scans taken while the barometer says the robot is between floors.
 BETWEEN_FLOORS = -1
@@ -281,6 +282,11 @@ CAR_FAR_PER_RIDE = 3
 #: Far matches count as one correction of the chain when they agree this well.
 CAR_FAR_AGREE_M = 0.15
 CAR_FAR_AGREE_RAD = math.radians(2.0)
+#: A step across scans the odometry said nothing about may be as long as the robot can drive
+#: and turn in its time (a P3-AT: 0.7 m/s; a turn on the spot well under 90 deg/s): its
+#: odometry edge has three sigmas of that.
+BLIND_SPEED_M_S = 1.0
+BLIND_TURN_RAD_S = math.radians(90.0)
 #: A submap also ends after this many keyframes (a robot turning on the spot).
 SUBMAP_MAX_KEYFRAMES = 30
 #: Memory the fields of finished submaps may hold; beyond it the least recently used are
@@ -551,10 +557,18 @@ class _Slam:
         kf_visit: IntArray,
         config: SlamConfig,
         travel: FloatArray | None = None,
+        blind: BoolArray | None = None,
     ) -> None:
         self.config = config
         self.odom = odom
         self.travel = travel
+        #: the step to each keyframe crosses scans the odometry said nothing about
+        self.blind_step = np.zeros(len(kf_scan), dtype=bool)
+        if blind is not None and blind.any() and len(kf_scan) > 1:
+            covered = np.concatenate([[0], np.cumsum(blind)])
+            ends = np.asarray(kf_scan)
+            self.blind_step[1:] = covered[ends[1:] + 1] - covered[ends[:-1]] > 0
+        self.t_ns = scans.t_ns
         self.kf_scan = kf_scan
         self.kf_floor = kf_floor
         self.kf_visit = kf_visit
@@ -580,7 +594,8 @@ class _Slam:
         #: ends in case no closure framed on both sides comes (see _settle_deferred)
         self.deferred: list[tuple[Edge, float]] = []
         self.car_edges: list[tuple[int, int]] = []
-        #: keyframes reached by a step beyond the front end's window (see :meth:`add`)
+        #: keyframes reached by a step the fitted odometry noise does not describe: beyond the
+        #: front end's window (the laser silent), or across a gap in the odometry
         self.silent_steps: set[int] = set()
         #: odometry's systematic errors, learnt from front-end matches (see the module)
         self.calibration = OdometryCalibration()
@@ -616,8 +631,17 @@ class _Slam:
             ):
                 # a drive beyond the window: its doubt is the whole drive's, not its end's
                 sigma_xy, sigma_theta = max(sigma_xy, drive_xy), max(sigma_theta, drive_theta)
+        blind = bool(self.blind_step[k])
+        if blind:
+            # odometry drew a straight line here: the step is as long as the robot can drive
+            # and turn in the time
+            seconds = float(self.t_ns[self.kf_scan[k]] - self.t_ns[self.kf_scan[k - 1]]) / 1e9
+            sigma_xy = max(sigma_xy, BLIND_SPEED_M_S * seconds / WINDOW_SIGMAS)
+            sigma_theta = max(sigma_theta, BLIND_TURN_RAD_S * seconds / WINDOW_SIGMAS)
+            self.stats["odometry_gaps"] += 1
         if not new_visit and (
-            WINDOW_SIGMAS * sigma_xy > MAX_FRONT_WINDOW_M
+            blind
+            or WINDOW_SIGMAS * sigma_xy > MAX_FRONT_WINDOW_M
             or (drive is not None and WINDOW_SIGMAS * sigma_theta > MAX_FRONT_WINDOW_RAD)
         ):
             # a step longer than the front end's widest window can search odometry's doubt
@@ -1857,14 +1881,25 @@ def run_slam(
     config: SlamConfig | None = None,
     progress: Callable[[int], None] | None = None,
     travel: FloatArray | None = None,
+    blind: BoolArray | None = None,
 ) -> SlamResult:
     """SLAM over a run: scans, odometry poses at the scan times, floor and visit per scan.
 
     ``travel``: the odometry's path and turning up to each scan, as the odometry came
     (:meth:`~baromap.mapping.run_data.RunData.travel`), where it came more often than the
     scans; it tells a silence of the laser by the drive inside it, not only by where the
-    drive ended (None: the scans' own odometry is all there is)."""
+    drive ended (None: the scans' own odometry is all there is).
+
+    ``blind``: the scans the odometry said nothing about
+    (:meth:`~baromap.mapping.run_data.RunData.odometry_blind`: the base unplugged while the
+    laser went on). They are not mapped: without odometry a corridor lets the scans slide
+    (the sim's blind minute, matched scan by scan with a constant-velocity guess, drifted
+    metres while the robot sped up along one), and the step across them is taken as a laser
+    silence is, begun again in new submaps and tied back by loop closure and the car. Their
+    poses are drawn across the gap, for the record only."""
     config = config or SlamConfig()
+    if blind is not None and blind.any():
+        floor = np.where(blind, BETWEEN_FLOORS, floor)
     kf_scan = select_keyframes(odom, visit, floor, config)
     if len(kf_scan) == 0:
         raise MappingError("no scan is on a floor: nothing to map")
@@ -1876,6 +1911,7 @@ def run_slam(
         kf_visit=visit[kf_scan],
         config=config,
         travel=travel,
+        blind=blind,
     )
     for k in range(len(kf_scan)):
         slam.add(k)
