@@ -273,9 +273,11 @@ CAR_WINDOW_RAD = math.radians(5.0)
 CAR_FAR_WINDOW_M = 10.0
 CAR_FAR_WINDOW_RAD = math.radians(45.0)
 #: ... in the car's field at the map's resolution, by branch and bound with this many node
-#: splits (the loops' 300 run out long before a window this size is settled: the best
-#: within it scored 0.6 where the true pose scores 0.95), about 3 s a keyframe, for at most
-#: this many keyframes of each such ride.
+#: splits, its lattice turned a degree at a time (the car's walls are within 2.5 m, where a
+#: degree moves a point half a cell; the refinement takes it from there), for at most this
+#: many keyframes of each such ride. The pooled field of a 2 m box bounds thousands of nodes
+#: near 1.0: with the loops' 300 splits, or a quarter-degree lattice, the budget ran out and
+#: the search returned aliases; so it settles in 0.5-1.4 s a keyframe.
 CAR_FAR_BUDGET = 30_000
 CAR_FAR_ANGLE_STEP_RAD = math.radians(1.0)
 CAR_FAR_PER_RIDE = 3
@@ -721,7 +723,8 @@ class _Slam:
         errors, so it is an upper bound of odometry's, never a guess below what the run shows
         (in the refinement it is inflated, see REFINE_ODOMETRY_INFLATION).
 
-        A step over a silence of the laser (``silent_steps``) keeps the front end's sigmas:
+        A step over a silence of the laser or across a gap in the odometry (``silent_steps``)
+        keeps the front end's sigmas:
         the noise was fitted to keyframe steps of half a metre, and a minute's drive is far
         outside them (the simulated one was 6 m and 19 degrees off, a hundred sigmas of the
         fit). Weighed by the fit, that one edge held every floor after it against the car.
@@ -1430,11 +1433,13 @@ class _Slam:
                 found.append((b, result, se2.compose(moved, se2.inverse(poses[b]))))
                 mine += 1
         pulls = []
+        moves = []  # how far each pulling match puts its keyframe from where the chain had it
         for b, result, shift in found:
             if any(other is not shift and _same_shift(shift, other) for _, _, other in found):
                 edge = self._match_edge(car.anchor, b, result, kind="car")
                 edge.robust_c = None
                 pulls.append(edge)
+                moves.append(se2.between(poses[b], se2.compose(poses[car.anchor], result.pose)))
         self.stats["car_far_matches"] = len(pulls)
         if not pulls:
             return False
@@ -1442,7 +1447,8 @@ class _Slam:
             "the car found beyond the chain's window",
             rides=len(missed),
             matches=len(pulls),
-            shift_m=round(float(np.hypot(*found[0][2][:2])), 2),
+            moved_m=round(max(math.hypot(m[0], m[1]) for m in moves), 2),
+            turned_deg=round(max(abs(math.degrees(se2.wrap(m[2]))) for m in moves), 1),
         )
         kept = list(self.graph.edges)
         self.graph = _graph(poses, kept + pulls)
