@@ -12,6 +12,7 @@ import yaml
 from baromap.cli import main as cli
 from baromap.evaluation.laser_logs import run_log
 from baromap.evaluation.mapping import evaluate_recording
+from baromap.evaluation.silences import score_silence, without
 from baromap.mapping.build import build_maps
 from baromap.mapping.export import read_pgm
 from baromap.recording import read_messages
@@ -96,51 +97,6 @@ def test_short_run_meets_the_geometry_bars(short_run: Path, tmp_path: Path) -> N
         assert floor.free_iou >= 0.85
 
 
-def _without(src: Path, dst: Path, start_s: float, end_s: float, topic: str = "/scan") -> int:
-    """A copy of a recording with a device silent from ``start_s`` to ``end_s`` after its
-    first message (unplugged, power-cycled): no ``topic`` message; returns how many were
-    left out."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
-
-    dropped = 0
-    with src.open("rb") as f, dst.open("wb") as g:
-        reader = make_reader(f)
-        header = reader.get_header()
-        summary = reader.get_summary()
-        assert summary is not None
-        writer = Writer(g)
-        writer.start(profile=header.profile, library=header.library)
-        schemas = {
-            sid: writer.register_schema(s.name, s.encoding, s.data)
-            for sid, s in summary.schemas.items()
-        }
-        channels = {
-            cid: writer.register_channel(
-                c.topic, c.message_encoding, schemas.get(c.schema_id, 0), c.metadata
-            )
-            for cid, c in summary.channels.items()
-        }
-        for record in reader.iter_metadata():
-            writer.add_metadata(record.name, record.metadata)
-        first = None
-        for _, channel, message in reader.iter_messages(log_time_order=True):
-            first = message.log_time if first is None else first
-            at = (message.log_time - first) / 1e9
-            if channel.topic == topic and start_s <= at < end_s:
-                dropped += 1
-                continue
-            writer.add_message(
-                channels[channel.id],
-                message.log_time,
-                message.data,
-                message.publish_time,
-                message.sequence,
-            )
-        writer.finish()
-    return dropped
-
-
 def test_a_laser_silent_for_a_minute_twice_is_driven_through(tmp_path: Path) -> None:
     """The simulated 46-minute run, seed 0, with no scan from 600 to 660 s and from 1500 to
     1560 s while the robot drives on (a laser power-cycled by the daemon).
@@ -156,9 +112,9 @@ def test_a_laser_silent_for_a_minute_twice_is_driven_through(tmp_path: Path) -> 
     run = tmp_path / "run.mcap"
     record_run(run, seed=0, progress=False)
     once = tmp_path / "once.mcap"
-    assert _without(run, once, 600.0, 660.0) > 500
+    assert without(run, once, "/scan", 600.0, 660.0) > 500
     silent = tmp_path / "silent.mcap"
-    assert _without(once, silent, 1500.0, 1560.0) > 500
+    assert without(once, silent, "/scan", 1500.0, 1560.0) > 500
     from structlog.testing import capture_logs
 
     with capture_logs() as logs:
@@ -186,35 +142,20 @@ def test_odometry_silent_for_a_minute_is_left_out_of_the_map_and_tied_back(
     is begun again as after a laser silence: 0.033 m, max 0.14 m over the other scans."""
     from structlog.testing import capture_logs
 
-    from baromap.evaluation.mapping import fit_rigid, truth_at
-    from baromap.mapping import se2
-
     run = tmp_path / "run.mcap"
     record_run(run, seed=0, progress=False)
     silent = tmp_path / "silent.mcap"
-    assert _without(run, silent, 600.0, 660.0, topic="/odom") > 500
+    assert without(run, silent, "/odom", 600.0, 660.0) > 500
     with capture_logs() as logs:
-        result = build_maps(silent, tmp_path / "maps")
+        score = score_silence(silent, tmp_path / "maps")
     said = [e for e in logs if e["event"] == "odometry silent"]
     assert len(said) == 1 and said[0]["stretches"] == 1
     assert said[0]["seconds"] == pytest.approx(60.0, abs=0.5)
-    assert result.slam.stats["odometry_gaps"] == 1
-    blind = result.run.odometry_blind()
-    assert 500 < blind.sum() < 700
-    truth = [r.message for r in read_messages(silent, ["/truth/pose"])]
-    true_pose, _ = truth_at(
-        np.array([m.t_ns for m in truth]),
-        np.array([(m.x_m, m.y_m, m.theta_rad) for m in truth]),
-        np.array([m.floor for m in truth]),
-        result.run.scans.t_ns,
-    )
-    kept = (result.segmentation.scan_floor >= 0) & ~blind
-    est = result.slam.scan_poses
-    aligned = se2.compose(fit_rigid(est[kept, :2], true_pose[kept, :2])[None, :], est)
-    errors = np.hypot(*(aligned[kept, :2] - true_pose[kept, :2]).T)
-    assert float(np.sqrt(np.mean(errors**2))) < 0.06
-    assert float(errors.max()) < 0.3
-    assert evaluate_recording(result, silent).one_map_per_floor()
+    assert score.stats["odometry_gaps"] == 1
+    assert 500 < score.blind_scans < 700
+    assert score.kept_rms_m < 0.06
+    assert score.kept_max_m < 0.3
+    assert score.worst_lobby_m < 0.1
 
 
 def test_relation_metric_reproduces_gmappings_published_score(shared_data: Path) -> None:
