@@ -39,6 +39,15 @@ def short_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+@pytest.fixture(scope="module")
+def full_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The simulated 46-minute run, seed 0, recorded once for the tests that silence a
+    device in copies of it."""
+    path = tmp_path_factory.mktemp("sim46") / "run.mcap"
+    record_run(path, seed=0, progress=False)
+    return path
+
+
 def test_build_maps_files_and_model(short_run: Path, tmp_path: Path) -> None:
     out = tmp_path / "maps"
     assert cli.main(["--log-level", "WARNING", "build-maps", str(short_run), "-o", str(out)]) == 0
@@ -97,7 +106,9 @@ def test_short_run_meets_the_geometry_bars(short_run: Path, tmp_path: Path) -> N
         assert floor.free_iou >= 0.85
 
 
-def test_a_laser_silent_for_a_minute_twice_is_driven_through(tmp_path: Path) -> None:
+def test_a_laser_silent_for_a_minute_twice_is_driven_through(
+    full_run: Path, tmp_path: Path
+) -> None:
     """The simulated 46-minute run, seed 0, with no scan from 600 to 660 s and from 1500 to
     1560 s while the robot drives on (a laser power-cycled by the daemon).
 
@@ -109,10 +120,8 @@ def test_a_laser_silent_for_a_minute_twice_is_driven_through(tmp_path: Path) -> 
     car closure tied the floors after it to the building (3.06 m RMS for the two, max 7.5 m).
     The car is looked for beyond the chain's window there, and the agreeing matches move the
     chain (0.047 m, max 0.28 m; 0.028 m without the silences)."""
-    run = tmp_path / "run.mcap"
-    record_run(run, seed=0, progress=False)
     once = tmp_path / "once.mcap"
-    assert without(run, once, "/scan", 600.0, 660.0) > 500
+    assert without(full_run, once, "/scan", 600.0, 660.0) > 500
     silent = tmp_path / "silent.mcap"
     assert without(once, silent, "/scan", 1500.0, 1560.0) > 500
     from structlog.testing import capture_logs
@@ -133,7 +142,7 @@ def test_a_laser_silent_for_a_minute_twice_is_driven_through(tmp_path: Path) -> 
 
 
 def test_odometry_silent_for_a_minute_is_left_out_of_the_map_and_tied_back(
-    tmp_path: Path,
+    full_run: Path, tmp_path: Path
 ) -> None:
     """The simulated 46-minute run, seed 0, with no odometry from 600 to 660 s while the
     laser goes on (the base's serial link power-cycled). Odometry drawn as a straight line
@@ -142,10 +151,8 @@ def test_odometry_silent_for_a_minute_is_left_out_of_the_map_and_tied_back(
     is begun again as after a laser silence: 0.033 m, max 0.14 m over the other scans."""
     from structlog.testing import capture_logs
 
-    run = tmp_path / "run.mcap"
-    record_run(run, seed=0, progress=False)
     silent = tmp_path / "silent.mcap"
-    assert without(run, silent, "/odom", 600.0, 660.0) > 500
+    assert without(full_run, silent, "/odom", 600.0, 660.0) > 500
     with capture_logs() as logs:
         score = score_silence(silent, tmp_path / "maps")
     said = [e for e in logs if e["event"] == "odometry silent"]

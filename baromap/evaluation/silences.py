@@ -95,7 +95,7 @@ def score_silence(recording: Path, out: Path) -> SilenceScore:
         np.array([m.floor for m in truth], dtype=np.int64),
         result.run.scans.t_ns,
     )
-    blind = result.run.odometry_blind()
+    blind = result.run.blind
     kept = (result.segmentation.scan_floor >= 0) & ~blind
     est = result.slam.scan_poses
     aligned = se2.compose(fit_rigid(est[kept, :2], true_pose[kept, :2])[None, :], est)

@@ -110,7 +110,7 @@ def _slam(
             config=config,
             progress=update,
             travel=run.travel(),
-            blind=run.odometry_blind(),
+            blind=run.blind,
         )
     finally:
         if bar is not None:
@@ -139,7 +139,7 @@ def _grid_job(
     only that floor's grid scans."""
     # a scan the odometry said nothing about has a pose drawn across the gap (see
     # run_slam's ``blind``): it is left out of the map
-    chosen = grid_scans(slam.scan_poses, (segmentation.scan_floor == floor) & ~run.odometry_blind())
+    chosen = grid_scans(slam.scan_poses, (segmentation.scan_floor == floor) & ~run.blind)
     if len(chosen) == 0:
         return None
     max_range = (config or SlamConfig()).max_range_m

@@ -100,7 +100,7 @@ class _Inputs:
     travel: FloatArray | None
     blind: BoolArray | None
 
-    def run(self, run: int) -> SlamResult:
+    def run(self, run: int, progress: Callable[[int], None] | None = None) -> SlamResult:
         """Run ``run`` (0-based) of the SLAM on these inputs."""
         return run_slam(
             self.scans,
@@ -108,6 +108,7 @@ class _Inputs:
             self.floor,
             self.visit,
             config=self.config,
+            progress=progress,
             travel=self.travel,
             blind=self.blind,
         )
@@ -225,9 +226,7 @@ def run_slam_best_of(
     inputs = _Inputs(scans, odom, floor, visit, config, travel, blind)
     pool = _Workers(workers - 1, later, inputs) if workers > 1 and later else None
     try:
-        first = run_slam(
-            scans, odom, floor, visit, config=config, progress=progress, travel=travel, blind=blind
-        )
+        first = inputs.run(0, progress)
         processes = 1 if pool is None else pool.processes
         first.stats.update(runs=1, run_kept=0, revisits_mm=float("nan"), run_processes=1)
         if runs == 1:

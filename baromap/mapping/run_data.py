@@ -60,6 +60,8 @@ class RunData:
     reference_pa: FloatArray
     odometry_t_ns: IntArray  # the recording's odometry as it came (for the floor detector)
     odometry_poses: FloatArray  # (N, 3)
+    #: (S,): scans the odometry said nothing about (see :func:`odometry_blind`)
+    blind: BoolArray
 
     def travel(self) -> FloatArray:
         """(S, 2): the odometry's path (m) and its turning, every turn counted (rad), from
@@ -70,10 +72,6 @@ class RunData:
         degrees to end 6 m on carries the doubt of the whole drive.
         """
         return odometric_travel(self.odometry_t_ns, self.odometry_poses, self.scans.t_ns)
-
-    def odometry_blind(self) -> BoolArray:
-        """(S,): scans the odometry said nothing about (see :func:`odometry_blind`)."""
-        return odometry_blind(self.odometry_t_ns, self.scans.t_ns)
 
 
 def odometry_blind(t_src: IntArray, t_query: IntArray) -> BoolArray:
@@ -231,7 +229,8 @@ def run_data(block: ScanBlock, metadata: dict[str, dict[str, str]], series: RunS
     odom = interpolate_poses(odometry.t_ns, odometry_poses, block.t_ns)
     log.info("run loaded", scans=len(block), odometry=len(odometry), pressure=len(pressure.t_ns))
     _say_silences(block.t_ns, odom)
-    _say_odometry_silences(block.t_ns, odometry_blind(odometry.t_ns, block.t_ns))
+    blind = odometry_blind(odometry.t_ns, block.t_ns)
+    _say_odometry_silences(block.t_ns, blind)
     return RunData(
         scans=block,
         odom=odom,
@@ -243,4 +242,5 @@ def run_data(block: ScanBlock, metadata: dict[str, dict[str, str]], series: RunS
         reference_pa=reference.pressure_pa,
         odometry_t_ns=odometry.t_ns,
         odometry_poses=odometry_poses,
+        blind=blind,
     )

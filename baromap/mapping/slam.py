@@ -624,7 +624,7 @@ class _Slam:
         guess = se2.compose(graph.poses[k - 1], step)
         graph.add_node(guess)
         sigma_xy, sigma_theta = self._odometry_sigmas(step)
-        drive = self._drive(k)
+        drive = self._drive(k, read)
         if drive is not None:
             drive_xy, drive_theta = self._odometry_sigmas(drive)
             if (
@@ -1031,12 +1031,12 @@ class _Slam:
             self.stats["registered"] += int(out.usable.sum())
         return poses
 
-    def _drive(self, k: int) -> FloatArray | None:
-        """The step to keyframe k as the odometry drove it: its path and every turn on the
-        way, as a step (path, 0, turn); None when the odometry came only with the scans."""
+    def _drive(self, k: int, step: FloatArray) -> FloatArray | None:
+        """The odometric ``step`` to keyframe k as the odometry drove it: its path and every
+        turn on the way, as a step (path, 0, turn); None when the odometry came only with
+        the scans."""
         if self.travel is None:
             return None
-        step = self._odometry_step(k - 1, k)
         path, turn = self.travel[self.kf_scan[k]] - self.travel[self.kf_scan[k - 1]]
         return np.array([max(path, math.hypot(step[0], step[1])), 0.0, max(turn, abs(step[2]))])
 
@@ -1897,7 +1897,7 @@ def run_slam(
     drive ended (None: the scans' own odometry is all there is).
 
     ``blind``: the scans the odometry said nothing about
-    (:meth:`~baromap.mapping.run_data.RunData.odometry_blind`: the base unplugged while the
+    (:attr:`~baromap.mapping.run_data.RunData.blind`: the base unplugged while the
     laser went on). They are not mapped: without odometry a corridor lets the scans slide
     (the sim's blind minute, matched scan by scan with a constant-velocity guess, drifted
     metres while the robot sped up along one), and the step across them is taken as a laser
