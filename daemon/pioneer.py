@@ -95,7 +95,12 @@ class PioneerSession(DeviceSession):
             info.subclass, self.config.model, self.config.allow_model_mismatch
         )
         self.model = model
-        self.integrator = OdometryIntegrator(model)
+        if self.integrator is None:
+            self.integrator = OdometryIntegrator(model)
+        else:
+            # one odom frame across reconnects: the counters go on, or are joined at the last
+            # pose if the robot counts from zero again (power-cycled)
+            self.integrator.resume(model)
         self.records[ROBOT_METADATA] = robot_metadata(
             model,
             (info.name, info.robot_class, info.subclass),
@@ -210,6 +215,7 @@ class PioneerSession(DeviceSession):
         self.good_frame()
         self._sips_seen += 1
         self.set_counter("battery_dv", round(sip.battery_v * 10))
+        self.set_counter("odometry_tracks_joined", self.integrator.tracks_joined)
         self.publish(self.integrator.update(sip, self.clock.unix_ns(sent_ns)), read_ns)
 
     def up_detail(self) -> str:

@@ -527,9 +527,57 @@ def test_rotation_rate_from_firmware_or_wheels() -> None:
     assert firmware.omega_radps == pytest.approx(math.radians(-45.0))
 
 
-def test_reset_starts_a_new_track() -> None:
+_SIP_NS = 100_000_000
+
+
+def _drive(integrator: OdometryIntegrator, sips: list[tuple[int, int, int]], t0_ns: int) -> list:
+    """SIPs every 100 ms from ``t0_ns``: the odometry of each."""
+    return [integrator.update(_sip(*s), t0_ns + i * _SIP_NS) for i, s in enumerate(sips)]
+
+
+def test_a_reconnect_goes_on_counting_when_the_robot_kept_its_counters() -> None:
+    """Three seconds without SIPs (the USB link replugged) while the robot drove 2 m on: its
+    counters went on, so does the track, tick for tick."""
+    integrator = OdometryIntegrator(P3AT_SH, origin_at_start=True)
+    _drive(integrator, [(100 * i, 0, 0) for i in range(10)], 0)
+    integrator.resume(P3AT_SH)
+    after = _drive(integrator, [(900 + 2000, 0, 0), (900 + 2100, 0, 0)], 4_000_000_000)
+    assert [o.x_m for o in after] == pytest.approx([2.9, 3.0])
+    assert integrator.tracks_joined == 0
+
+
+@pytest.mark.parametrize("reconnected", [True, False], ids=["resumed", "gap-only"])
+def test_counters_that_start_again_are_joined_at_the_last_pose(reconnected: bool) -> None:
+    """The robot power-cycled: 1.7 s later its counters read zero again, in a frame of
+    its own. ARIA would place it at 0, 0 (a jump of metres no robot drove); the track is
+    joined at the last pose instead, and the new frame's motion turned into the run's."""
+    integrator = OdometryIntegrator(P3AT_SH, origin_at_start=True)
+    before = _drive(integrator, [(500 * i, 0, 0) for i in range(13)] + [(6000, 0, 1024)], 0)
+    assert (before[-1].x_m, before[-1].theta_rad) == pytest.approx((6.0, math.pi / 2))
+    if reconnected:
+        integrator.resume()
+    # forward 1 m in the robot's new frame (heading 0 there), then a quarter turn left
+    after = _drive(integrator, [(0, 0, 0), (1000, 0, 0), (1000, 0, 1024)], 3_000_000_000)
+    assert integrator.tracks_joined == 1
+    assert (after[0].x_m, after[0].y_m, after[0].theta_rad) == pytest.approx((6, 0, math.pi / 2))
+    assert (after[1].x_m, after[1].y_m) == pytest.approx((6.0, 1.0))
+    assert after[2].theta_rad == pytest.approx(math.pi)
+    assert after[2].raw_x == 1000
+
+
+def test_a_short_reconnect_to_zeroed_counters_is_still_a_new_track() -> None:
+    """Back within half a second, but the counters jumped 5 m: only a reconnect can say so
+    (a half-second gap alone is a late SIP, not a break)."""
+    integrator = OdometryIntegrator(P3AT_SH, origin_at_start=True)
+    _drive(integrator, [(5000, 0, 0), (5100, 0, 0)], 0)
+    integrator.resume()
+    after = _drive(integrator, [(0, 0, 0)], 600_000_000)
+    assert after[0].x_m == pytest.approx(0.1) and integrator.tracks_joined == 1
+
+
+def test_another_model_after_a_reconnect_scales_only_what_comes_after() -> None:
     integrator = OdometryIntegrator(P3AT, origin_at_start=True)
-    integrator.update(_sip(100, 0, 0), 0)
-    integrator.update(_sip(300, 0, 0), 1)
-    integrator.reset()
-    assert integrator.update(_sip(5000, 0, 0), 2).x_m == 0.0
+    _drive(integrator, [(0, 0, 0), (1000, 0, 0)], 0)
+    integrator.resume(P3AT_SH)
+    after = _drive(integrator, [(1000, 0, 0), (1500, 0, 0)], 1_000_000_000)
+    assert [o.x_m for o in after] == pytest.approx([0.465, 0.965])

@@ -12,13 +12,23 @@ from __future__ import annotations
 import math
 from typing import Final
 
+import structlog
+
 from baromap.messages import Odometry, wrap_angle
 from baromap.protocols.p2os import StandardSip
 from baromap.protocols.robot_models import RobotModel
 
+log = structlog.get_logger(__name__)
+
 _WRAP: Final = 0x8000
 _WRAP_GUARD: Final = 0x1000
 _HEADING_UNITS: Final = 4096
+#: SIPs further apart than this are a break in the stream (the robot sends one every 100 ms):
+#: a reconnect, a power cycle, after which the counters may count from zero again
+BREAK_S: Final = 1.0
+#: What the counters may move across a break beyond the model's top speed times its length
+#: and still be the same track (the robot coasting to a stop, the stamps' jitter)
+BREAK_SLACK_M: Final = 0.3
 
 
 def position_delta(previous: int, current: int) -> int:
@@ -43,19 +53,38 @@ class OdometryIntegrator:
     are scaled only on output. As in ARIA, the first SIP places the robot at its counters
     times DistConvFactor (0, 0 after a SETO); ``origin_at_start`` puts it at 0, 0 instead.
     The heading is the robot's own (absolute, 1/4096 turn), wrapped to (-pi, pi].
+
+    One ``odom`` frame for the whole run, across reconnects: after a break in the SIPs (one
+    longer than :data:`BREAK_S`, or a :meth:`resume` after the host reconnected) the counters
+    either went on (the robot kept its power: the track goes on, every tick counted) or moved
+    further than the robot can drive in the time (it was power-cycled, or sent SETO, and
+    counts from zero again). Then the robot's new frame is joined at the last pose: the
+    motion across the break is lost, but the frame stays put, which is what the post-run
+    SLAM and a ``/tf`` consumer need (a jump of tens of metres is a pose no robot took).
     """
 
     def __init__(self, model: RobotModel, *, origin_at_start: bool = False) -> None:
         self.model = model
         self.origin_at_start = origin_at_start
+        #: SIPs after which the robot's counters were found to have started again
+        self.tracks_joined = 0
         self._last: StandardSip | None = None
+        self._last_t_ns = 0
+        self._resumed = False
         self._x_units = 0
         self._y_units = 0
         self._theta_units = 0
+        # the current track's origin in the run's frame (m, m, rad): zero for the first
+        self._anchor = (0.0, 0.0, 0.0)
+        self._pose = (0.0, 0.0, 0.0)
 
-    def reset(self) -> None:
-        """Forget the history: the next SIP starts a new track (after SETO or reconnect)."""
-        self._last = None
+    def resume(self, model: RobotModel | None = None) -> None:
+        """The host reconnected (perhaps to a robot that reports another model): the next SIP
+        is checked for a new track whatever the time since the last."""
+        if model is not None and model != self.model:
+            self._fold()
+            self.model = model
+        self._resumed = True
 
     def update(self, sip: StandardSip, t_ns: int) -> Odometry:
         last = self._last
@@ -65,23 +94,68 @@ class OdometryIntegrator:
             self._y_units = sip.y if start else 0
             self._theta_units = sip.theta
         else:
-            self._x_units += position_delta(last.x, sip.x)
-            self._y_units += position_delta(last.y, sip.y)
-            self._theta_units += heading_delta(last.theta, sip.theta)
+            dx = position_delta(last.x, sip.x)
+            dy = position_delta(last.y, sip.y)
+            seconds = (t_ns - self._last_t_ns) / 1e9
+            if (self._resumed or seconds > BREAK_S) and not self._drivable(dx, dy, seconds):
+                self._join(sip, seconds)
+            else:
+                self._x_units += dx
+                self._y_units += dy
+                self._theta_units += heading_delta(last.theta, sip.theta)
         self._last = sip
+        self._last_t_ns = t_ns
+        self._resumed = False
         model = self.model
-        mm = model.dist_conv_factor
+        x, y, theta = self._pose = self._output()
         return Odometry(
             t_ns=t_ns,
-            x_m=self._x_units * mm / 1000.0,
-            y_m=self._y_units * mm / 1000.0,
-            theta_rad=wrap_angle(self._theta_units * model.angle_conv_factor),
+            x_m=x,
+            y_m=y,
+            theta_rad=theta,
             v_mps=(sip.left_vel + sip.right_vel) / 2.0 * model.vel_conv_factor / 1000.0,
             omega_radps=self._omega(sip),
             raw_x=sip.x,
             raw_y=sip.y,
             raw_theta=sip.theta,
         )
+
+    def _drivable(self, dx: int, dy: int, seconds: float) -> bool:
+        metres = math.hypot(dx, dy) * self.model.dist_conv_factor / 1000.0
+        return metres <= self.model.max_velocity_mmps / 1000.0 * max(seconds, 0.0) + BREAK_SLACK_M
+
+    def _join(self, sip: StandardSip, seconds: float) -> None:
+        """The counters started again: the robot's new frame begins at the last pose."""
+        self.tracks_joined += 1
+        log.warning(
+            "odometry counters started again: joined at the last pose",
+            after_s=round(seconds, 1),
+            raw=(sip.x, sip.y, sip.theta),
+        )
+        x, y, theta = self._pose
+        self._anchor = (x, y, theta - sip.theta * self.model.angle_conv_factor)
+        self._x_units = self._y_units = 0
+        self._theta_units = sip.theta
+
+    def _fold(self) -> None:
+        """The track so far into the anchor (before the conversion factors change)."""
+        if self._last is None:
+            return
+        x, y, theta = self._pose
+        self._anchor = (x, y, theta - self._theta_units * self.model.angle_conv_factor)
+        self._x_units = self._y_units = 0
+
+    def _output(self) -> tuple[float, float, float]:
+        model = self.model
+        ax, ay, atheta = self._anchor
+        ux = self._x_units * model.dist_conv_factor / 1000.0
+        uy = self._y_units * model.dist_conv_factor / 1000.0
+        if atheta == 0.0:
+            x, y = ax + ux, ay + uy
+        else:
+            c, s = math.cos(atheta), math.sin(atheta)
+            x, y = ax + c * ux - s * uy, ay + s * ux + c * uy
+        return x, y, wrap_angle(atheta + self._theta_units * model.angle_conv_factor)
 
     def _omega(self, sip: StandardSip) -> float:
         if sip.rot_vel is not None:

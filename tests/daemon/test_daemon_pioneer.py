@@ -8,6 +8,7 @@ each), so the distance is known exactly and the test does not wait for a route.
 
 from __future__ import annotations
 
+import itertools
 import os
 import select
 import threading
@@ -29,8 +30,19 @@ from daemon.pioneer import PioneerSession, choose_model
 class ScriptedRobot:
     """Answers the handshake as ``subclass``, then drives straight: 100 mm per SIP."""
 
-    def __init__(self, subclass: str, sips: int = 101, step_mm: float = 100.0) -> None:
+    def __init__(
+        self,
+        subclass: str,
+        sips: int = 101,
+        step_mm: float = 100.0,
+        power_cycle_after: int | None = None,
+        off_s: float = 1.5,
+    ) -> None:
         self.subclass = subclass
+        #: after this many SIPs the robot loses power for ``off_s`` and counts from zero again
+        self.power_cycle_after = power_cycle_after
+        self.off_s = off_s
+        self.power_cycles = 0
         self.model = robot_model(subclass)
         self.sips = sips
         self.step_mm = step_mm
@@ -56,7 +68,16 @@ class ScriptedRobot:
     def _run(self) -> None:
         decoder = p2os.Decoder(source="host")
         is_open = synced = False
+        origin = 0  # the SIP the counters count from (they restart at a power cycle)
         while not self._stop.is_set():
+            if self.sent == self.power_cycle_after and not self.power_cycles:
+                self.power_cycles += 1
+                time.sleep(self.off_s)
+                while select.select([self.master], [], [], 0)[0]:
+                    os.read(self.master, 1024)  # what the host sent was lost
+                decoder = p2os.Decoder(source="host")
+                is_open = synced = False
+                origin = self.sent
             ready, _, _ = select.select([self.master], [], [], 0.02)
             if ready:
                 for cmd in decoder.feed(os.read(self.master, 1024)):
@@ -74,7 +95,7 @@ class ScriptedRobot:
                     elif cmd.command == p2os.Command.CLOSE:
                         is_open = synced = False
             if is_open:  # then stands still at the end, still reporting
-                step = min(self.sent, self.sips - 1)
+                step = min(self.sent, self.sips - 1) - origin
                 units = round(step * self.step_mm / self.model.dist_conv_factor)
                 sip = p2os.StandardSip(
                     moving=self.sent < self.sips, x=units & 0x7FFF, y=0, theta=0, left_vel=1000,
@@ -125,6 +146,31 @@ def test_a_p3at_sh_driven_10_m_gives_10_m_of_odometry(
     assert travelled == pytest.approx(10.0, rel=0.01)
     assert p2os.Command.CLOSE in p3at_sh.commands  # and CLOSE on stop
     assert p2os.Command.ENABLE not in p3at_sh.commands  # motors never enabled by default
+
+
+def test_a_power_cycled_robot_is_joined_at_its_last_pose_in_one_odom_frame() -> None:
+    """The robot loses power 5 m into a 10 m drive and counts from zero again when the
+    session has reconnected: the odometry goes on from 5 m, not from the robot's new zero
+    (a jump back to where the run began), and the health counters say the track was joined."""
+    odometry: list[Message] = []
+    with ScriptedRobot("p3at-sh", sips=101, power_cycle_after=50) as robot:
+        session = _session(robot, "auto", odometry)
+        session.start()
+        try:
+            deadline = time.monotonic() + 20
+            while robot.sent < robot.sips + 5 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            time.sleep(0.3)
+            health = session.health(0)
+        finally:
+            session.stop()
+    assert robot.power_cycles == 1
+    poses = [m for m in odometry if isinstance(m, Odometry)]
+    assert health.counters["connects"] == 2
+    assert health.counters["odometry_tracks_joined"] == 1
+    steps = [abs(b.x_m - a.x_m) for a, b in itertools.pairwise(poses)]
+    assert max(steps) == pytest.approx(0.1, abs=1e-6)  # never a jump: 100 mm per SIP
+    assert poses[-1].x_m == pytest.approx(10.0 - 0.1, abs=1e-6)  # the lost SIP's 0.1 m
 
 
 def test_a_pinned_p3at_on_a_p3at_sh_robot_is_refused_naming_both(
