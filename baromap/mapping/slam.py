@@ -941,6 +941,10 @@ class _Slam:
         }
         visits = {v: ids for v, ids in visits.items() if len(ids) >= 3}
         edges: list[Edge] = []
+        if len(visits) < 2:
+            # one visit near the car (a map the others were lost from): nothing to tie
+            self.stats["core_edges"] = 0
+            return edges
         for v, ids in visits.items():
             anchor = int(ids[0])
             clouds = []
@@ -950,8 +954,6 @@ class _Slam:
                 clouds.append(se2.transform_points(se2.inverse(poses[anchor]), pts[keep]))
             fld = _finished_map_field(np.concatenate(clouds), res)
             others = np.concatenate([o for w, o in visits.items() if w != v])
-            if len(others) == 0:
-                continue
             clouds = []
             for k in others:
                 pts = self.clouds.points[k]
