@@ -568,6 +568,35 @@ def test_odometry_blind_marks_the_scans_inside_a_gap_in_the_odometry() -> None:
     assert odometry_blind(np.zeros(0, dtype=np.int64), scans).all()
 
 
+def test_odometry_that_counts_from_zero_again_is_joined_at_the_pose_before() -> None:
+    """A base driving a circle at 0.5 m/s, 10 Hz, silent from 20 to 23 s and then counting
+    from zero in a frame of its own (power-cycled): the stream after the gap goes on from
+    the pose before it, every step as it was; a 3-s gap with the counters going on, and
+    one moving only as far as a base drives, are left alone."""
+    from baromap.mapping import se2
+    from baromap.mapping.run_data import join_odometry_tracks
+
+    t = np.arange(0, 40_000_000_000, 100_000_000, dtype=np.int64)
+    t = t[(t < 20_000_000_000) | (t >= 23_000_000_000)]
+    s = t / 1e9
+    truth = np.stack([5 * np.sin(0.1 * s), 5 - 5 * np.cos(0.1 * s), se2.wrap(0.1 * s)], axis=1)
+    after = s >= 23
+    restarted = truth.copy()
+    restarted[after] = se2.between(truth[after][0], truth[after])
+    joined, times = join_odometry_tracks(t, restarted)
+    assert times == 1
+    assert np.allclose(joined[~after], truth[~after])
+    assert np.allclose(joined[after][0], truth[~after][-1])
+    steps = se2.between(joined[:-1], joined[1:])
+    across = np.flatnonzero(after)[0] - 1
+    assert np.allclose(np.delete(steps, across, axis=0), [0.05, 0.0, 0.01], atol=1e-3)
+    same, none = join_odometry_tracks(t, truth)
+    assert none == 0 and np.array_equal(same, truth)
+    nearby = truth.copy()
+    nearby[after, 0] += 4.0  # 4 m in 3 s: not beyond what a base drives, so taken as driven
+    assert join_odometry_tracks(t, nearby)[1] == 0
+
+
 def test_odometry_calibration_learns_the_systematic_errors_where_scans_pin_the_motion() -> None:
     """Steps read 3 % long, turns 4 % long and creeping 1 deg/m; matches measure the true
     step with 1 cm / 0.2 deg noise, except in a corridor, where the match only repeats

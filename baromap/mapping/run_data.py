@@ -16,6 +16,7 @@ import structlog
 
 from baromap import messages
 from baromap.errors import InputFormatError
+from baromap.mapping import se2
 from baromap.mapping.scans import ScanBlock
 from baromap.recording import (
     LaserMount,
@@ -42,6 +43,11 @@ SILENCE_MOVED_M = 2.0
 #: its usual intervals (a base at 10 Hz: a second).
 ODOMETRY_GAP_S = 1.0
 ODOMETRY_GAP_INTERVALS = 10.0
+#: Across such a gap, a move further than this speed times the gap plus TRACK_SLACK_M is no
+#: drive (indoor bases top out at 1-1.5 m/s): the base counts from zero again in a frame of
+#: its own (power-cycled, under a recorder that does not join its tracks as baromapd does)
+TRACK_SPEED_M_S = 2.0
+TRACK_SLACK_M = 0.5
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -94,6 +100,33 @@ def odometry_blind(t_src: IntArray, t_query: IntArray) -> BoolArray:
     blind |= (after == 0) & (t[0] - t_query > limit)
     blind |= (after == len(t)) & (t_query - t[-1] > limit)
     return blind
+
+
+def join_odometry_tracks(t_src: IntArray, poses: FloatArray) -> tuple[FloatArray, int]:
+    """The odometry in one frame, and how many times it had to be joined.
+
+    After a gap (as in :func:`odometry_blind`) across which the pose moved further than any
+    base drives in the time, the base counts from zero again, in a frame of its own; the
+    rest of the stream is moved rigidly so that it goes on from the pose before the gap.
+    The motion across the gap is lost either way; what the join saves is every pose after it
+    (a jump of metres is a step the SLAM would take for a drive). ``baromapd`` joins its
+    tracks as it records (:class:`~baromap.odometry.integrator.OdometryIntegrator`); this is
+    for recordings made without it."""
+    if len(t_src) < 2:
+        return poses, 0
+    order = np.argsort(t_src, kind="stable")
+    t = t_src[order]
+    p = poses[order].astype(np.float64)
+    gaps = np.diff(t)
+    limit = max(ODOMETRY_GAP_S * 1e9, ODOMETRY_GAP_INTERVALS * float(np.median(gaps)))
+    moved = np.hypot(*np.diff(p[:, :2], axis=0).T)
+    reach = TRACK_SPEED_M_S * gaps / 1e9 + TRACK_SLACK_M
+    starts = np.flatnonzero((gaps > limit) & (moved > reach)) + 1
+    for b in starts:
+        p[b:] = se2.compose(se2.compose(p[b - 1], se2.inverse(p[b])), p[b:])
+    out = np.empty_like(p)
+    out[order] = p
+    return out, len(starts)
 
 
 def odometric_travel(t_src: IntArray, poses: FloatArray, t_query: IntArray) -> FloatArray:
@@ -225,7 +258,9 @@ def _say_odometry_silences(t_ns: IntArray, blind: BoolArray) -> None:
 def run_data(block: ScanBlock, metadata: dict[str, dict[str, str]], series: RunSeries) -> RunData:
     """The run from its scans and series: odometry interpolated at every scan's stamp."""
     pressure, odometry, reference = series.pressure, series.odometry, series.reference
-    odometry_poses = odometry.poses()
+    odometry_poses, joined = join_odometry_tracks(odometry.t_ns, odometry.poses())
+    if joined:
+        log.warning("odometry counted from zero again: joined at the pose before", times=joined)
     odom = interpolate_poses(odometry.t_ns, odometry_poses, block.t_ns)
     log.info("run loaded", scans=len(block), odometry=len(odometry), pressure=len(pressure.t_ns))
     _say_silences(block.t_ns, odom)
