@@ -1211,6 +1211,27 @@ def test_every_keyframe_scan_takes_its_keyframe_pose_the_last_one_too() -> None:
     assert poses[kf_scan] == pytest.approx(kf_poses, abs=1e-9)
 
 
+def test_scans_after_a_silence_follow_odometry_back_from_the_keyframe_after_it() -> None:
+    """A step the graph turned by 160 degrees (a power-cycled base turned on the spot while
+    its odometry was silent): the scans between its keyframes taken after the silence
+    follow odometry back from the keyframe after it; spreading the turn along the stretch
+    put them metres off. Other scans are as before."""
+    odom = np.array([[0.1 * i, 0.0, 0.0] for i in range(12)])
+    kf_scan = np.array([0, 4, 8, 11])
+    kf_poses = odom[kf_scan].copy()
+    kf_poses[2:] = se2.compose(np.array([0.0, 3.0, math.radians(160.0)]), odom[kf_scan[2:]])
+    after = np.zeros(len(odom), dtype=bool)
+    after[5:8] = True
+    spread = scan_poses(odom, kf_scan, kf_poses)
+    poses = scan_poses(odom, kf_scan, kf_poses, from_next=after)
+    truth = se2.compose(np.array([0.0, 3.0, math.radians(160.0)]), odom[5:8])
+    assert poses[5:8] == pytest.approx(truth, abs=1e-9)
+    assert np.hypot(*(spread[5:8, :2] - truth[:, :2]).T).max() > 2.0
+    assert np.delete(poses, [5, 6, 7], axis=0) == pytest.approx(
+        np.delete(spread, [5, 6, 7], axis=0), abs=1e-12
+    )
+
+
 def test_edge_scatter_is_the_real_error_over_the_claimed_one() -> None:
     """Match edges that claim 4 cm and 1 deg but err 1 cm and 0.25 deg (a sixteenth of the
     variance they claim), among odometry edges that claim their real error, with 5 % of the

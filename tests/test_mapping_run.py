@@ -141,28 +141,40 @@ def test_a_laser_silent_for_a_minute_twice_is_driven_through(
     assert max(f.lobby_error_m for f in report.floors) < 0.1
 
 
-def test_odometry_silent_for_a_minute_is_left_out_of_the_map_and_tied_back(
+def test_odometry_silent_or_counting_from_zero_is_found_again(
     full_run: Path, tmp_path: Path
 ) -> None:
-    """The simulated 46-minute run, seed 0, with no odometry from 600 to 660 s while the
-    laser goes on (the base's serial link power-cycled). Odometry drawn as a straight line
-    across the minute held the scans there to it and bent floor 5 (0.123 m RMS over the
-    other scans, max 0.73 m). The scans inside are left out of the map and the step across
-    is begun again as after a laser silence: 0.033 m, max 0.14 m over the other scans."""
+    """The simulated 46-minute run, seed 0, with the base's odometry silent three times
+    while the laser goes on:
+
+    - 600-660 s, power-cycled, its counters from zero joined at the last pose as baromapd
+      records it: the motion across is lost (the robot drove 18 m and turned 161 degrees);
+    - 1500-1505 s, power-cycled, from zero in a frame of its own as another recorder leaves
+      it (a jump the mapping joins; the robot turned 120 degrees on the spot);
+    - 2200-2260 s, unplugged, its counters going on.
+
+    The scans inside are left out of the map; after each power cycle the chain is looked
+    for in the map from before. Before: 35 m RMS (every floor after the first lost); the
+    kept-counter gap alone was 0.045 m, max 0.30 m."""
     from structlog.testing import capture_logs
 
-    silent = tmp_path / "silent.mcap"
-    assert without(full_run, silent, "/odom", 600.0, 660.0) > 500
+    first, second, silent = (tmp_path / f"{n}.mcap" for n in ("first", "second", "silent"))
+    assert without(full_run, first, "/odom", 600.0, 660.0, counters="joined") > 500
+    assert without(first, second, "/odom", 1500.0, 1505.0, counters="zeroed") > 40
+    assert without(second, silent, "/odom", 2200.0, 2260.0) > 500
     with capture_logs() as logs:
         score = score_silence(silent, tmp_path / "maps")
+    events = [e["event"] for e in logs]
     said = [e for e in logs if e["event"] == "odometry silent"]
-    assert len(said) == 1 and said[0]["stretches"] == 1
-    assert said[0]["seconds"] == pytest.approx(60.0, abs=0.5)
-    assert score.stats["odometry_gaps"] == 1
-    assert 500 < score.blind_scans < 700
-    assert score.kept_rms_m < 0.06
-    assert score.kept_max_m < 0.3
-    assert score.worst_lobby_m < 0.1
+    assert len(said) == 1 and said[0]["stretches"] == 3
+    assert said[0]["seconds"] == pytest.approx(125.0, abs=1.0)
+    assert events.count("odometry counted from zero again: joined at the pose before") == 1
+    assert score.stats["odometry_gaps"] == 3
+    assert score.stats["relocated"] == 2  # the power cycles, not the counters that went on
+    assert 1200 < score.blind_scans < 1400
+    assert score.kept_rms_m < 0.07
+    assert score.kept_max_m < 0.4
+    assert score.worst_lobby_m < 0.15
 
 
 def test_relation_metric_reproduces_gmappings_published_score(shared_data: Path) -> None:

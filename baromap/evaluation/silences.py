@@ -11,27 +11,52 @@ scan and over the scans the odometry spoke for (the others are not mapped: see
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
+from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 
 from baromap.evaluation.mapping import evaluate_recording, truth_at
 from baromap.evaluation.trajectory import fit_rigid
 from baromap.mapping import se2
 from baromap.mapping.build import build_maps
 from baromap.messages import NS_PER_S
-from baromap.recording import read_messages
+from baromap.recording import read_messages, topics
+
+FloatArray = npt.NDArray[np.float64]
 
 
-def without(src: Path, dst: Path, topic: str, start_s: float, end_s: float) -> int:
+#: What a base's odometry does after a silence (:func:`without`'s ``counters``).
+COUNTERS = ("kept", "zeroed", "joined")
+
+
+def without(
+    src: Path, dst: Path, topic: str, start_s: float, end_s: float, *, counters: str = "kept"
+) -> int:
     """A copy of ``src`` with no ``topic`` message from ``start_s`` to ``end_s`` after its
     first message (the device unplugged, power-cycled); returns how many were left out.
-    Everything else (schemas, channels, metadata, the other messages) is copied as it was."""
+    Everything else (schemas, channels, metadata, the other messages) is copied as it was.
+
+    ``counters`` (``/odom`` only), the odometry after the silence: ``kept`` as it was (the
+    base kept counting); ``zeroed``, from zero in a frame of its own (a power-cycled base
+    under a recorder that does not join its tracks); ``joined``, that frame joined at the
+    last pose before the silence (what baromapd records of a power-cycled base). ``/tf`` is
+    copied as it was: the mapping reads ``/odom``."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
+    if counters not in COUNTERS:
+        raise ValueError(f"counters must be one of {COUNTERS}, not {counters!r}")
+    if counters != "kept" and topic != topics.ODOM:
+        raise ValueError(f"only {topics.ODOM} has counters, not {topic}")
     dropped = 0
+    last: bytes | None = None  # the last odometry before the silence
+    origin: FloatArray | None = None
+    anchor = np.zeros(3)
     with src.open("rb") as f, dst.open("wb") as g:
         reader = make_reader(f)
         header = reader.get_header()
@@ -52,22 +77,49 @@ def without(src: Path, dst: Path, topic: str, start_s: float, end_s: float) -> i
         }
         for record in reader.iter_metadata():
             writer.add_metadata(record.name, record.metadata)
+        decoders = ProtobufDecoderFactory()
         first = None
-        for _, channel, message in reader.iter_messages(log_time_order=True):
+        for schema, channel, message in reader.iter_messages(log_time_order=True):
             first = message.log_time if first is None else first
             at = (message.log_time - first) / NS_PER_S
+            data = message.data
             if channel.topic == topic and start_s <= at < end_s:
                 dropped += 1
                 continue
+            if counters != "kept" and channel.topic == topic:
+                decode = decoders.decoder_for(channel.message_encoding, schema)
+                if decode is None:
+                    raise ValueError(f"{src}: cannot decode {topic}")
+                if at < start_s:
+                    last = data
+                else:
+                    odometry = decode(data)
+                    pose = _pose(odometry)
+                    if origin is None:
+                        origin = pose
+                        if counters == "joined" and last is not None:
+                            anchor = _pose(decode(last))
+                    data = _with_pose(odometry, se2.compose(anchor, se2.between(origin, pose)))
             writer.add_message(
-                channels[channel.id],
-                message.log_time,
-                message.data,
-                message.publish_time,
+                channels[channel.id], message.log_time, data, message.publish_time,
                 message.sequence,
-            )
+            )  # fmt: skip
         writer.finish()  # type: ignore[no-untyped-call]
     return dropped
+
+
+def _pose(odometry: Any) -> FloatArray:
+    """x, y, yaw of a ``foxglove.Odometry``."""
+    position, q = odometry.pose.position, odometry.pose.orientation
+    return np.array([position.x, position.y, 2.0 * math.atan2(q.z, q.w)])
+
+
+def _with_pose(odometry: Any, pose: FloatArray) -> bytes:
+    """The ``foxglove.Odometry`` at another planar pose, encoded."""
+    position, q = odometry.pose.position, odometry.pose.orientation
+    position.x, position.y = float(pose[0]), float(pose[1])
+    q.x, q.y, q.z, q.w = 0.0, 0.0, math.sin(pose[2] / 2.0), math.cos(pose[2] / 2.0)
+    return bytes(odometry.SerializeToString())
 
 
 @dataclass(frozen=True, slots=True)

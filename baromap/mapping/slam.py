@@ -65,6 +65,7 @@ from baromap.errors import ConfigError
 from baromap.mapping import se2
 from baromap.mapping.errors import MappingError
 from baromap.mapping.keyframes import motion_spaced
+from baromap.mapping.occupancy import OccupancyGrid, build_grid
 from baromap.mapping.odometry_calibration import (
     NOISE_OUTLIER_SIGMAS,
     OdometryCalibration,
@@ -289,6 +290,32 @@ CAR_FAR_AGREE_RAD = math.radians(2.0)
 #: odometry edge has three sigmas of that.
 BLIND_SPEED_M_S = 1.0
 BLIND_TURN_RAD_S = math.radians(90.0)
+#: After such a step across which the odometry shows no motion at all (a power-cycled base
+#: counts from zero in a frame of its own, joined at its last pose), the chain has lost its
+#: place: the robot turned 120 degrees on the spot in 5 s, or drove 18 m and turned 161
+#: degrees in a minute, and the chain after the gap stood where "no motion" put it. So what
+#: it saw in its last RELOCATE_RECENT_M is looked for in the map of its floor from before the
+#: gap (the keyframes within RELOCATE_VIEW_M of the step's reach), placed in the frame of the
+#: first keyframe after the gap: within the step's reach, at most RELOCATE_MAX_M (a wider
+#: window is all aliases), at any heading it allows, by branch and bound with
+#: RELOCATE_BUDGET splits for the whole turn; every RELOCATE_EVERY_M of the drive, at most
+#: RELOCATE_TRIES times, until the visit ends.
+RELOCATE_MAX_M = 10.0
+RELOCATE_VIEW_M = 10.0
+RELOCATE_RECENT_M = 5.0
+RELOCATE_BUDGET = 60_000
+RELOCATE_EVERY_M = 2.0
+RELOCATE_TRIES = 40
+#: The map's free space, at this cell, costs a point RELOCATE_FREE_PENALTY (what a point on
+#: a wall earns) where the field is under RELOCATE_NEAR_WALL: a scan of a few pillars fits
+#: several places of a hall, and one that puts walls where the robot saw through is none.
+RELOCATE_FREE_CELL_M = 0.1
+RELOCATE_FREE_PENALTY = 1.0
+RELOCATE_NEAR_WALL = 0.1
+#: A look counts with this many points, this score and a runner-up under LOOP_MAX_AMBIGUITY
+#: of it; two looks that agree (CAR_FAR_AGREE) on one rigid correction move the chain.
+RELOCATE_MIN_POINTS = 100
+RELOCATE_MIN_SCORE = 0.4
 #: A submap also ends after this many keyframes (a robot turning on the spot).
 SUBMAP_MAX_KEYFRAMES = 30
 #: Memory the fields of finished submaps may hold; beyond it the least recently used are
@@ -422,6 +449,43 @@ class _Car:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "coarse", self.fine.pooled(COARSE_STEP_CELLS))
+
+
+@dataclass(slots=True)
+class _Lost:
+    """The chain after a step across the odometry's silence, while it looks for its place:
+    the map from before, in the frame of the last keyframe before the step."""
+
+    before: int
+    start: int  # the first keyframe after the silence
+    window: SearchWindow
+    fld: LikelihoodField
+    #: the rigid corrections of the chain the unambiguous looks so far asked for
+    found: list[FloatArray] = field(default_factory=list)
+    tried: int = 0
+    tried_at: float = -math.inf  # the chain's path at the last look
+
+
+def _free_space_costs(
+    fld: LikelihoodField, frame: FloatArray, grid: OccupancyGrid
+) -> LikelihoodField:
+    """``fld`` (in the frame of the pose ``frame``) with RELOCATE_FREE_PENALTY wherever
+    ``grid`` (the same map's occupancy, in the world) is free and the field near nothing."""
+    h, w = fld.data.shape
+    res = fld.resolution
+    cx, cy = np.meshgrid(
+        fld.origin_xy[0] + np.arange(w) * res, fld.origin_xy[1] + np.arange(h) * res
+    )
+    world = se2.transform_points(frame, np.stack([cx.ravel(), cy.ravel()], axis=1))
+    col = np.floor((world[:, 0] - grid.origin_xy[0]) / grid.resolution).astype(np.int64)
+    row = np.floor((world[:, 1] - grid.origin_xy[1]) / grid.resolution).astype(np.int64)
+    gh, gw = grid.shape
+    inside = (col >= 0) & (col < gw) & (row >= 0) & (row < gh)
+    free = np.zeros(h * w, dtype=bool)
+    free[inside] = grid.free()[row[inside], col[inside]]
+    free = free.reshape(h, w) & (fld.data < RELOCATE_NEAR_WALL)
+    data = np.where(free, np.float32(-RELOCATE_FREE_PENALTY), fld.data).astype(np.float32)
+    return LikelihoodField(data=data, origin_xy=fld.origin_xy, resolution=res)
 
 
 def _same_shift(a: FloatArray, b: FloatArray) -> bool:
@@ -566,11 +630,22 @@ class _Slam:
         self.travel = travel
         #: the step to each keyframe crosses scans the odometry said nothing about
         self.blind_step = np.zeros(len(kf_scan), dtype=bool)
+        #: ... and across them the odometry shows no motion at all: a base that counted from
+        #: zero again, joined at its last pose (baromapd), or one that stood; where it moved,
+        #: its counters went on and measured the drive
+        self.unmeasured_step = np.zeros(len(kf_scan), dtype=bool)
         if blind is not None and blind.any() and len(kf_scan) > 1:
             covered = np.concatenate([[0], np.cumsum(blind)])
             ends = np.asarray(kf_scan)
             self.blind_step[1:] = covered[ends[1:] + 1] - covered[ends[:-1]] > 0
+            for k in np.flatnonzero(self.blind_step):
+                inside = np.arange(ends[k - 1] + 1, ends[k])
+                inside = inside[blind[inside]]
+                self.unmeasured_step[k] = (
+                    len(inside) >= 2 and float(np.ptp(odom[inside], axis=0).max()) < 1e-6
+                )
         self.t_ns = scans.t_ns
+        self.scans = scans
         self.kf_scan = kf_scan
         self.kf_floor = kf_floor
         self.kf_visit = kf_visit
@@ -599,6 +674,8 @@ class _Slam:
         #: keyframes reached by a step the fitted odometry noise does not describe: beyond the
         #: front end's window (the laser silent), or across a gap in the odometry
         self.silent_steps: set[int] = set()
+        #: the chain after a step across the odometry's silence, until it finds its place
+        self.lost: _Lost | None = None
         #: odometry's systematic errors, learnt from front-end matches (see the module)
         self.calibration = OdometryCalibration()
         #: covariance of each front-matched keyframe's pose (its own frame), for calibration
@@ -619,6 +696,10 @@ class _Slam:
         new_visit = bool(self.kf_visit[k] != self.kf_visit[k - 1])
         if new_visit:
             self._end_visit()
+            if self.lost is not None:
+                log.info("the chain did not find its place after the odometry's silence")
+                self.stats["relocate_failed"] += 1
+                self.lost = None  # the car ties the floors after the ride
         read = self._odometry_step(k - 1, k)
         step = self.calibration.correct(read)
         guess = se2.compose(graph.poses[k - 1], step)
@@ -664,6 +745,10 @@ class _Slam:
         else:
             self._front_end(k, guess, sigma_xy, sigma_theta, read)
         self._insert(k)
+        if self.unmeasured_step[k] and not new_visit:
+            self.lost = self._lost_at(k, sigma_xy, sigma_theta)
+        if self.lost is not None:
+            self._relocate(k)
         if not self.clouds.in_car(k) and k - self.visit_start >= 1:
             self._close_loops(k)
         self._solve_if_needed()
@@ -979,6 +1064,17 @@ class _Slam:
         self.stats["core_edges"] = len(edges)
         return edges
 
+    def _after_silences(self) -> BoolArray:
+        """The scans between the keyframes of a silent step taken after the silence (nearer
+        in time to the keyframe after it than to the one before)."""
+        after = np.zeros(len(self.odom), dtype=bool)
+        t = self.t_ns
+        for k in sorted(self.silent_steps):
+            a, b = int(self.kf_scan[k - 1]), int(self.kf_scan[k])
+            s = np.arange(a + 1, b)
+            after[s] = t[s] - t[a] > t[b] - t[s]
+        return after
+
     def register_scans(self, scans: ScanBlock, floor: IntArray) -> FloatArray:
         """Every scan's pose: keyframes as the graph has them; the scans between them
         interpolated (:func:`scan_poses`) and then matched against the finished map of their
@@ -992,7 +1088,7 @@ class _Slam:
         only when the run matched too few steps to fit the noise."""
         config = self.config
         kf_poses = self.graph.poses
-        poses = scan_poses(self.odom, self.kf_scan, kf_poses)
+        poses = scan_poses(self.odom, self.kf_scan, kf_poses, from_next=self._after_silences())
         is_kf = np.zeros(len(poses), dtype=bool)
         is_kf[self.kf_scan] = True
         # odometric distance of every scan to the nearer keyframe (how much odometry it holds)
@@ -1457,6 +1553,98 @@ class _Slam:
         self.graph.optimize(iterations=FINAL_ITERATIONS)
         self.graph = _graph(self.graph.poses, kept)
         return True
+
+    # ------------------------------------------------------------------ lost and found
+
+    def _lost_at(self, k: int, sigma_xy: float, sigma_theta: float) -> _Lost | None:
+        """The search for keyframe k's place after a step across the odometry's silence
+        (RELOCATE_*): the map of its floor from before, near enough to be seen from where
+        the step may have taken it; None when there is no such map."""
+        poses = self.graph.poses
+        reach_m = min(RELOCATE_MAX_M, WINDOW_SIGMAS * sigma_xy)
+        reach_rad = min(math.pi, WINDOW_SIGMAS * sigma_theta)
+        before = k - 1
+        seen = np.flatnonzero(
+            (self.kf_floor[:k] == self.kf_floor[k])
+            & (np.hypot(*(poses[:k, :2] - poses[k, :2]).T) < reach_m + RELOCATE_VIEW_M)
+        )
+        if len(seen) < 2:
+            return None
+        world = np.concatenate(
+            [se2.transform_points(poses[m], self.clouds.surfaces[m]) for m in seen]
+        )
+        res = self.config.resolution_m
+        local = se2.transform_points(se2.inverse(poses[before]), voxel_filter(world, res / 2))
+        window = SearchWindow(reach_m, reach_rad, CAR_FAR_ANGLE_STEP_RAD)
+        grid = build_grid(
+            self.scans, self.kf_scan[seen], poses[seen], resolution=RELOCATE_FREE_CELL_M
+        )
+        fld = _free_space_costs(LikelihoodField.from_points(local, res, res), poses[before], grid)
+        return _Lost(before, k, window, fld)
+
+    def _relocate(self, k: int) -> None:
+        """The chain since the silence looked for in the map from before it (RELOCATE_*):
+        once two looks agree on one rigid correction, the chain from the silence on is moved
+        there (nothing after the silence is tied to the map from before but the silent
+        step's odometry, which allows it) and the match enters as a closure.
+
+        What is placed is what the chain saw in its last few metres, in the frame of its
+        first keyframe after the silence: the correction is the same for all of the chain,
+        so the window stays the silent step's reach however far the robot drives on. One
+        scan in a corridor fits a dozen places of a 10 m window; at 600 s in the simulated
+        run the robot drove 20 m through ground the map from before had not seen, every
+        look there ambiguous, before it came back into a room it had mapped, which fits one.
+        """
+        lost = self.lost
+        assert lost is not None
+        travelled = float(self.clouds.distance[k])
+        if k != lost.start and travelled - lost.tried_at < RELOCATE_EVERY_M:
+            return
+        if lost.tried >= RELOCATE_TRIES:
+            return
+        lost.tried += 1
+        lost.tried_at = travelled
+        poses = self.graph.poses
+        start = lost.start
+        points = voxel_filter(
+            np.concatenate(
+                [
+                    se2.transform_points(se2.between(poses[start], poses[m]), self.clouds.points[m])
+                    for m in range(start, k + 1)
+                    if self.clouds.path_m(m, k) <= RELOCATE_RECENT_M
+                ]
+            ),
+            self.config.resolution_m,
+        )
+        if len(points) < RELOCATE_MIN_POINTS:
+            return
+        guess = se2.between(poses[lost.before], poses[start])
+        result = match(lost.fld, points, guess, lost.window, wide=True, budget=RELOCATE_BUDGET)
+        self.stats["relocate_attempts"] += 1
+        if (
+            result.score < RELOCATE_MIN_SCORE
+            or result.runner_up >= LOOP_MAX_AMBIGUITY * result.score
+        ):
+            return
+        shift = se2.compose(se2.compose(poses[lost.before], result.pose), se2.inverse(poses[start]))
+        agrees = any(_same_shift(shift, other) for other in lost.found)
+        lost.found.append(shift)
+        if not agrees:
+            return
+        was = poses[start].copy()
+        poses[start:] = se2.compose(shift, poses[start:])
+        moved = se2.between(was, poses[start])
+        self._accept_loop(self._match_edge(lost.before, start, result, kind="loop"), result.score)
+        self.stats["relocated"] += 1
+        log.info(
+            "the chain found its place after the odometry's silence",
+            keyframe=start,
+            seen_m=round(travelled - float(self.clouds.distance[start]), 1),
+            moved_m=round(math.hypot(moved[0], moved[1]), 2),
+            turned_deg=round(math.degrees(se2.wrap(moved[2])), 1),
+            looks=lost.tried,
+        )
+        self.lost = None
 
     # ------------------------------------------------------------------ loops
 
@@ -1931,13 +2119,25 @@ def run_slam(
     return result
 
 
-def scan_poses(odom: FloatArray, kf_scan: IntArray, kf_poses: FloatArray) -> FloatArray:
+def scan_poses(
+    odom: FloatArray,
+    kf_scan: IntArray,
+    kf_poses: FloatArray,
+    *,
+    from_next: BoolArray | None = None,
+) -> FloatArray:
     """Every scan's pose from the keyframes around it.
 
     Between two keyframes a and b, odometry from a is followed, and the correction the graph
     made to the stretch (where b is, against where odometry from a puts it) is spread along
     it in proportion to the motion so far, so the stretch ends exactly on b. Scans before the
     first keyframe or after the last follow odometry from it.
+
+    ``from_next`` (per scan): scans that follow odometry back from the keyframe after them
+    instead, uncorrected: those taken after a silence (the laser or the odometry silent on
+    the way) and before the first keyframe after it. The graph's correction of such a step
+    is metres and tens of degrees (a power-cycled base turned on the spot meanwhile), not a
+    drift to spread along it.
     """
     s = np.arange(len(odom))
     if len(kf_scan) == 1:
@@ -1960,4 +2160,7 @@ def scan_poses(odom: FloatArray, kf_scan: IntArray, kf_poses: FloatArray) -> Flo
     frac[(s < kf_scan[0]) | (s > kf_scan[-1])] = 0.0
     poses: FloatArray = followed + frac[:, None] * miss
     poses[:, 2] = se2.wrap(poses[:, 2])
+    if from_next is not None:
+        back = from_next & (s > a) & (s < b)
+        poses[back] = se2.compose(kf_poses[seg + 1][back], se2.between(odom[b[back]], odom[back]))
     return poses
