@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from baromap.errors import ConfigError, EncodeError
-from baromap.odometry.integrator import OdometryIntegrator, position_delta
+from baromap.odometry.integrator import BREAK_S, OdometryIntegrator, position_delta
 from baromap.protocols import p2os as P
 from baromap.protocols.framing import BadFrame
 from baromap.protocols.robot_models import (
@@ -546,12 +546,13 @@ def test_a_reconnect_goes_on_counting_when_the_robot_kept_its_counters() -> None
     assert integrator.tracks_joined == 0
 
 
-@pytest.mark.parametrize("reconnected", [True, False], ids=["resumed", "gap-only"])
+@pytest.mark.parametrize("reconnected", [True, False], ids=["resumed", "recording-gap"])
 def test_counters_that_start_again_are_joined_at_the_last_pose(reconnected: bool) -> None:
     """The robot power-cycled: 1.7 s later its counters read zero again, in a frame of
     its own. ARIA would place it at 0, 0 (a jump of metres no robot drove); the track is
     joined at the last pose instead, and the new frame's motion turned into the run's."""
-    integrator = OdometryIntegrator(P3AT_SH, origin_at_start=True)
+    break_s = None if reconnected else BREAK_S  # a recording re-integrated: the gap tells
+    integrator = OdometryIntegrator(P3AT_SH, origin_at_start=True, break_s=break_s)
     before = _drive(integrator, [(500 * i, 0, 0) for i in range(13)] + [(6000, 0, 1024)], 0)
     assert (before[-1].x_m, before[-1].theta_rad) == pytest.approx((6.0, math.pi / 2))
     if reconnected:
@@ -563,6 +564,15 @@ def test_counters_that_start_again_are_joined_at_the_last_pose(reconnected: bool
     assert (after[1].x_m, after[1].y_m) == pytest.approx((6.0, 1.0))
     assert after[2].theta_rad == pytest.approx(math.pi)
     assert after[2].raw_x == 1000
+
+
+def test_a_late_sip_alone_is_no_break() -> None:
+    """Two seconds without SIPs and no reconnect: the host stalled while the robot counted
+    on, even if (a demo's twins, six times faster than real time) it looks too fast."""
+    integrator = OdometryIntegrator(P3AT_SH, origin_at_start=True)
+    _drive(integrator, [(0, 0, 0), (100, 0, 0)], 0)
+    after = _drive(integrator, [(4100, 0, 0)], 2_100_000_000)
+    assert after[0].x_m == pytest.approx(4.1) and integrator.tracks_joined == 0
 
 
 def test_a_short_reconnect_to_zeroed_counters_is_still_a_new_track() -> None:

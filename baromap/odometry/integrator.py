@@ -23,8 +23,8 @@ log = structlog.get_logger(__name__)
 _WRAP: Final = 0x8000
 _WRAP_GUARD: Final = 0x1000
 _HEADING_UNITS: Final = 4096
-#: SIPs further apart than this are a break in the stream (the robot sends one every 100 ms):
-#: a reconnect, a power cycle, after which the counters may count from zero again
+#: In a recording, SIPs further apart than this are a break in the stream (the robot sends
+#: one every 100 ms): a reconnect, after which the counters may count from zero again
 BREAK_S: Final = 1.0
 #: What the counters may move across a break beyond the model's top speed times its length
 #: and still be the same track (the robot coasting to a stop, the stamps' jitter)
@@ -54,18 +54,24 @@ class OdometryIntegrator:
     times DistConvFactor (0, 0 after a SETO); ``origin_at_start`` puts it at 0, 0 instead.
     The heading is the robot's own (absolute, 1/4096 turn), wrapped to (-pi, pi].
 
-    One ``odom`` frame for the whole run, across reconnects: after a break in the SIPs (one
-    longer than :data:`BREAK_S`, or a :meth:`resume` after the host reconnected) the counters
-    either went on (the robot kept its power: the track goes on, every tick counted) or moved
-    further than the robot can drive in the time (it was power-cycled, or sent SETO, and
-    counts from zero again). Then the robot's new frame is joined at the last pose: the
-    motion across the break is lost, but the frame stays put, which is what the post-run
-    SLAM and a ``/tf`` consumer need (a jump of tens of metres is a pose no robot took).
+    One ``odom`` frame for the whole run, across reconnects: after a :meth:`resume` (the
+    host reconnected) the counters either went on (the robot kept its power: the track goes
+    on, every tick counted) or moved further than the robot can drive in the time (it was
+    power-cycled, or sent SETO, and counts from zero again). Then the robot's new frame is
+    joined at the last pose: the motion across the break is lost, but the frame stays put,
+    which is what the post-run SLAM and a ``/tf`` consumer need (a jump of tens of metres is
+    a pose no robot took). A late SIP alone is no break: the host stalled, the robot went on
+    counting (and a stalled demo, its twins playing the mission six times faster, would look
+    too fast). ``break_s``: SIPs further apart are checked as after a reconnect, for a
+    recording re-integrated without the reconnects' marks (:data:`BREAK_S`).
     """
 
-    def __init__(self, model: RobotModel, *, origin_at_start: bool = False) -> None:
+    def __init__(
+        self, model: RobotModel, *, origin_at_start: bool = False, break_s: float | None = None
+    ) -> None:
         self.model = model
         self.origin_at_start = origin_at_start
+        self.break_s = math.inf if break_s is None else break_s
         #: SIPs after which the robot's counters were found to have started again
         self.tracks_joined = 0
         self._last: StandardSip | None = None
@@ -97,7 +103,7 @@ class OdometryIntegrator:
             dx = position_delta(last.x, sip.x)
             dy = position_delta(last.y, sip.y)
             seconds = (t_ns - self._last_t_ns) / 1e9
-            if (self._resumed or seconds > BREAK_S) and not self._drivable(dx, dy, seconds):
+            if (self._resumed or seconds > self.break_s) and not self._drivable(dx, dy, seconds):
                 self._join(sip, seconds)
             else:
                 self._x_units += dx

@@ -21,7 +21,7 @@ from typing import Final
 
 from baromap.errors import ConfigError, InputFormatError
 from baromap.messages import Odometry
-from baromap.odometry.integrator import OdometryIntegrator
+from baromap.odometry.integrator import BREAK_S, OdometryIntegrator
 from baromap.protocols.p2os import StandardSip
 from baromap.protocols.robot_models import RobotModel, find_model
 
@@ -91,9 +91,11 @@ def reintegrate(
 ) -> list[Odometry]:
     """Poses rebuilt from the recorded raw counters with ``model`` (velocities as recorded).
 
-    ``origin_at_start`` as in :class:`~baromap.odometry.integrator.OdometryIntegrator`.
+    ``origin_at_start`` as in :class:`~baromap.odometry.integrator.OdometryIntegrator`; the
+    counters of a robot that came back from zero after a gap (:data:`BREAK_S`) are joined at
+    the last pose, as the daemon joined them.
     """
-    integrator = OdometryIntegrator(model, origin_at_start=origin_at_start)
+    integrator = OdometryIntegrator(model, origin_at_start=origin_at_start, break_s=BREAK_S)
     out = []
     for message in odometry:
         sip = StandardSip(
