@@ -215,8 +215,9 @@ class PioneerSession(DeviceSession):
         self.good_frame()
         self._sips_seen += 1
         self.set_counter("battery_dv", round(sip.battery_v * 10))
+        odometry = self.integrator.update(sip, self.clock.unix_ns(sent_ns))
         self.set_counter("odometry_tracks_joined", self.integrator.tracks_joined)
-        self.publish(self.integrator.update(sip, self.clock.unix_ns(sent_ns)), read_ns)
+        self.publish(odometry, read_ns)
 
     def up_detail(self) -> str:
         info = self.identity

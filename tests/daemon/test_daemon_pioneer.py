@@ -149,11 +149,12 @@ def test_a_p3at_sh_driven_10_m_gives_10_m_of_odometry(
 
 
 def test_a_power_cycled_robot_is_joined_at_its_last_pose_in_one_odom_frame() -> None:
-    """The robot loses power 5 m into a 10 m drive and counts from zero again when the
-    session has reconnected: the odometry goes on from 5 m, not from the robot's new zero
-    (a jump back to where the run began), and the health counters say the track was joined."""
+    """The robot loses power 10 m into a 20 m drive and counts from zero again when the
+    session has reconnected: the odometry goes on from 10 m, not from the robot's new zero
+    (a jump back to where the run began), and the health counters say the track was joined.
+    10 m: a P3-AT could not drive that far in the 8 s a slow reconnect may take."""
     odometry: list[Message] = []
-    with ScriptedRobot("p3at-sh", sips=101, power_cycle_after=50) as robot:
+    with ScriptedRobot("p3at-sh", sips=101, step_mm=200.0, power_cycle_after=50) as robot:
         session = _session(robot, "auto", odometry)
         session.start()
         try:
@@ -169,8 +170,8 @@ def test_a_power_cycled_robot_is_joined_at_its_last_pose_in_one_odom_frame() -> 
     assert health.counters["connects"] == 2
     assert health.counters["odometry_tracks_joined"] == 1
     steps = [abs(b.x_m - a.x_m) for a, b in itertools.pairwise(poses)]
-    assert max(steps) == pytest.approx(0.1, abs=1e-6)  # never a jump: 100 mm per SIP
-    assert poses[-1].x_m == pytest.approx(10.0 - 0.1, abs=1e-6)  # the lost SIP's 0.1 m
+    assert max(steps) == pytest.approx(0.2, abs=1e-6)  # never a jump: 200 mm per SIP
+    assert poses[-1].x_m == pytest.approx(20.0 - 0.2, abs=1e-6)  # the lost SIP's 0.2 m
 
 
 def test_a_pinned_p3at_on_a_p3at_sh_robot_is_refused_naming_both(
