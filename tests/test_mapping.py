@@ -572,7 +572,8 @@ def test_odometry_that_counts_from_zero_again_is_joined_at_the_pose_before() -> 
     """A base driving a circle at 0.5 m/s, 10 Hz, silent from 20 to 23 s and then counting
     from zero in a frame of its own (power-cycled): the stream after the gap goes on from
     the pose before it, every step as it was; a 3-s gap with the counters going on, and
-    one moving only as far as a base drives, are left alone."""
+    one moving only as far as a base drives, are left alone; after a minute's gap, back at
+    the origin is a restart however near it was."""
     from baromap.mapping import se2
     from baromap.mapping.run_data import join_odometry_tracks
 
@@ -595,6 +596,10 @@ def test_odometry_that_counts_from_zero_again_is_joined_at_the_pose_before() -> 
     nearby = truth.copy()
     nearby[after, 0] += 4.0  # 4 m in 3 s: not beyond what a base drives, so taken as driven
     assert join_odometry_tracks(t, nearby)[1] == 0
+    # a minute's gap, 9 m from the origin: within reach, but back at (0, 0, 0) it restarted
+    late = np.concatenate([t[~after], t[after] + 60_000_000_000])
+    assert join_odometry_tracks(late, restarted)[1] == 1
+    assert join_odometry_tracks(late, truth)[1] == 0
 
 
 def test_odometry_calibration_learns_the_systematic_errors_where_scans_pin_the_motion() -> None:

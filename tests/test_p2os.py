@@ -566,6 +566,24 @@ def test_counters_that_start_again_are_joined_at_the_last_pose(reconnected: bool
     assert after[2].raw_x == 1000
 
 
+def test_counters_back_at_the_origin_after_a_reconnect_are_a_new_track_however_near() -> None:
+    """Twelve seconds without SIPs, 3 m from the origin: a P3-AT could have driven back, but
+    counters that read (0, 0, 0) are a robot that counts from zero again; a robot that was
+    at the origin already and reads it again goes on."""
+    integrator = OdometryIntegrator(P3AT_SH, origin_at_start=True)
+    _drive(integrator, [(1000 * i, 0, 512) for i in range(4)], 0)
+    integrator.resume()
+    after = _drive(integrator, [(0, 0, 0), (1000, 0, 0)], 12_300_000_000)
+    assert integrator.tracks_joined == 1
+    assert (after[0].x_m, after[0].theta_rad) == pytest.approx((3.0, math.pi / 4))
+    assert (after[1].x_m, after[1].y_m) == pytest.approx((3.0 + math.sqrt(0.5), math.sqrt(0.5)))
+    standing = OdometryIntegrator(P3AT_SH)
+    _drive(standing, [(0, 0, 0), (10, 0, 1)], 0)
+    standing.resume()
+    assert _drive(standing, [(0, 0, 0)], 12_000_000_000)[0].x_m == 0.0
+    assert standing.tracks_joined == 0
+
+
 def test_a_late_sip_alone_is_no_break() -> None:
     """Two seconds without SIPs and no reconnect: the host stalled while the robot counted
     on, even if (a demo's twins, six times faster than real time) it looks too fast."""

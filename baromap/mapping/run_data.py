@@ -7,6 +7,7 @@ nearest odometry pose.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,6 +49,10 @@ ODOMETRY_GAP_INTERVALS = 10.0
 #: its own (power-cycled, under a recorder that does not join its tracks as baromapd does)
 TRACK_SPEED_M_S = 2.0
 TRACK_SLACK_M = 0.5
+#: ... and so is, however near, a pose at the odometry's origin (within these) after one that
+#: was not: the first pose of a base that counts from zero again
+TRACK_ORIGIN_M = 0.05
+TRACK_ORIGIN_RAD = math.radians(2.0)
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -106,7 +111,8 @@ def join_odometry_tracks(t_src: IntArray, poses: FloatArray) -> tuple[FloatArray
     """The odometry in one frame, and how many times it had to be joined.
 
     After a gap (as in :func:`odometry_blind`) across which the pose moved further than any
-    base drives in the time, the base counts from zero again, in a frame of its own; the
+    base drives in the time, or came back to the origin, the base counts from zero again,
+    in a frame of its own; the
     rest of the stream is moved rigidly so that it goes on from the pose before the gap.
     The motion across the gap is lost either way; what the join saves is every pose after it
     (a jump of metres is a step the SLAM would take for a drive). ``baromapd`` joins its
@@ -121,7 +127,11 @@ def join_odometry_tracks(t_src: IntArray, poses: FloatArray) -> tuple[FloatArray
     limit = max(ODOMETRY_GAP_S * 1e9, ODOMETRY_GAP_INTERVALS * float(np.median(gaps)))
     moved = np.hypot(*np.diff(p[:, :2], axis=0).T)
     reach = TRACK_SPEED_M_S * gaps / 1e9 + TRACK_SLACK_M
-    starts = np.flatnonzero((gaps > limit) & (moved > reach)) + 1
+    origin = (np.hypot(p[:, 0], p[:, 1]) <= TRACK_ORIGIN_M) & (
+        np.abs(se2.wrap(p[:, 2])) <= TRACK_ORIGIN_RAD
+    )
+    restarted = (moved > reach) | (origin[1:] & ~origin[:-1])
+    starts = np.flatnonzero((gaps > limit) & restarted) + 1
     for b in starts:
         p[b:] = se2.compose(se2.compose(p[b - 1], se2.inverse(p[b])), p[b:])
     out = np.empty_like(p)

@@ -29,6 +29,12 @@ BREAK_S: Final = 1.0
 #: What the counters may move across a break beyond the model's top speed times its length
 #: and still be the same track (the robot coasting to a stop, the stamps' jitter)
 BREAK_SLACK_M: Final = 0.3
+#: A robot that counts from zero again reads (0, 0, 0) at its first SIP. Counters this near
+#: the origin after a break, from counters that were not, are a new track however near the
+#: robot could have driven meanwhile (a power cycle of 12 s gives 15 m of reach, more than
+#: the way back to the origin of a small floor)
+ORIGIN_M: Final = 0.05
+ORIGIN_RAD: Final = math.radians(2.0)
 
 
 def position_delta(previous: int, current: int) -> int:
@@ -56,14 +62,15 @@ class OdometryIntegrator:
 
     One ``odom`` frame for the whole run, across reconnects: after a :meth:`resume` (the
     host reconnected) the counters either went on (the robot kept its power: the track goes
-    on, every tick counted) or moved further than the robot can drive in the time (it was
-    power-cycled, or sent SETO, and counts from zero again). Then the robot's new frame is
-    joined at the last pose: the motion across the break is lost, but the frame stays put,
-    which is what the post-run SLAM and a ``/tf`` consumer need (a jump of tens of metres is
-    a pose no robot took). A late SIP alone is no break: the host stalled, the robot went on
-    counting (and a stalled demo, its twins playing the mission six times faster, would look
-    too fast). ``break_s``: SIPs further apart are checked as after a reconnect, for a
-    recording re-integrated without the reconnects' marks (:data:`BREAK_S`).
+    on, every tick counted) or read the origin, or moved further than the robot can drive in
+    the time (it was power-cycled, or sent SETO, and counts from zero again). Then the
+    robot's new frame is joined at the last pose: the motion across the break is lost, but
+    the frame stays put, which is what the post-run SLAM and a ``/tf`` consumer need (a jump
+    of tens of metres is a pose no robot took). A late SIP alone is no break: the host
+    stalled, the robot went on counting (and a stalled demo, its twins playing the mission
+    six times faster, would look too fast). ``break_s``: SIPs further apart are checked as
+    after a reconnect, for a recording re-integrated without the reconnects' marks
+    (:data:`BREAK_S`).
     """
 
     def __init__(
@@ -103,7 +110,10 @@ class OdometryIntegrator:
             dx = position_delta(last.x, sip.x)
             dy = position_delta(last.y, sip.y)
             seconds = (t_ns - self._last_t_ns) / 1e9
-            if (self._resumed or seconds > self.break_s) and not self._drivable(dx, dy, seconds):
+            if (self._resumed or seconds > self.break_s) and (
+                not self._drivable(dx, dy, seconds)
+                or (self._at_origin(sip) and not self._at_origin(last))
+            ):
                 self._join(sip, seconds)
             else:
                 self._x_units += dx
@@ -129,6 +139,16 @@ class OdometryIntegrator:
     def _drivable(self, dx: int, dy: int, seconds: float) -> bool:
         metres = math.hypot(dx, dy) * self.model.dist_conv_factor / 1000.0
         return metres <= self.model.max_velocity_mmps / 1000.0 * max(seconds, 0.0) + BREAK_SLACK_M
+
+    def _at_origin(self, sip: StandardSip) -> bool:
+        ticks = ORIGIN_M * 1000.0 / self.model.dist_conv_factor
+
+        def near(counter: int) -> bool:
+            counter &= _WRAP - 1
+            return min(counter, _WRAP - counter) <= ticks
+
+        turn = abs(heading_delta(0, sip.theta)) * self.model.angle_conv_factor
+        return near(sip.x) and near(sip.y) and turn <= ORIGIN_RAD
 
     def _join(self, sip: StandardSip, seconds: float) -> None:
         """The counters started again: the robot's new frame begins at the last pose."""
