@@ -1219,19 +1219,21 @@ def test_every_keyframe_scan_takes_its_keyframe_pose_the_last_one_too() -> None:
 def test_scans_after_a_silence_follow_odometry_back_from_the_keyframe_after_it() -> None:
     """A step the graph turned by 160 degrees (a power-cycled base turned on the spot while
     its odometry was silent): the scans between its keyframes taken after the silence
-    follow odometry back from the keyframe after it; spreading the turn along the stretch
-    put them metres off. Other scans are as before."""
+    follow odometry back from the keyframe after it, the one before it odometry from the
+    keyframe before; spreading the turn along the stretch put them up to 1.6 m off. Other scans
+    are as before."""
     odom = np.array([[0.1 * i, 0.0, 0.0] for i in range(12)])
     kf_scan = np.array([0, 4, 8, 11])
     kf_poses = odom[kf_scan].copy()
     kf_poses[2:] = se2.compose(np.array([0.0, 3.0, math.radians(160.0)]), odom[kf_scan[2:]])
-    after = np.zeros(len(odom), dtype=bool)
-    after[5:8] = True
+    side = np.zeros(len(odom), dtype=np.int8)
+    side[5], side[6:8] = -1, 1  # the silence between scans 5 and 6
     spread = scan_poses(odom, kf_scan, kf_poses)
-    poses = scan_poses(odom, kf_scan, kf_poses, from_next=after)
-    truth = se2.compose(np.array([0.0, 3.0, math.radians(160.0)]), odom[5:8])
-    assert poses[5:8] == pytest.approx(truth, abs=1e-9)
-    assert np.hypot(*(spread[5:8, :2] - truth[:, :2]).T).max() > 2.0
+    poses = scan_poses(odom, kf_scan, kf_poses, silence=side)
+    truth = se2.compose(np.array([0.0, 3.0, math.radians(160.0)]), odom[6:8])
+    assert poses[6:8] == pytest.approx(truth, abs=1e-9)
+    assert poses[5] == pytest.approx(odom[5], abs=1e-9)
+    assert np.hypot(*(spread[5:8, :2] - np.vstack([odom[5:6], truth])[:, :2]).T).max() > 1.5
     assert np.delete(poses, [5, 6, 7], axis=0) == pytest.approx(
         np.delete(spread, [5, 6, 7], axis=0), abs=1e-12
     )

@@ -92,6 +92,7 @@ log = structlog.get_logger(__name__)
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
+Int8Array = npt.NDArray[np.int8]
 
 #: Floor label of scans taken while the barometer says the robot is between floors.
 BETWEEN_FLOORS = -1
@@ -646,6 +647,7 @@ class _Slam:
                 )
         self.t_ns = scans.t_ns
         self.scans = scans
+        self.blind = np.zeros(len(odom), dtype=bool) if blind is None else blind
         self.kf_scan = kf_scan
         self.kf_floor = kf_floor
         self.kf_visit = kf_visit
@@ -1064,16 +1066,20 @@ class _Slam:
         self.stats["core_edges"] = len(edges)
         return edges
 
-    def _after_silences(self) -> BoolArray:
-        """The scans between the keyframes of a silent step taken after the silence (nearer
-        in time to the keyframe after it than to the one before)."""
-        after = np.zeros(len(self.odom), dtype=bool)
+    def _sides_of_silences(self) -> Int8Array:
+        """For the scans between the keyframes of a silent step: -1 before the silence, +1
+        after it, split at the longest wait between two scans the odometry spoke for (the
+        gap, with the scans it said nothing about inside; the robot may have stood a while
+        before it, so the middle of the step is not the gap); 0 for every other scan."""
+        side = np.zeros(len(self.odom), dtype=np.int8)
         t = self.t_ns
         for k in sorted(self.silent_steps):
             a, b = int(self.kf_scan[k - 1]), int(self.kf_scan[k])
             s = np.arange(a + 1, b)
-            after[s] = t[s] - t[a] > t[b] - t[s]
-        return after
+            heard = np.concatenate([[a], s[~self.blind[s]], [b]])
+            resumed = heard[int(np.argmax(np.diff(t[heard]))) + 1]
+            side[s] = np.where(s >= resumed, 1, -1)
+        return side
 
     def register_scans(self, scans: ScanBlock, floor: IntArray) -> FloatArray:
         """Every scan's pose: keyframes as the graph has them; the scans between them
@@ -1088,7 +1094,7 @@ class _Slam:
         only when the run matched too few steps to fit the noise."""
         config = self.config
         kf_poses = self.graph.poses
-        poses = scan_poses(self.odom, self.kf_scan, kf_poses, from_next=self._after_silences())
+        poses = scan_poses(self.odom, self.kf_scan, kf_poses, silence=self._sides_of_silences())
         is_kf = np.zeros(len(poses), dtype=bool)
         is_kf[self.kf_scan] = True
         # odometric distance of every scan to the nearer keyframe (how much odometry it holds)
@@ -2124,7 +2130,7 @@ def scan_poses(
     kf_scan: IntArray,
     kf_poses: FloatArray,
     *,
-    from_next: BoolArray | None = None,
+    silence: Int8Array | None = None,
 ) -> FloatArray:
     """Every scan's pose from the keyframes around it.
 
@@ -2133,11 +2139,11 @@ def scan_poses(
     it in proportion to the motion so far, so the stretch ends exactly on b. Scans before the
     first keyframe or after the last follow odometry from it.
 
-    ``from_next`` (per scan): scans that follow odometry back from the keyframe after them
-    instead, uncorrected: those taken after a silence (the laser or the odometry silent on
-    the way) and before the first keyframe after it. The graph's correction of such a step
-    is metres and tens of degrees (a power-cycled base turned on the spot meanwhile), not a
-    drift to spread along it.
+    ``silence`` (per scan): the scans between the keyframes of a step across a silence (the
+    laser or the odometry silent on the way) follow odometry uncorrected, from the keyframe
+    before it (-1: taken before the silence) or back from the one after it (+1). The graph's
+    correction of such a step is metres and tens of degrees (a power-cycled base turned on
+    the spot meanwhile), not a drift to spread along it.
     """
     s = np.arange(len(odom))
     if len(kf_scan) == 1:
@@ -2160,7 +2166,10 @@ def scan_poses(
     frac[(s < kf_scan[0]) | (s > kf_scan[-1])] = 0.0
     poses: FloatArray = followed + frac[:, None] * miss
     poses[:, 2] = se2.wrap(poses[:, 2])
-    if from_next is not None:
-        back = from_next & (s > a) & (s < b)
+    if silence is not None:
+        inside = (s > a) & (s < b)
+        back = inside & (silence > 0)
         poses[back] = se2.compose(kf_poses[seg + 1][back], se2.between(odom[b[back]], odom[back]))
+        on = inside & (silence < 0)
+        poses[on] = se2.compose(kf_poses[seg][on], rel[on])
     return poses
