@@ -112,8 +112,8 @@ def join_odometry_tracks(t_src: IntArray, poses: FloatArray) -> tuple[FloatArray
 
     After a gap (as in :func:`odometry_blind`) across which the pose moved further than any
     base drives in the time, or came back to the origin, the base counts from zero again,
-    in a frame of its own; the
-    rest of the stream is moved rigidly so that it goes on from the pose before the gap.
+    in a frame of its own; the rest of the stream is moved rigidly so that it goes on from
+    the pose before the gap.
     The motion across the gap is lost either way; what the join saves is every pose after it
     (a jump of metres is a step the SLAM would take for a drive). ``baromapd`` joins its
     tracks as it records (:class:`~baromap.odometry.integrator.OdometryIntegrator`); this is
