@@ -175,6 +175,10 @@ def test_odometry_silent_or_counting_from_zero_is_found_again(
     assert score.kept_rms_m < 0.07
     assert score.kept_max_m < 0.4
     assert score.worst_lobby_m < 0.15
+    # the trajectory holds the poses the SLAM estimated, not those drawn across the gaps
+    building = yaml.safe_load((tmp_path / "maps" / "building.yaml").read_text())
+    tum = (tmp_path / "maps" / "trajectory.tum").read_text().splitlines()
+    assert len(tum) == building["scans"] - score.blind_scans
 
 
 def test_relation_metric_reproduces_gmappings_published_score(shared_data: Path) -> None:

@@ -382,7 +382,10 @@ def write_outputs(
     files.append(building_png)
     z = scan_elevations(result)
     tum = out / "trajectory.tum"
-    export.write_tum(tum, result.run.scans.t_ns, result.slam.scan_poses, z)
+    # the poses the SLAM estimated: a scan the odometry said nothing about is not mapped, its
+    # pose only drawn across the gap (metres off), and the trajectory has a gap there
+    kept = ~result.run.blind
+    export.write_tum(tum, result.run.scans.t_ns[kept], result.slam.scan_poses[kept], z[kept])
     files.append(tum)
     building = {
         "source": str(recording),
