@@ -77,7 +77,8 @@ def without(
         }
         for record in reader.iter_metadata():
             writer.add_metadata(record.name, record.metadata)
-        decoders = ProtobufDecoderFactory()
+        factory = ProtobufDecoderFactory()
+        decoders: dict[int, Any] = {}  # one per channel
         first = None
         for schema, channel, message in reader.iter_messages(log_time_order=True):
             first = message.log_time if first is None else first
@@ -87,7 +88,9 @@ def without(
                 dropped += 1
                 continue
             if counters != "kept" and channel.topic == topic:
-                decode = decoders.decoder_for(channel.message_encoding, schema)
+                if channel.id not in decoders:
+                    decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
+                decode = decoders[channel.id]
                 if decode is None:
                     raise ValueError(f"{src}: cannot decode {topic}")
                 if at < start_s:

@@ -85,6 +85,12 @@ class RunData:
         return odometric_travel(self.odometry_t_ns, self.odometry_poses, self.scans.t_ns)
 
 
+def _gap_limit_ns(gaps_ns: IntArray) -> float:
+    """A gap in the odometry: longer than ODOMETRY_GAP_S and ODOMETRY_GAP_INTERVALS of the
+    stream's usual intervals (``gaps_ns``: between consecutive samples, in time order)."""
+    return max(ODOMETRY_GAP_S * 1e9, ODOMETRY_GAP_INTERVALS * float(np.median(gaps_ns)))
+
+
 def odometry_blind(t_src: IntArray, t_query: IntArray) -> BoolArray:
     """Which of the ``t_query`` stamps fall where the odometry stream said nothing: inside a
     gap between two samples longer than ODOMETRY_GAP_S and ten of the stream's usual
@@ -96,7 +102,7 @@ def odometry_blind(t_src: IntArray, t_query: IntArray) -> BoolArray:
         blind[:] = len(t_src) == 0
         return blind
     t = np.sort(t_src)
-    limit = max(ODOMETRY_GAP_S * 1e9, ODOMETRY_GAP_INTERVALS * float(np.median(np.diff(t))))
+    limit = _gap_limit_ns(np.diff(t))
     after = np.searchsorted(t, t_query, side="right")
     inside = (after > 0) & (after < len(t))
     prev_t = t[np.clip(after - 1, 0, len(t) - 1)]
@@ -124,7 +130,7 @@ def join_odometry_tracks(t_src: IntArray, poses: FloatArray) -> tuple[FloatArray
     t = t_src[order]
     p = poses[order].astype(np.float64)
     gaps = np.diff(t)
-    limit = max(ODOMETRY_GAP_S * 1e9, ODOMETRY_GAP_INTERVALS * float(np.median(gaps)))
+    limit = _gap_limit_ns(gaps)
     moved = np.hypot(*np.diff(p[:, :2], axis=0).T)
     reach = TRACK_SPEED_M_S * gaps / 1e9 + TRACK_SLACK_M
     origin = (np.hypot(p[:, 0], p[:, 1]) <= TRACK_ORIGIN_M) & (

@@ -2170,6 +2170,6 @@ def scan_poses(
         inside = (s > a) & (s < b)
         back = inside & (silence > 0)
         poses[back] = se2.compose(kf_poses[seg + 1][back], se2.between(odom[b[back]], odom[back]))
-        on = inside & (silence < 0)
-        poses[on] = se2.compose(kf_poses[seg][on], rel[on])
+        before = inside & (silence < 0)
+        poses[before] = followed[before]  # odometry from a, without the spread correction
     return poses
