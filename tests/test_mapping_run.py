@@ -179,6 +179,14 @@ def test_odometry_silent_or_counting_from_zero_is_found_again(
     building = yaml.safe_load((tmp_path / "maps" / "building.yaml").read_text())
     tum = (tmp_path / "maps" / "trajectory.tum").read_text().splitlines()
     assert len(tum) == building["scans"] - score.blind_scans
+    # and so does the path in maps.mcap: every pose drawn is one of the trajectory's
+    from scipy.spatial import cKDTree
+
+    estimated = np.array([[float(r[1]), float(r[2])] for r in map(str.split, tum)])
+    (path,) = (r.message for r in read_messages(tmp_path / "maps" / "maps.mcap", ["/path"]))
+    drawn = np.array([[p.position.x, p.position.y] for p in path.poses])
+    assert len(drawn) > 1000
+    assert cKDTree(estimated).query(drawn)[0].max() < 1e-5
 
 
 def test_relation_metric_reproduces_gmappings_published_score(shared_data: Path) -> None:

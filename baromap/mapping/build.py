@@ -370,21 +370,25 @@ def write_outputs(
             entry.update({"map": yml.name, "image": pgm.name, "png": png.name})
         floor_entries.append(entry)
     order = [f for f in seg.floors if f.index in result.grids]
+    # the poses the SLAM estimated: a scan the odometry said nothing about is not mapped, its
+    # pose only drawn across the gap (metres off); the trajectory, the paths and the picture
+    # have a gap there
+    kept = ~result.run.blind
     building_png = out / "building.png"
     painter.submit(
         figures.building_figure,
         building_png,
         [result.grids[f.index] for f in order],
         [f.elevation_m for f in order],
-        [result.slam.scan_poses[seg.scan_floor == f.index, :2] for f in order],
+        [
+            _path_with_gaps(result.slam.scan_poses[:, :2], seg.scan_floor == f.index, kept)
+            for f in order
+        ],
         [f"floor {f.index}" for f in order],
     )
     files.append(building_png)
     z = scan_elevations(result)
     tum = out / "trajectory.tum"
-    # the poses the SLAM estimated: a scan the odometry said nothing about is not mapped, its
-    # pose only drawn across the gap (metres off), and the trajectory has a gap there
-    kept = ~result.run.blind
     export.write_tum(tum, result.run.scans.t_ns[kept], result.slam.scan_poses[kept], z[kept])
     files.append(tum)
     building = {
@@ -426,9 +430,21 @@ def write_outputs(
         scan_t_ns=result.run.scans.t_ns,
         odom=result.run.odom,
         transform_at=result.slam.keyframes,
+        estimated=kept,
     )
     files.append(maps)
     return files
+
+
+def _path_with_gaps(
+    xy: FloatArray, on_floor: npt.NDArray[np.bool_], estimated: npt.NDArray[np.bool_]
+) -> FloatArray:
+    """A floor's path for the picture: its estimated poses, with a NaN row where poses were
+    left out between two of them, so the line breaks at a gap rather than crossing it."""
+    idx = np.flatnonzero(on_floor & estimated)
+    left_out = np.cumsum(~estimated)
+    gap_after = np.flatnonzero(np.diff(left_out[idx]) > 0)
+    return np.insert(xy[idx], gap_after + 1, np.nan, axis=0)
 
 
 def _pressure_args(run: RunData, segmentation: Segmentation) -> dict[str, Any]:

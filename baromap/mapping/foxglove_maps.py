@@ -52,9 +52,13 @@ def write_maps_mcap(
     scan_t_ns: npt.NDArray[np.int64],
     odom: FloatArray,
     transform_at: npt.NDArray[np.int64],
+    estimated: npt.NDArray[np.bool_] | None = None,
 ) -> None:
     """``t_ns``: when the maps and paths are stamped (the run's start, so a player shows them
-    from the first instant on); ``transform_at``: the scans whose map -> odom is written."""
+    from the first instant on); ``transform_at``: the scans whose map -> odom is written;
+    ``estimated``: the scans whose poses the SLAM estimated (default all). The others are
+    only drawn across a gap in the odometry, metres off, so the paths leave them out as
+    ``trajectory.tum`` does."""
     import foxglove
     from foxglove.channels import FrameTransformChannel, GridChannel, PosesInFrameChannel
     from foxglove.messages import (
@@ -105,8 +109,8 @@ def write_maps_mcap(
                 ),
                 log_time=t_ns,
             )
-        every = max(1, len(scan_poses) // 5000)
-        sel = np.arange(0, len(scan_poses), every)
+        shown = np.arange(len(scan_poses)) if estimated is None else np.flatnonzero(estimated)
+        sel = shown[:: max(1, len(shown) // 5000)]
         path_channel = PosesInFrameChannel("/path", context=context)
         path_channel.log(
             PosesInFrame(
