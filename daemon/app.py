@@ -24,6 +24,7 @@ import structlog
 from baromap import __version__
 from baromap.discovery import resolve_port
 from baromap.messages import NS_PER_S, DeviceHealth, DeviceState, Message, PressureSample
+from baromap.recording import topics
 from baromap.recording.frames import LaserMount
 from daemon.barometer import BarometerSession
 from daemon.clock import HostClock
@@ -113,6 +114,8 @@ class Daemon:
             "role": c.role,
             "daemon": f"baromapd {__version__}",
             "configuration": c.source_text,
+            # the Pioneer session's integrator joins every new track at the last pose
+            topics.ODOMETRY_TRACKS_KEY: topics.ODOMETRY_TRACKS_JOINED,
             "devices": json.dumps(
                 {
                     name: device.port

@@ -602,6 +602,37 @@ def test_odometry_that_counts_from_zero_again_is_joined_at_the_pose_before() -> 
     assert join_odometry_tracks(late, truth)[1] == 0
 
 
+def test_a_recording_whose_recorder_joined_the_tracks_keeps_its_odometry_as_recorded() -> None:
+    """The demo's twins play six times faster than real time: the base drives 3.6 m in a
+    recording second, and a one-second stall of the host looks like a restart by the rule
+    for recordings that were not joined. baromapd says in its header that it joined the
+    base's restarts itself, and then the odometry is taken as recorded; without the header
+    the same stream is joined."""
+    from baromap.mapping.run_data import RunSeries, run_data
+    from baromap.messages import LaserScan
+    from baromap.recording import OdometrySeries, PressureSeries, topics
+
+    t = np.arange(0, 20_000_000_000, 100_000_000, dtype=np.int64)
+    t = t[(t < 10_000_000_000) | (t >= 11_200_000_000)]  # the host stalled 1.2 s
+    x = 3.6 * t.astype(np.float64) / 1e9  # the robot drove on: 4.3 m across the stall
+    zero = np.zeros(len(t))
+    counts = np.zeros(len(t), dtype=np.int64)
+    odometry = OdometrySeries(t, x, zero, zero, zero + 3.6, zero, counts, counts, counts)
+    none = PressureSeries(np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0))
+    ranges = np.full(181, 5.0, dtype=np.float32)
+    flags = np.zeros(181, dtype=np.uint16)
+    scans = ScanBlock.from_messages(
+        [LaserScan(int(s), -np.pi / 2, np.pi / 180, 30.0, ranges, flags) for s in t[::5]],
+        np.zeros(3),
+    )
+    series = RunSeries(none, odometry, none)
+    header = {"robot": "demo", topics.ODOMETRY_TRACKS_KEY: topics.ODOMETRY_TRACKS_JOINED}
+    recorded = run_data(scans, {topics.METADATA_NAME: header}, series)
+    assert np.array_equal(recorded.odometry_poses[:, 0], x)
+    foreign = run_data(scans, {topics.METADATA_NAME: {"robot": "demo"}}, series)
+    assert foreign.odometry_poses[-1, 0] < x[-1] - 4.0  # taken for a restart
+
+
 def test_odometry_calibration_learns_the_systematic_errors_where_scans_pin_the_motion() -> None:
     """Steps read 3 % long, turns 4 % long and creeping 1 deg/m; matches measure the true
     step with 1 cm / 0.2 deg noise, except in a corridor, where the match only repeats

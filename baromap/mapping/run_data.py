@@ -145,6 +145,16 @@ def join_odometry_tracks(t_src: IntArray, poses: FloatArray) -> tuple[FloatArray
     return out, len(starts)
 
 
+def recorder_joined_tracks(metadata: dict[str, dict[str, str]]) -> bool:
+    """Whether the recording says its recorder kept the odometry in one frame across the
+    base's restarts (baromapd does). Then a jump across a gap is the robot's own: the host
+    stalled while the base counted on (the demo's twins play six times faster than real time,
+    and a one-second stall there is a drive of 3.6 m, beyond any real base's), and
+    :func:`join_odometry_tracks` would cut a drive out of the run."""
+    header = metadata.get(topics.METADATA_NAME, {})
+    return header.get(topics.ODOMETRY_TRACKS_KEY) == topics.ODOMETRY_TRACKS_JOINED
+
+
 def odometric_travel(t_src: IntArray, poses: FloatArray, t_query: IntArray) -> FloatArray:
     """Cumulative path and cumulative absolute turn of a pose stream at ``t_query`` (see
     :meth:`RunData.travel`); zeros when the stream is empty."""
@@ -274,9 +284,14 @@ def _say_odometry_silences(t_ns: IntArray, blind: BoolArray) -> None:
 def run_data(block: ScanBlock, metadata: dict[str, dict[str, str]], series: RunSeries) -> RunData:
     """The run from its scans and series: odometry interpolated at every scan's stamp."""
     pressure, odometry, reference = series.pressure, series.odometry, series.reference
-    odometry_poses, joined = join_odometry_tracks(odometry.t_ns, odometry.poses())
-    if joined:
-        log.warning("odometry counted from zero again: joined at the pose before", times=joined)
+    odometry_poses = odometry.poses()
+    if recorder_joined_tracks(metadata):
+        # a stall of the recorder with the robot driving on is no restart: left to odometry
+        log.debug("odometry in one frame as recorded: its recorder joined the base's restarts")
+    else:
+        odometry_poses, joined = join_odometry_tracks(odometry.t_ns, odometry_poses)
+        if joined:
+            log.warning("odometry counted from zero again: joined at the pose before", times=joined)
     odom = interpolate_poses(odometry.t_ns, odometry_poses, block.t_ns)
     log.info("run loaded", scans=len(block), odometry=len(odometry), pressure=len(pressure.t_ns))
     _say_silences(block.t_ns, odom)

@@ -17,6 +17,11 @@ REFERENCE_PRESSURE = "/reference/pressure"
 
 #: Metadata record every recording starts with (robot id, format, configuration, devices).
 METADATA_NAME = "baromap"
+#: A key of that record: "joined" when the recorder kept /odom in one frame across the base's
+#: restarts (baromapd joins a base that counts from zero again at its last pose), so a reader
+#: need not look for restarts itself.
+ODOMETRY_TRACKS_KEY = "odometry_tracks"
+ODOMETRY_TRACKS_JOINED = "joined"
 #: 2: /odom as foxglove.Odometry (raw counters in its metadata), /tf_static. 1 read too.
 FORMAT_VERSION = "2"
 
@@ -31,6 +36,8 @@ __all__ = [
     "MAP_FRAME",
     "METADATA_NAME",
     "ODOM",
+    "ODOMETRY_TRACKS_JOINED",
+    "ODOMETRY_TRACKS_KEY",
     "ODOM_FRAME",
     "REFERENCE_PRESSURE",
     "SCAN",

@@ -81,6 +81,8 @@ def test_a_run_records_every_stream_with_identities(rig: Rig) -> None:
     assert header["robot"] == "test"
     assert json.loads(header["laser_mount"]) == {"x_m": 0.0, "y_m": 0.0, "yaw_rad": 0.0}
     assert "[laser]" in header["configuration"]
+    # /odom is one frame across the base's restarts, and the header says so to the mapping
+    assert header[topics.ODOMETRY_TRACKS_KEY] == topics.ODOMETRY_TRACKS_JOINED
     laser = meta["baromap.device.laser"]
     base = meta["baromap.device.base"]
     barometer = meta["baromap.device.barometer"]
