@@ -34,15 +34,8 @@ import structlog
 from baromap.errors import ConfigError
 from baromap.mapping.revisits import ScanGeometry, consistency, revisit_partners
 from baromap.mapping.scans import ScanBlock
-from baromap.mapping.slam import (
-    BETWEEN_FLOORS,
-    BoolArray,
-    FloatArray,
-    IntArray,
-    SlamConfig,
-    SlamResult,
-    run_slam,
-)
+from baromap.mapping.slam import BETWEEN_FLOORS, SlamConfig, SlamResult, run_slam
+from baromap.mapping.slam.settings import BoolArray, FloatArray, IntArray
 
 log = structlog.get_logger(__name__)
 

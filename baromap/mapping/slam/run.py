@@ -1,0 +1,356 @@
+"""One SLAM run over a recording's scans: keyframes chosen, fed one by one, solved at the
+end, and every scan's pose from the keyframes around it."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import structlog
+
+from baromap.mapping import se2
+from baromap.mapping.errors import MappingError
+from baromap.mapping.keyframes import motion_spaced
+from baromap.mapping.pose_graph import Edge, PoseGraph
+from baromap.mapping.refine import Pull, refine_batch
+from baromap.mapping.scans import ScanBlock
+from baromap.mapping.slam.final_solve import FinalSolve
+from baromap.mapping.slam.front_end import FrontEnd
+from baromap.mapping.slam.loops import LoopClosing
+from baromap.mapping.slam.measurement import diagonal_information, finished_map_field
+from baromap.mapping.slam.relocation import Relocation
+from baromap.mapping.slam.settings import (
+    BETWEEN_FLOORS,
+    BLIND_SPEED_M_S,
+    BLIND_TURN_RAD_S,
+    FINAL_ITERATIONS,
+    MAX_FRONT_WINDOW_M,
+    MAX_FRONT_WINDOW_RAD,
+    ODOMETRY_SIGMA_M,
+    ODOMETRY_SIGMA_RAD,
+    REFINE_ODOMETRY_INFLATION,
+    REFINE_PASSES,
+    REGISTER_BEAMS,
+    TURN_AS_M,
+    WINDOW_SIGMAS,
+    BoolArray,
+    FloatArray,
+    Int8Array,
+    IntArray,
+    SlamConfig,
+)
+
+log = structlog.get_logger(__name__)
+
+
+@dataclass(slots=True)
+class SlamResult:
+    keyframes: IntArray  # scan index of each keyframe
+    keyframe_poses: FloatArray  # (K, 3)
+    scan_poses: FloatArray  # (S, 3), every scan
+    graph: PoseGraph
+    loop_edges: list[tuple[int, int]] = field(default_factory=list)  # keyframe ids
+    #: closures between the closed elevator car at different rides (any floors)
+    car_edges: list[tuple[int, int]] = field(default_factory=list)
+    stats: dict[str, float] = field(default_factory=dict)
+    #: odometry's systematic errors as learnt (:mod:`baromap.mapping.odometry_calibration`):
+    #: distance factor, turn factor - 1, heading creep [rad/m]; (1, 0, 0) when unknown
+    odometry_correction: tuple[float, float, float] = (1.0, 0.0, 0.0)
+
+
+def select_keyframes(
+    odom: FloatArray, visit: IntArray, floor: IntArray, config: SlamConfig
+) -> IntArray:
+    """Scans where the robot has moved enough since the last keyframe of the same visit, and
+    the first and last scan of every visit (the car before and after a ride)."""
+    group = np.where(floor == BETWEEN_FLOORS, -1, visit)
+    return motion_spaced(odom, group, config.keyframe_m, config.keyframe_rad, last_of_group=True)
+
+
+class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
+    """One SLAM run, fed one keyframe at a time."""
+
+    def add(self, k: int) -> None:
+        graph = self.graph
+        if k == 0:
+            graph.add_node(self.odom[self.kf_scan[0]])
+            self._insert(k)
+            return
+        new_visit = bool(self.kf_visit[k] != self.kf_visit[k - 1])
+        if new_visit:
+            self._end_visit()
+            if self.lost is not None:
+                log.info("the chain did not find its place after the odometry's silence")
+                self.stats["relocate_failed"] += 1
+                self.lost = None  # the car ties the floors after the ride
+        read = self._odometry_step(k - 1, k)
+        step = self.calibration.correct(read)
+        guess = se2.compose(graph.poses[k - 1], step)
+        graph.add_node(guess)
+        sigma_xy, sigma_theta = self._odometry_sigmas(step)
+        drive = self._drive(k, read)
+        if drive is not None:
+            drive_xy, drive_theta = self._odometry_sigmas(drive)
+            if (
+                WINDOW_SIGMAS * drive_xy > MAX_FRONT_WINDOW_M
+                or WINDOW_SIGMAS * drive_theta > MAX_FRONT_WINDOW_RAD
+            ):
+                # a drive beyond the window: its doubt is the whole drive's, not its end's
+                sigma_xy, sigma_theta = max(sigma_xy, drive_xy), max(sigma_theta, drive_theta)
+        blind = bool(self.blind_step[k])
+        if blind:
+            # odometry drew a straight line here: the step is as long as the robot can drive
+            # and turn in the time
+            seconds = float(self.t_ns[self.kf_scan[k]] - self.t_ns[self.kf_scan[k - 1]]) / 1e9
+            sigma_xy = max(sigma_xy, BLIND_SPEED_M_S * seconds / WINDOW_SIGMAS)
+            sigma_theta = max(sigma_theta, BLIND_TURN_RAD_S * seconds / WINDOW_SIGMAS)
+            self.stats["odometry_gaps"] += 1
+        if not new_visit and (
+            blind
+            or WINDOW_SIGMAS * sigma_xy > MAX_FRONT_WINDOW_M
+            or (drive is not None and WINDOW_SIGMAS * sigma_theta > MAX_FRONT_WINDOW_RAD)
+        ):
+            # a step longer than the front end's widest window can search odometry's doubt
+            # over (the laser silent while the robot drove on: unplugged, power-cycled): the
+            # scan is not matched against the submaps from before it, where a capped window
+            # holds only aliases; it begins new ones, and loop closure, whose search widens
+            # with the drift, ties them back
+            self.stats["front_after_gap"] += 1
+            self.silent_steps.add(k)
+            self._finish_active()
+        # odometry always enters the graph: along a featureless corridor it is the only
+        # measurement of the motion, and the match edge's information says so
+        graph.add_edge(
+            Edge(k - 1, k, step, diagonal_information(sigma_xy, sigma_theta), "odometry")
+        )
+        if new_visit:
+            self.visit_start = k
+            self.last_closure = k
+            self._ride(k, guess, sigma_xy, sigma_theta)
+        else:
+            self._front_end(k, guess, sigma_xy, sigma_theta, read)
+        self._insert(k)
+        if self.unmeasured_step[k] and not new_visit:
+            self.lost = self._lost_at(k, sigma_xy, sigma_theta)
+        if self.lost is not None:
+            self._relocate(k)
+        if not self.clouds.in_car(k) and k - self.visit_start >= 1:
+            self._close_loops(k)
+        self._solve_if_needed()
+
+    def finish(self) -> SlamResult:
+        self._end_visit()
+        self._car_to_car()
+        noise = self.noise = self._odometry_noise()
+        self._odometry_as_learnt(noise, 1.0)
+        if noise is not None:
+            self._doubt_matches_beyond(noise)
+        self.graph.optimize(iterations=FINAL_ITERATIONS)
+        if self._weigh_by_scatter():
+            self.graph.optimize(iterations=FINAL_ITERATIONS)
+        if REFINE_PASSES:
+            self._odometry_as_learnt(noise, REFINE_ODOMETRY_INFLATION)
+        for _ in range(REFINE_PASSES):
+            self._refine()
+        self.stats["keyframes"] = len(self.kf_scan)
+        self.stats["odometry_samples"] = self.calibration.samples
+        scale = self.calibration.scale()
+        turn, creep = self.calibration.turn_terms()
+        log.info(
+            "odometry calibration",
+            samples=self.calibration.samples,
+            rejected=self.calibration.rejected,
+            scale=round(scale, 5),
+            turn=round(turn, 5),
+            creep_deg_per_m=round(math.degrees(creep), 4),
+        )
+        self.stats["loops"] = len(self.loops)
+        self.stats["submaps"] = len(self.finished)
+        self.stats["submap_releases"] = self.cache.releases
+        poses = self.graph.poses.copy()
+        return SlamResult(
+            self.kf_scan,
+            poses,
+            np.zeros((0, 3)),
+            self.graph,
+            self.loops,
+            self.car_edges,
+            {k: float(v) for k, v in self.stats.items()},
+            (scale, turn, creep),
+        )
+
+    def _end_visit(self) -> None:
+        self._settle_deferred()
+        self._finish_active()
+
+    def _sides_of_silences(self) -> Int8Array:
+        """For the scans between the keyframes of a silent step: -1 before the silence, +1
+        after it, split at the longest wait between two scans the odometry spoke for (the
+        gap, with the scans it said nothing about inside; the robot may have stood a while
+        before it, so the middle of the step is not the gap); 0 for every other scan."""
+        side = np.zeros(len(self.odom), dtype=np.int8)
+        t = self.t_ns
+        for k in sorted(self.silent_steps):
+            a, b = int(self.kf_scan[k - 1]), int(self.kf_scan[k])
+            s = np.arange(a + 1, b)
+            heard = np.concatenate([[a], s[~self.blind[s]], [b]])
+            resumed = heard[int(np.argmax(np.diff(t[heard]))) + 1]
+            side[s] = np.where(s >= resumed, 1, -1)
+        return side
+
+    def register_scans(self, scans: ScanBlock, floor: IntArray) -> FloatArray:
+        """Every scan's pose: keyframes as the graph has them; the scans between them
+        interpolated (:func:`scan_poses`) and then matched against the finished map of their
+        floor, pulled towards the interpolation as odometry would (a corridor cannot make a
+        scan slide). A scan that finds too little of the map keeps its interpolated pose.
+
+        The pull's sigmas are corrected odometry's noise as the run showed it
+        (:meth:`_odometry_noise`) over the travel and turn to the nearer keyframe, where the
+        interpolation is pinned: what the interpolation can be wrong by. The front end's
+        search sigmas (2 cm + 7 %/m, wide on purpose to hold an uncalibrated robot) are used
+        only when the run matched too few steps to fit the noise."""
+        config = self.config
+        kf_poses = self.graph.poses
+        poses = scan_poses(self.odom, self.kf_scan, kf_poses, silence=self._sides_of_silences())
+        is_kf = np.zeros(len(poses), dtype=bool)
+        is_kf[self.kf_scan] = True
+        # odometric distance of every scan to the nearer keyframe (how much odometry it holds)
+        travelled = np.concatenate(
+            [[0.0], np.cumsum(np.hypot(*np.diff(self.odom[:, :2], axis=0).T))]
+        )
+        kf_travel = travelled[self.kf_scan]
+        pos = np.clip(np.searchsorted(kf_travel, travelled), 1, max(len(kf_travel) - 1, 1))
+        after = np.minimum(pos, len(kf_travel) - 1)
+
+        def to_nearer_keyframe(along: FloatArray) -> FloatArray:
+            at_kf = along[self.kf_scan]
+            return np.minimum(np.abs(along - at_kf[pos - 1]), np.abs(at_kf[after] - along))
+
+        to_kf = to_nearer_keyframe(travelled)
+        turned = np.concatenate([[0.0], np.cumsum(np.abs(se2.wrap(np.diff(self.odom[:, 2]))))])
+        turn_to_kf = to_nearer_keyframe(turned)
+        for f in np.unique(self.kf_floor):
+            todo = np.flatnonzero((floor == f) & ~is_kf)
+            if len(todo) == 0:
+                continue
+            ids = np.flatnonzero(self.kf_floor == f)
+            world = np.concatenate(
+                [se2.transform_points(kf_poses[k], self.clouds.surfaces[k]) for k in ids]
+            )
+            fld = finished_map_field(world, config.resolution_m)
+            points, owner = scans.sampled_endpoints(todo, config.max_range_m, REGISTER_BEAMS)
+            d = to_kf[todo]
+            if self.noise is not None:
+                pull = Pull(*self.noise.sigmas_many(d, turn_to_kf[todo]))
+            else:
+                pull = Pull(
+                    ODOMETRY_SIGMA_M + config.odometry_sigma_m_per_m * d,
+                    ODOMETRY_SIGMA_RAD + math.radians(config.odometry_sigma_deg_per_m) * d,
+                )
+            out = refine_batch(fld, points, owner, poses[todo], pull)
+            poses[todo[out.usable]] = out.poses[out.usable]
+            self.stats["registered"] += int(out.usable.sum())
+        return poses
+
+
+def run_slam(
+    scans: ScanBlock,
+    odom: FloatArray,
+    floor: IntArray,
+    visit: IntArray,
+    *,
+    config: SlamConfig | None = None,
+    progress: Callable[[int], None] | None = None,
+    travel: FloatArray | None = None,
+    blind: BoolArray | None = None,
+) -> SlamResult:
+    """SLAM over a run: scans, odometry poses at the scan times, floor and visit per scan.
+
+    ``travel``: the odometry's path and turning up to each scan, as the odometry came
+    (:meth:`~baromap.mapping.run_data.RunData.travel`), where it came more often than the
+    scans; it tells a silence of the laser by the drive inside it, not only by where the
+    drive ended (None: the scans' own odometry is all there is).
+
+    ``blind``: the scans the odometry said nothing about
+    (:attr:`~baromap.mapping.run_data.RunData.blind`: the base unplugged while the
+    laser went on). They are not mapped: without odometry a corridor lets the scans slide
+    (the sim's blind minute, matched scan by scan with a constant-velocity guess, drifted
+    metres while the robot sped up along one), and the step across them is taken as a laser
+    silence is, begun again in new submaps and tied back by loop closure and the car. Their
+    poses are drawn across the gap, for the record only."""
+    config = config or SlamConfig()
+    if blind is not None and blind.any():
+        floor = np.where(blind, BETWEEN_FLOORS, floor)
+    kf_scan = select_keyframes(odom, visit, floor, config)
+    if len(kf_scan) == 0:
+        raise MappingError("no scan is on a floor: nothing to map")
+    slam = _Slam(
+        scans,
+        odom,
+        kf_scan,
+        kf_floor=floor[kf_scan],
+        kf_visit=visit[kf_scan],
+        config=config,
+        travel=travel,
+        blind=blind,
+    )
+    for k in range(len(kf_scan)):
+        slam.add(k)
+        if progress is not None:
+            progress(int(kf_scan[k]))
+    result = slam.finish()
+    result.scan_poses = slam.register_scans(scans, floor)
+    log.info("slam done", **{k: int(v) for k, v in result.stats.items()})
+    return result
+
+
+def scan_poses(
+    odom: FloatArray,
+    kf_scan: IntArray,
+    kf_poses: FloatArray,
+    *,
+    silence: Int8Array | None = None,
+) -> FloatArray:
+    """Every scan's pose from the keyframes around it.
+
+    Between two keyframes a and b, odometry from a is followed, and the correction the graph
+    made to the stretch (where b is, against where odometry from a puts it) is spread along
+    it in proportion to the motion so far, so the stretch ends exactly on b. Scans before the
+    first keyframe or after the last follow odometry from it.
+
+    ``silence`` (per scan): the scans between the keyframes of a step across a silence (the
+    laser or the odometry silent on the way) follow odometry uncorrected, from the keyframe
+    before it (-1: taken before the silence) or back from the one after it (+1). The graph's
+    correction of such a step is metres and tens of degrees (a power-cycled base turned on
+    the spot meanwhile), not a drift to spread along it.
+    """
+    s = np.arange(len(odom))
+    if len(kf_scan) == 1:
+        out: FloatArray = se2.compose(kf_poses[0], se2.between(odom[kf_scan[0]], odom))
+        return out
+    seg = np.clip(np.searchsorted(kf_scan, s, side="right") - 1, 0, len(kf_scan) - 2)
+    a, b = kf_scan[seg], kf_scan[seg + 1]
+    start = np.where(s < kf_scan[0], 0, seg)
+    start = np.where(s > kf_scan[-1], len(kf_scan) - 1, start)
+    rel = se2.between(odom[kf_scan[start]], odom)  # odometry since the keyframe before
+    followed = se2.compose(kf_poses[start], rel)
+    predicted_b = se2.compose(kf_poses[seg], se2.between(odom[a], odom[b]))
+    miss = kf_poses[seg + 1] - predicted_b
+    miss[:, 2] = se2.wrap(miss[:, 2])
+    # how far along the stretch each scan is: by distance, or by turn where it turned in place
+    step = se2.between(odom[a], odom[b])
+    total = np.hypot(step[:, 0], step[:, 1]) + TURN_AS_M * np.abs(step[:, 2])
+    done = np.hypot(rel[:, 0], rel[:, 1]) + TURN_AS_M * np.abs(rel[:, 2])
+    frac = np.clip(done / np.maximum(total, 1e-9), 0.0, 1.0)
+    frac[(s < kf_scan[0]) | (s > kf_scan[-1])] = 0.0
+    poses: FloatArray = followed + frac[:, None] * miss
+    poses[:, 2] = se2.wrap(poses[:, 2])
+    if silence is not None:
+        inside = (s > a) & (s < b)
+        back = inside & (silence > 0)
+        poses[back] = se2.compose(kf_poses[seg + 1][back], se2.between(odom[b[back]], odom[back]))
+        before = inside & (silence < 0)
+        poses[before] = followed[before]  # odometry from a, without the spread correction
+    return poses

@@ -1,0 +1,322 @@
+"""The state one SLAM run keeps while it is fed keyframes, shared by its parts (the front
+end, loop closure, the car, the search after a silence, the last solve)."""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+import structlog
+
+from baromap.mapping import se2
+from baromap.mapping.odometry_calibration import OdometryCalibration, OdometryNoise
+from baromap.mapping.pose_graph import Edge, PoseGraph
+from baromap.mapping.scan_matcher import LikelihoodField, MatchResult, SearchWindow
+from baromap.mapping.scans import ScanBlock, voxel_filter
+from baromap.mapping.slam.measurement import (
+    match_information,
+    rotate_information,
+    spread_information,
+)
+from baromap.mapping.slam.settings import (
+    CAR_EXTENT_M,
+    CAR_MIN_POINTS,
+    LOOP_ROBUST_C,
+    LOOP_SIGMA_M,
+    LOOP_SIGMA_RAD,
+    MATCH_SIGMA_M,
+    MATCH_SIGMA_RAD,
+    ODOMETRY_SIGMA_M,
+    ODOMETRY_SIGMA_RAD,
+    SOLVE_ABOVE_CHI2,
+    SOLVE_AFTER_LOOPS,
+    SOLVE_ITERATIONS,
+    SUBMAP_MAX_KEYFRAMES,
+    SUBMAP_MEMORY_BYTES,
+    BoolArray,
+    FloatArray,
+    IntArray,
+    SlamConfig,
+)
+from baromap.mapping.submaps import Submap, SubmapCache
+
+log = structlog.get_logger(__name__)
+
+
+class KeyframeClouds:
+    """Per-keyframe point clouds, filtered once, and what is known about each."""
+
+    def __init__(
+        self, scans: ScanBlock, odom: FloatArray, indices: IntArray, config: SlamConfig
+    ) -> None:
+        self.points = [
+            voxel_filter(scans.endpoints(int(s), config.max_range_m), config.resolution_m)
+            for s in indices
+        ]
+        #: what fields are stamped with: the surfaces the scan saw, sampled finely
+        self.surfaces = [
+            scans.surface(int(s), config.max_range_m, config.resolution_m / 2) for s in indices
+        ]
+        steps = np.hypot(*np.diff(odom[indices, :2], axis=0).T) if len(indices) > 1 else []
+        self.distance = np.concatenate([[0.0], np.cumsum(steps)])
+        ranges = [np.hypot(p[:, 0], p[:, 1]) for p in self.points]
+        self.extent = np.array([float(np.percentile(r, 90)) if len(r) else 0.0 for r in ranges])
+        self.typical_range = np.array([float(np.median(r)) if len(r) else 1.0 for r in ranges])
+
+    def path_m(self, a: int, b: int) -> float:
+        """Odometric path length between keyframes a and b."""
+        return float(abs(self.distance[b] - self.distance[a]))
+
+    def in_car(self, k: int) -> bool:
+        """A small enclosed scan: the robot inside the closed elevator car."""
+        return bool(len(self.points[k]) >= CAR_MIN_POINTS and self.extent[k] < CAR_EXTENT_M)
+
+
+def graph_of(poses: FloatArray, edges: list[Edge]) -> PoseGraph:
+    graph = PoseGraph()
+    for pose in poses:
+        graph.add_node(pose)
+    for edge in edges:
+        graph.add_edge(edge)
+    return graph
+
+
+@dataclass(slots=True)
+class Lost:
+    """The chain after a step across the odometry's silence, while it looks for its place:
+    the map from before, in the frame of the last keyframe before the step."""
+
+    before: int
+    start: int  # the first keyframe after the silence
+    window: SearchWindow
+    fld: LikelihoodField
+    #: the rigid corrections of the chain the unambiguous looks so far asked for
+    found: list[FloatArray] = field(default_factory=list)
+    tried: int = 0
+    tried_at: float = -math.inf  # the chain's path at the last look
+
+
+class SubmapIndex:
+    """Finished submaps as arrays, so a keyframe finds its loop candidates without a Python
+    loop over hundreds of them: anchor, bounding circle of keyframe positions (anchor frame),
+    floor, last keyframe, and the path length at the last loop attempt against each."""
+
+    def __init__(self) -> None:
+        self.anchor: IntArray = np.zeros(0, dtype=np.int64)
+        self.center: FloatArray = np.zeros((0, 2))
+        self.radius: FloatArray = np.zeros(0)
+        self.floor: IntArray = np.zeros(0, dtype=np.int64)
+        self.last_keyframe: IntArray = np.zeros(0, dtype=np.int64)
+        self.tried_at: FloatArray = np.zeros(0)
+
+    def add(self, sub: Submap) -> None:
+        origins = sub.origins()
+        center = origins.mean(axis=0)
+        radius = float(np.hypot(*(origins - center).T).max())
+        self.anchor = np.append(self.anchor, sub.anchor)
+        self.center = np.vstack([self.center, center])
+        self.radius = np.append(self.radius, radius)
+        self.floor = np.append(self.floor, sub.floor)
+        self.last_keyframe = np.append(self.last_keyframe, sub.keyframes[-1])
+        self.tried_at = np.append(self.tried_at, -np.inf)
+
+
+class SlamState:
+    """The state of one SLAM run and the steps every part of it takes: a keyframe's
+    odometry, its place in the submaps, a match or closure entering the graph, the solve
+    a disagreeing closure asks for."""
+
+    def __init__(
+        self,
+        scans: ScanBlock,
+        odom: FloatArray,
+        kf_scan: IntArray,
+        *,
+        kf_floor: IntArray,
+        kf_visit: IntArray,
+        config: SlamConfig,
+        travel: FloatArray | None = None,
+        blind: BoolArray | None = None,
+    ) -> None:
+        self.config = config
+        self.odom = odom
+        self.travel = travel
+        #: the step to each keyframe crosses scans the odometry said nothing about
+        self.blind_step = np.zeros(len(kf_scan), dtype=bool)
+        #: ... and across them the odometry shows no motion at all: a base that counted from
+        #: zero again, joined at its last pose (baromapd), or one that stood; where it moved,
+        #: its counters went on and measured the drive
+        self.unmeasured_step = np.zeros(len(kf_scan), dtype=bool)
+        if blind is not None and blind.any() and len(kf_scan) > 1:
+            covered = np.concatenate([[0], np.cumsum(blind)])
+            ends = np.asarray(kf_scan)
+            self.blind_step[1:] = covered[ends[1:] + 1] - covered[ends[:-1]] > 0
+            for k in np.flatnonzero(self.blind_step):
+                inside = np.arange(ends[k - 1] + 1, ends[k])
+                inside = inside[blind[inside]]
+                self.unmeasured_step[k] = (
+                    len(inside) >= 2 and float(np.ptp(odom[inside], axis=0).max()) < 1e-6
+                )
+        self.t_ns = scans.t_ns
+        self.scans = scans
+        self.blind = np.zeros(len(odom), dtype=bool) if blind is None else blind
+        self.kf_scan = kf_scan
+        self.kf_floor = kf_floor
+        self.kf_visit = kf_visit
+        self.clouds = KeyframeClouds(scans, odom, kf_scan, config)
+        self.graph = PoseGraph()
+        self.active: list[Submap] = []
+        self.finished: list[Submap] = []
+        self.cache = SubmapCache(SUBMAP_MEMORY_BYTES)
+        self.finished_index = SubmapIndex()
+        self.loops: list[tuple[int, int]] = []
+        self.stats: Counter[str] = Counter()
+        self.visit_start = 0
+        self.last_closure = 0  # keyframe of the last accepted closure (or visit start)
+        #: keyframe of the last front-end step the scan could not vouch for (a weak, refused
+        #: or missing match: odometry or a doubtful match placed it), -1 for none
+        self.last_doubtful = -1
+        self.unsolved: list[int] = []  # loop edges added since the last solve
+        #: closures under the threshold waiting for another to agree (see _propose)
+        self.pending: list[tuple[Edge, float]] = []
+        #: those of them beyond the drift model, searched for again (see _follow_beyond)
+        self.beyond: list[Edge] = []
+        #: closures against a target the run frames on one side only, kept until the visit
+        #: ends in case no closure framed on both sides comes (see _settle_deferred)
+        self.deferred: list[tuple[Edge, float]] = []
+        self.car_edges: list[tuple[int, int]] = []
+        #: keyframes reached by a step the fitted odometry noise does not describe: beyond the
+        #: front end's window (the laser silent), or across a gap in the odometry
+        self.silent_steps: set[int] = set()
+        #: the chain after a step across the odometry's silence, until it finds its place
+        self.lost: Lost | None = None
+        #: odometry's systematic errors, learnt from front-end matches (see the module)
+        self.calibration = OdometryCalibration()
+        #: covariance of each front-matched keyframe's pose (its own frame), for calibration
+        self.front_cov: dict[int, FloatArray] = {}
+        #: steps matched at both ends, (odometric, matched): what odometry's noise is learnt from
+        self.matched_steps: list[tuple[FloatArray, FloatArray]] = []
+        #: corrected odometry's noise as the run showed it (set by finish, when it can say)
+        self.noise: OdometryNoise | None = None
+
+    def _odometry_step(self, a: int, b: int) -> FloatArray:
+        """Odometry's motion from keyframe a to keyframe b, as the wheels read it."""
+        return se2.between(self.odom[self.kf_scan[a]], self.odom[self.kf_scan[b]])
+
+    def _drive(self, k: int, step: FloatArray) -> FloatArray | None:
+        """The odometric ``step`` to keyframe k as the odometry drove it: its path and every
+        turn on the way, as a step (path, 0, turn); None when the odometry came only with
+        the scans."""
+        if self.travel is None:
+            return None
+        path, turn = self.travel[self.kf_scan[k]] - self.travel[self.kf_scan[k - 1]]
+        return np.array([max(path, math.hypot(step[0], step[1])), 0.0, max(turn, abs(step[2]))])
+
+    def _odometry_sigmas(self, step: FloatArray) -> tuple[float, float]:
+        config = self.config
+        dist = math.hypot(step[0], step[1])
+        sigma_xy = ODOMETRY_SIGMA_M + config.odometry_sigma_m_per_m * dist
+        sigma_theta = (
+            ODOMETRY_SIGMA_RAD
+            + math.radians(config.odometry_sigma_deg_per_m) * dist
+            + config.odometry_sigma_per_rad * abs(step[2])
+        )
+        return sigma_xy, sigma_theta
+
+    def _insert(self, k: int) -> None:
+        config = self.config
+        newest = self.active[-1] if self.active else None
+        if (
+            newest is None
+            or self.clouds.path_m(newest.anchor, k) >= config.submap_m
+            or len(newest.keyframes) >= SUBMAP_MAX_KEYFRAMES
+        ):
+            self.active.append(
+                Submap(
+                    k,
+                    int(self.kf_floor[k]),
+                    config.resolution_m,
+                    config.resolution_m,
+                    self.clouds.surfaces,
+                )
+            )
+            if len(self.active) > 2:
+                self._finish_submap(self.active.pop(0))
+        poses = self.graph.poses
+        for sub in self.active:
+            sub.insert(k, se2.between(poses[sub.anchor], poses[k]))
+
+    def _finish_submap(self, sub: Submap) -> None:
+        sub.finish()
+        if len(sub.keyframes) >= 2:
+            self.finished.append(sub)
+            self.finished_index.add(sub)
+            self.cache.use(sub)
+
+    def _finish_active(self) -> None:
+        """The submaps being built are finished: the next keyframe begins new ones."""
+        while self.active:
+            self._finish_submap(self.active.pop(0))
+
+    def _match_edge(
+        self,
+        anchor: int,
+        k: int,
+        result: MatchResult,
+        *,
+        kind: str,
+        spread: FloatArray | None = None,
+    ) -> Edge:
+        """Edge anchor -> k from a match of keyframe k made in the anchor's frame.
+
+        Front-end and car edges are trusted (plain least squares); loop closures get the
+        robust kernel and their own floor sigmas, and can be outvoted.
+        """
+        loop = kind in ("loop", "car")
+        info = match_information(
+            result.information,
+            LOOP_SIGMA_M if loop else MATCH_SIGMA_M,
+            LOOP_SIGMA_RAD if loop else MATCH_SIGMA_RAD,
+        )
+        if spread is not None:
+            info = spread_information(info, spread)
+        return Edge(
+            anchor,
+            k,
+            result.pose.copy(),
+            rotate_information(info, result.pose[2]),
+            kind,
+            robust_c=LOOP_ROBUST_C if loop else None,
+        )
+
+    def _accept_loop(self, edge: Edge, score: float) -> None:
+        # the largest correction a closure made to the graph as it stood: the front end's
+        # drift at the first revisit after a long drive, for the bench to print
+        poses = self.graph.poses
+        fix = se2.between(se2.between(poses[edge.i], poses[edge.j]), edge.z)
+        moved_mm = round(1000 * math.hypot(fix[0], fix[1]))
+        self.stats["loop_max_correction_mm"] = max(self.stats["loop_max_correction_mm"], moved_mm)
+        index = self.graph.add_edge(edge)
+        self.unsolved.append(index)
+        self.loops.append((edge.i, edge.j))
+        self.last_closure = max(self.last_closure, edge.j)
+        log.debug("loop closure", frm=edge.i, to=edge.j, score=round(score, 3))
+
+    def _solve_if_needed(self) -> None:
+        if not self.unsolved:
+            return
+        _, chi2 = self.graph.edge_errors(edges=np.array(self.unsolved))
+        if chi2.max() > SOLVE_ABOVE_CHI2 or len(self.unsolved) >= SOLVE_AFTER_LOOPS:
+            self.graph.optimize(iterations=SOLVE_ITERATIONS)
+            self.stats["solves"] += 1
+            self.unsolved.clear()
+            self._rebuild_active()
+
+    def _rebuild_active(self) -> None:
+        """The solve moved the keyframes of the submaps being built: build them again from
+        the corrected poses, so the front end matches against the map as it now stands."""
+        poses = self.graph.poses
+        for sub in self.active:
+            sub.relocate([se2.between(poses[sub.anchor], poses[k]) for k in sub.keyframes])
