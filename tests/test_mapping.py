@@ -614,7 +614,7 @@ def test_a_recording_whose_recorder_joined_the_tracks_keeps_its_odometry_as_reco
 
     t = np.arange(0, 20_000_000_000, 100_000_000, dtype=np.int64)
     t = t[(t < 10_000_000_000) | (t >= 11_200_000_000)]  # the host stalled 1.2 s
-    x = 3.6 * t.astype(np.float64) / 1e9  # the robot drove on: 4.3 m across the stall
+    x = 3.6 * t.astype(np.float64) / 1e9  # the robot drove on: 4.7 m across the stall
     zero = np.zeros(len(t))
     counts = np.zeros(len(t), dtype=np.int64)
     odometry = OdometrySeries(t, x, zero, zero, zero + 3.6, zero, counts, counts, counts)
