@@ -87,6 +87,80 @@ def test_build_maps_files_and_model(short_run: Path, tmp_path: Path) -> None:
     assert {"/map/floor_0", "/map/floor_1", "/map/floor_2", "/path"} <= topics
 
 
+def _split_like_baromapd(src: Path, out_dir: Path, run: str, at_s: float) -> list[Path]:
+    """``src`` cut in two at ``at_s`` after its first message, as baromapd rotates a run:
+    each file whole, with every schema, channel and metadata record, its header naming the
+    run and the file's part."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    from baromap.recording import topics
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with src.open("rb") as f:
+        reader = make_reader(f)
+        header, summary = reader.get_header(), reader.get_summary()
+        assert summary is not None
+        metadata = list(reader.iter_metadata())
+        records = list(reader.iter_messages())
+    start = records[0][2].log_time
+    paths = []
+    for part, keep in enumerate(
+        (lambda t: t < start + at_s * 1e9, lambda t: t >= start + at_s * 1e9)
+    ):
+        path = out_dir / f"{run}_{part:03d}.mcap"
+        with path.open("wb") as g:
+            writer = Writer(g)
+            writer.start(profile=header.profile, library=header.library)
+            schemas = {
+                sid: writer.register_schema(s.name, s.encoding, s.data)
+                for sid, s in summary.schemas.items()
+            }
+            channels = {
+                cid: writer.register_channel(
+                    c.topic, c.message_encoding, schemas.get(c.schema_id, 0), c.metadata
+                )
+                for cid, c in summary.channels.items()
+            }
+            for m in metadata:
+                data = dict(m.metadata)
+                if m.name == topics.METADATA_NAME:
+                    data.update(run=run, part=str(part))
+                writer.add_metadata(m.name, data)
+            for _, channel, message in records:
+                if keep(message.log_time):
+                    writer.add_message(
+                        channels[channel.id], message.log_time, message.data, message.publish_time
+                    )
+            writer.finish()
+        paths.append(path)
+    return paths
+
+
+def test_a_run_in_several_files_is_mapped_as_one(short_run: Path, tmp_path: Path) -> None:
+    """baromapd rotates a long run into several files (by the hour, by size): build-maps
+    takes them all, or their directory, in the order of their parts, and maps the run as it
+    would one file, scan for scan; files of different runs are refused."""
+    from baromap.errors import ConfigError
+
+    parts = _split_like_baromapd(short_run, tmp_path / "rec", "r1", 200.0)
+    whole, split, folder = tmp_path / "whole", tmp_path / "split", tmp_path / "folder"
+    quiet = ["--log-level", "WARNING", "build-maps", "--no-progress"]
+    assert cli.main([*quiet, str(short_run), "-o", str(whole)]) == 0
+    assert cli.main([*quiet, str(parts[1]), str(parts[0]), "-o", str(split)]) == 0
+    assert cli.main([*quiet, str(tmp_path / "rec"), "-o", str(folder)]) == 0
+    expected = (whole / "trajectory.tum").read_text()
+    assert len(expected.splitlines()) > 1000
+    assert (split / "trajectory.tum").read_text() == expected
+    assert (folder / "trajectory.tum").read_text() == expected
+    building = yaml.safe_load((split / "building.yaml").read_text())
+    assert building["parts"] == [str(p) for p in parts]
+    other = _split_like_baromapd(short_run, tmp_path / "other", "r2", 100.0)
+    with pytest.raises(ConfigError, match="different runs"):
+        build_maps([parts[0], other[1]], tmp_path / "mixed")
+    assert not (tmp_path / "mixed").exists()
+
+
 def test_short_run_meets_the_geometry_bars(short_run: Path, tmp_path: Path) -> None:
     result = build_maps(short_run, tmp_path)
     report = evaluate_recording(result, short_run)

@@ -12,7 +12,12 @@ def register(subparsers: Any) -> None:
         "build-maps",
         help="per-floor occupancy maps, trajectory and building model from a recorded run",
     )
-    parser.add_argument("recording", help="run recording (.mcap)")
+    parser.add_argument(
+        "recording",
+        nargs="+",
+        help="run recording (.mcap); a run baromapd rotated into several files: all of them, "
+        "or the directory that holds them (ordered by the part each file names)",
+    )
     parser.add_argument("-o", "--output", required=True, help="output directory")
     parser.add_argument(
         "--resolution", type=float, default=0.05, help="map cell size in metres (default 0.05)"

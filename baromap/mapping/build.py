@@ -34,6 +34,7 @@ from baromap.mapping.run_data import RunData, load_scans, load_series, run_data
 from baromap.mapping.scans import ScanBlock
 from baromap.mapping.segmentation import Segmentation, segment_run
 from baromap.mapping.slam import BETWEEN_FLOORS, SlamConfig, SlamResult
+from baromap.recording.run_parts import Recording, run_parts
 
 log = structlog.get_logger(__name__)
 
@@ -169,7 +170,7 @@ def grid_scans(
 
 
 def build_maps(
-    recording: str | Path,
+    recording: Recording,
     out_dir: str | Path,
     *,
     resolution: float = 0.05,
@@ -179,7 +180,8 @@ def build_maps(
     runs: int = 1,
 ) -> BuildResult:
     """Run the whole pipeline and write every output file into ``out_dir``; the SLAM keeps
-    the best agreeing of ``runs`` runs (:mod:`baromap.mapping.restarts`)."""
+    the best agreeing of ``runs`` runs (:mod:`baromap.mapping.restarts`). ``recording``: a
+    run's file, or all of its files (a run baromapd rotated), or a directory of them."""
     if not 0.005 <= resolution <= 1.0:
         raise ConfigError(f"resolution {resolution} m is outside 0.005..1")
     check_runs(runs)
@@ -191,7 +193,7 @@ def build_maps(
         raise ConfigError(f"cannot use {out} as the output directory: {exc}") from exc
     try:
         return _build(
-            Path(recording),
+            run_parts(recording),
             out,
             resolution=resolution,
             method=method,
@@ -207,7 +209,7 @@ def build_maps(
 
 
 def _build(
-    recording: Path,
+    recording: tuple[Path, ...],
     out: Path,
     *,
     resolution: float,
@@ -325,7 +327,7 @@ def scan_elevations(result: BuildResult) -> FloatArray:
 
 def write_outputs(
     result: BuildResult,
-    recording: Path,
+    recording: tuple[Path, ...],
     out: Path,
     painter: _Painter,
     *,
@@ -392,7 +394,8 @@ def write_outputs(
     export.write_tum(tum, result.run.scans.t_ns[kept], result.slam.scan_poses[kept], z[kept])
     files.append(tum)
     building = {
-        "source": str(recording),
+        "source": str(recording[0]),
+        **({"parts": [str(p) for p in recording]} if len(recording) > 1 else {}),
         "frame": "one frame for all floors: the robot's start pose on its first floor",
         "resolution_m": resolution,
         "segmentation": seg.source,

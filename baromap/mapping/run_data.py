@@ -8,8 +8,10 @@ nearest odometry pose.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -28,6 +30,7 @@ from baromap.recording import (
     read_metadata,
     topics,
 )
+from baromap.recording.run_parts import Recording, run_parts
 
 log = structlog.get_logger(__name__)
 
@@ -207,43 +210,74 @@ class RunSeries:
     reference: PressureSeries
 
 
-def load_series(path: str | Path) -> RunSeries:
-    """Both barometers and odometry, in one pass over the file.
+def load_series(recording: Recording) -> RunSeries:
+    """Both barometers and odometry, in one pass over each file of the run (:func:`run_parts`).
 
     Separate from the scans so that another process can read them while this one reads the
     scans (:mod:`baromap.mapping.build`): each pass decompresses the whole file.
     """
-    pressures, odometry = load_pressures_and_odometry(
-        path, [topics.BARO, topics.REFERENCE_PRESSURE], topics.ODOM
-    )
-    if len(odometry) == 0:
-        raise InputFormatError(f"{path}: no odometry on {topics.ODOM}")
-    return RunSeries(pressures[topics.BARO], odometry, pressures[topics.REFERENCE_PRESSURE])
-
-
-def load_scans(path: str | Path) -> tuple[ScanBlock, dict[str, dict[str, str]]]:
-    """The laser scans of a recording as one block, with the laser's mounting, and the
-    recording's metadata it came from."""
-    metadata = read_metadata(path)
-    scans = [
-        rec.message
-        for rec in read_messages(path, [topics.SCAN])
-        if isinstance(rec.message, messages.LaserScan)
+    parts = run_parts(recording)
+    loaded = [
+        load_pressures_and_odometry(p, [topics.BARO, topics.REFERENCE_PRESSURE], topics.ODOM)
+        for p in parts
     ]
+    odometry = _joined([o for _, o in loaded])
+    if len(odometry) == 0:
+        raise InputFormatError(f"{_named(parts)}: no odometry on {topics.ODOM}")
+    return RunSeries(
+        _joined([p[topics.BARO] for p, _ in loaded]),
+        odometry,
+        _joined([p[topics.REFERENCE_PRESSURE] for p, _ in loaded]),
+    )
+
+
+Series = TypeVar("Series", PressureSeries, OdometrySeries)
+
+
+def _joined(parts: Sequence[Series]) -> Series:
+    """One series of a run's parts, one after the other (baromapd splits a run between two
+    messages: nothing is repeated)."""
+    if len(parts) == 1:
+        return parts[0]
+    first = parts[0]
+    return replace(
+        first,
+        **{f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(first)},
+    )
+
+
+def _named(parts: Sequence[Path]) -> str:
+    return str(parts[0]) if len(parts) == 1 else f"{parts[0]} (and {len(parts) - 1} more parts)"
+
+
+def load_scans(recording: Recording) -> tuple[ScanBlock, dict[str, dict[str, str]]]:
+    """The laser scans of a run (every file of it, :func:`run_parts`) as one block, with the
+    laser's mounting, and the metadata they came with (a later file's record of a name
+    wins)."""
+    parts = run_parts(recording)
+    metadata: dict[str, dict[str, str]] = {}
+    scans: list[messages.LaserScan] = []
+    for part in parts:
+        metadata.update(read_metadata(part))
+        scans += [
+            rec.message
+            for rec in read_messages(part, [topics.SCAN])
+            if isinstance(rec.message, messages.LaserScan)
+        ]
     if not scans:
-        raise InputFormatError(f"{path}: no laser scans on {topics.SCAN}")
+        raise InputFormatError(f"{_named(parts)}: no laser scans on {topics.SCAN}")
     return ScanBlock.from_messages(scans, laser_offset_from_metadata(metadata)), metadata
 
 
-def load_run(path: str | Path) -> RunData:
+def load_run(recording: Recording) -> RunData:
     """Read the four topics mapping needs from a recording: scans, odometry, the robot's
     barometer and a reference station's.
 
     Pressure and odometry come as whole columns in one pass (the reader's series loaders);
     scans as messages, since a scan is an array already.
     """
-    block, metadata = load_scans(path)
-    return run_data(block, metadata, load_series(path))
+    block, metadata = load_scans(recording)
+    return run_data(block, metadata, load_series(recording))
 
 
 def _say_silences(t_ns: IntArray, odom: FloatArray) -> None:
