@@ -87,10 +87,13 @@ def test_build_maps_files_and_model(short_run: Path, tmp_path: Path) -> None:
     assert {"/map/floor_0", "/map/floor_1", "/map/floor_2", "/path"} <= topics
 
 
-def _split_like_baromapd(src: Path, out_dir: Path, run: str, at_s: float) -> list[Path]:
-    """``src`` cut in two at ``at_s`` after its first message, as baromapd rotates a run:
-    each file whole, with every schema, channel and metadata record, its header naming the
-    run and the file's part."""
+def _split_like_baromapd(
+    src: Path, out_dir: Path, runs: tuple[str, str], at_s: float
+) -> list[Path]:
+    """``src`` cut in two at ``at_s`` after its first message, as baromapd rotates a run
+    (``runs`` the same) or starts another (a daemon restarted): each file whole, with every
+    schema, channel and metadata record, its header naming the run and the file's part, and
+    saying the odometry's tracks were joined, as baromapd's does."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
@@ -108,7 +111,8 @@ def _split_like_baromapd(src: Path, out_dir: Path, run: str, at_s: float) -> lis
     for part, keep in enumerate(
         (lambda t: t < start + at_s * 1e9, lambda t: t >= start + at_s * 1e9)
     ):
-        path = out_dir / f"{run}_{part:03d}.mcap"
+        number = part if runs[0] == runs[1] else 0
+        path = out_dir / f"{runs[part]}_{number:03d}.mcap"
         with path.open("wb") as g:
             writer = Writer(g)
             writer.start(profile=header.profile, library=header.library)
@@ -125,7 +129,8 @@ def _split_like_baromapd(src: Path, out_dir: Path, run: str, at_s: float) -> lis
             for m in metadata:
                 data = dict(m.metadata)
                 if m.name == topics.METADATA_NAME:
-                    data.update(run=run, part=str(part))
+                    data.update(run=runs[part], part=str(number))
+                    data[topics.ODOMETRY_TRACKS_KEY] = topics.ODOMETRY_TRACKS_JOINED
                 writer.add_metadata(m.name, data)
             for _, channel, message in records:
                 if keep(message.log_time):
@@ -140,10 +145,15 @@ def _split_like_baromapd(src: Path, out_dir: Path, run: str, at_s: float) -> lis
 def test_a_run_in_several_files_is_mapped_as_one(short_run: Path, tmp_path: Path) -> None:
     """baromapd rotates a long run into several files (by the hour, by size): build-maps
     takes them all, or their directory, in the order of their parts, and maps the run as it
-    would one file, scan for scan; files of different runs are refused."""
+    would one file, scan for scan. Files of different runs are refused, unless they are
+    said to be runs of one exploration (the daemon restarted in between): then they are
+    mapped as one too, and the odometry is looked at for a base that counted from zero at
+    the restart, which no one daemon could join."""
     from baromap.errors import ConfigError
+    from baromap.mapping.run_data import load_scans
+    from baromap.recording import topics
 
-    parts = _split_like_baromapd(short_run, tmp_path / "rec", "r1", 200.0)
+    parts = _split_like_baromapd(short_run, tmp_path / "rec", ("r1", "r1"), 200.0)
     whole, split, folder = tmp_path / "whole", tmp_path / "split", tmp_path / "folder"
     quiet = ["--log-level", "WARNING", "build-maps", "--no-progress"]
     assert cli.main([*quiet, str(short_run), "-o", str(whole)]) == 0
@@ -155,10 +165,20 @@ def test_a_run_in_several_files_is_mapped_as_one(short_run: Path, tmp_path: Path
     assert (folder / "trajectory.tum").read_text() == expected
     building = yaml.safe_load((split / "building.yaml").read_text())
     assert building["parts"] == [str(p) for p in parts]
-    other = _split_like_baromapd(short_run, tmp_path / "other", "r2", 100.0)
-    with pytest.raises(ConfigError, match="different runs"):
-        build_maps([parts[0], other[1]], tmp_path / "mixed")
-    assert not (tmp_path / "mixed").exists()
+    header = load_scans(parts)[1][topics.METADATA_NAME]
+    assert header[topics.ODOMETRY_TRACKS_KEY] == topics.ODOMETRY_TRACKS_JOINED
+
+    restarted = _split_like_baromapd(short_run, tmp_path / "restart", ("r1", "r2"), 200.0)
+    with pytest.raises(ConfigError, match=r"different runs.*--across-runs"):
+        build_maps(restarted, tmp_path / "refused")
+    assert not (tmp_path / "refused").exists()
+    across = tmp_path / "across"
+    assert cli.main([*quiet, "--across-runs", *map(str, restarted[::-1]), "-o", str(across)]) == 0
+    assert (across / "trajectory.tum").read_text() == expected
+    header = load_scans(restarted)[1][topics.METADATA_NAME]
+    assert topics.ODOMETRY_TRACKS_KEY not in header
+    with pytest.raises(ConfigError, match="overlap in time"):
+        build_maps([parts[0], *restarted], tmp_path / "overlap", across_runs=True)
 
 
 def test_short_run_meets_the_geometry_bars(short_run: Path, tmp_path: Path) -> None:

@@ -38,6 +38,12 @@ def register(subparsers: Any) -> None:
         "the one whose revisits agree best with the scans (default 1: a recording at the "
         "laser's rate gives the SLAM many scans for each choice; a sparse log gains from 3)",
     )
+    parser.add_argument(
+        "--across-runs",
+        action="store_true",
+        help="the files are runs of one exploration of one robot (baromapd restarted in "
+        "between): map them as one, in time order",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(run=run)
 
@@ -53,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
         method=args.method,
         progress=not args.no_progress,
         runs=args.runs,
+        across_runs=args.across_runs,
     )
     for line in summary_lines(result, out):
         print(line)

@@ -178,10 +178,12 @@ def build_maps(
     progress: bool = False,
     config: SlamConfig | None = None,
     runs: int = 1,
+    across_runs: bool = False,
 ) -> BuildResult:
     """Run the whole pipeline and write every output file into ``out_dir``; the SLAM keeps
     the best agreeing of ``runs`` runs (:mod:`baromap.mapping.restarts`). ``recording``: a
-    run's file, or all of its files (a run baromapd rotated), or a directory of them."""
+    run's file, or all of its files (a run baromapd rotated), or a directory of them; with
+    ``across_runs``, the runs of one exploration (:func:`run_parts`)."""
     if not 0.005 <= resolution <= 1.0:
         raise ConfigError(f"resolution {resolution} m is outside 0.005..1")
     check_runs(runs)
@@ -193,7 +195,7 @@ def build_maps(
         raise ConfigError(f"cannot use {out} as the output directory: {exc}") from exc
     try:
         return _build(
-            run_parts(recording),
+            run_parts(recording, across_runs=across_runs),
             out,
             resolution=resolution,
             method=method,

@@ -210,13 +210,14 @@ class RunSeries:
     reference: PressureSeries
 
 
-def load_series(recording: Recording) -> RunSeries:
-    """Both barometers and odometry, in one pass over each file of the run (:func:`run_parts`).
+def load_series(parts: Parts) -> RunSeries:
+    """Both barometers and odometry, in one pass over each file of the run, one after the
+    other (``parts`` in order, as :func:`run_parts` gives them).
 
     Separate from the scans so that another process can read them while this one reads the
     scans (:mod:`baromap.mapping.build`): each pass decompresses the whole file.
     """
-    parts = run_parts(recording)
+    parts = _listed(parts)
     loaded = [
         load_pressures_and_odometry(p, [topics.BARO, topics.REFERENCE_PRESSURE], topics.ODOM)
         for p in parts
@@ -246,19 +247,35 @@ def _joined(parts: Sequence[Series]) -> Series:
     )
 
 
+#: A run's files in order, or its one file.
+Parts = str | Path | Sequence[str | Path]
+
+
+def _listed(parts: Parts) -> list[Path]:
+    return [Path(parts)] if isinstance(parts, str | Path) else [Path(p) for p in parts]
+
+
 def _named(parts: Sequence[Path]) -> str:
     return str(parts[0]) if len(parts) == 1 else f"{parts[0]} (and {len(parts) - 1} more parts)"
 
 
-def load_scans(recording: Recording) -> tuple[ScanBlock, dict[str, dict[str, str]]]:
-    """The laser scans of a run (every file of it, :func:`run_parts`) as one block, with the
-    laser's mounting, and the metadata they came with (a later file's record of a name
-    wins)."""
-    parts = run_parts(recording)
+def load_scans(parts: Parts) -> tuple[ScanBlock, dict[str, dict[str, str]]]:
+    """The laser scans of a run's files (``parts`` in order, as :func:`run_parts` gives
+    them) as one block, with the laser's mounting, and the metadata they came with (a later
+    file's record of a name wins).
+
+    Files of several runs (baromapd restarted during one exploration): their header no
+    longer says the odometry is one frame. Each baromapd joined the base's restarts within
+    its own run only; across a restart of the daemon, a base power-cycled meanwhile counts
+    from zero, and :func:`join_odometry_tracks` is what finds that."""
+    parts = _listed(parts)
     metadata: dict[str, dict[str, str]] = {}
     scans: list[messages.LaserScan] = []
+    runs = set()
     for part in parts:
-        metadata.update(read_metadata(part))
+        read = read_metadata(part)
+        runs.add(read.get(topics.METADATA_NAME, {}).get("run"))
+        metadata.update(read)
         scans += [
             rec.message
             for rec in read_messages(part, [topics.SCAN])
@@ -266,18 +283,23 @@ def load_scans(recording: Recording) -> tuple[ScanBlock, dict[str, dict[str, str
         ]
     if not scans:
         raise InputFormatError(f"{_named(parts)}: no laser scans on {topics.SCAN}")
+    if len(runs) > 1 and topics.METADATA_NAME in metadata:
+        header = dict(metadata[topics.METADATA_NAME])
+        header.pop(topics.ODOMETRY_TRACKS_KEY, None)
+        metadata[topics.METADATA_NAME] = header
     return ScanBlock.from_messages(scans, laser_offset_from_metadata(metadata)), metadata
 
 
-def load_run(recording: Recording) -> RunData:
-    """Read the four topics mapping needs from a recording: scans, odometry, the robot's
-    barometer and a reference station's.
+def load_run(recording: Recording, *, across_runs: bool = False) -> RunData:
+    """Read the four topics mapping needs from a recording (its files as :func:`run_parts`
+    orders them): scans, odometry, the robot's barometer and a reference station's.
 
     Pressure and odometry come as whole columns in one pass (the reader's series loaders);
     scans as messages, since a scan is an array already.
     """
-    block, metadata = load_scans(recording)
-    return run_data(block, metadata, load_series(recording))
+    parts = run_parts(recording, across_runs=across_runs)
+    block, metadata = load_scans(parts)
+    return run_data(block, metadata, load_series(parts))
 
 
 def _say_silences(t_ns: IntArray, odom: FloatArray) -> None:
