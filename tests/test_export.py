@@ -214,6 +214,26 @@ def test_ros2_bag_reads_with_rosbags(tmp_path: Path) -> None:
     assert static.translation.x == pytest.approx(MOUNT.x_m)
 
 
+def test_ros2_export_of_a_rotated_run_is_one_bag(tmp_path: Path) -> None:
+    """A run baromapd rotated into two files exports to one bag holding what the run's one
+    file gives, whichever order the parts are named in."""
+    from baromap.evaluation.recording_cuts import split_like_baromapd
+    from baromap.export.ros2 import export_ros2
+    from baromap.recording.summary import summarize
+
+    run = tmp_path / "run.mcap"
+    every_message_type(run)
+    summary = summarize(run)
+    assert summary.start_ns is not None and summary.end_ns is not None
+    half_s = (summary.end_ns - summary.start_ns) / 2e9
+    parts = split_like_baromapd(run, tmp_path / "parts", half_s)
+    assert all(summarize(p).message_count > 0 for p in parts)
+    whole = export_ros2(run, tmp_path / "whole")
+    rotated = export_ros2(parts[::-1], tmp_path / "rotated")
+    assert sum(whole.counts.values()) > 20
+    assert rotated.counts == whole.counts
+
+
 def test_ros2_export_refuses_to_overwrite(tmp_path: Path) -> None:
     from baromap.export.ros2 import export_ros2
 

@@ -12,6 +12,7 @@ import yaml
 from baromap.cli import main as cli
 from baromap.evaluation.laser_logs import run_log
 from baromap.evaluation.mapping import evaluate_recording
+from baromap.evaluation.recording_cuts import split_like_baromapd
 from baromap.evaluation.silences import score_silence, without
 from baromap.mapping.build import build_maps
 from baromap.mapping.export import read_pgm
@@ -87,61 +88,6 @@ def test_build_maps_files_and_model(short_run: Path, tmp_path: Path) -> None:
     assert {"/map/floor_0", "/map/floor_1", "/map/floor_2", "/path"} <= topics
 
 
-def _split_like_baromapd(
-    src: Path, out_dir: Path, runs: tuple[str, str], at_s: float
-) -> list[Path]:
-    """``src`` cut in two at ``at_s`` after its first message, as baromapd rotates a run
-    (``runs`` the same) or starts another (a daemon restarted): each file whole, with every
-    schema, channel and metadata record, its header naming the run and the file's part, and
-    saying the odometry's tracks were joined, as baromapd's does."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
-
-    from baromap.recording import topics
-
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with src.open("rb") as f:
-        reader = make_reader(f)
-        header, summary = reader.get_header(), reader.get_summary()
-        assert summary is not None
-        metadata = list(reader.iter_metadata())
-        records = list(reader.iter_messages())
-    start = records[0][2].log_time
-    paths = []
-    for part, keep in enumerate(
-        (lambda t: t < start + at_s * 1e9, lambda t: t >= start + at_s * 1e9)
-    ):
-        number = part if runs[0] == runs[1] else 0
-        path = out_dir / f"{runs[part]}_{number:03d}.mcap"
-        with path.open("wb") as g:
-            writer = Writer(g)
-            writer.start(profile=header.profile, library=header.library)
-            schemas = {
-                sid: writer.register_schema(s.name, s.encoding, s.data)
-                for sid, s in summary.schemas.items()
-            }
-            channels = {
-                cid: writer.register_channel(
-                    c.topic, c.message_encoding, schemas.get(c.schema_id, 0), c.metadata
-                )
-                for cid, c in summary.channels.items()
-            }
-            for m in metadata:
-                data = dict(m.metadata)
-                if m.name == topics.METADATA_NAME:
-                    data.update(run=runs[part], part=str(number))
-                    data[topics.ODOMETRY_TRACKS_KEY] = topics.ODOMETRY_TRACKS_JOINED
-                writer.add_metadata(m.name, data)
-            for _, channel, message in records:
-                if keep(message.log_time):
-                    writer.add_message(
-                        channels[channel.id], message.log_time, message.data, message.publish_time
-                    )
-            writer.finish()
-        paths.append(path)
-    return paths
-
-
 def test_a_run_in_several_files_is_mapped_as_one(short_run: Path, tmp_path: Path) -> None:
     """baromapd rotates a long run into several files (by the hour, by size): build-maps
     takes them all, or their directory, in the order of their parts, and maps the run as it
@@ -153,7 +99,7 @@ def test_a_run_in_several_files_is_mapped_as_one(short_run: Path, tmp_path: Path
     from baromap.mapping.run_data import load_scans
     from baromap.recording import topics
 
-    parts = _split_like_baromapd(short_run, tmp_path / "rec", ("r1", "r1"), 200.0)
+    parts = split_like_baromapd(short_run, tmp_path / "rec", 200.0, ("r1", "r1"))
     whole, split, folder = tmp_path / "whole", tmp_path / "split", tmp_path / "folder"
     quiet = ["--log-level", "WARNING", "build-maps", "--no-progress"]
     assert cli.main([*quiet, str(short_run), "-o", str(whole)]) == 0
@@ -168,7 +114,7 @@ def test_a_run_in_several_files_is_mapped_as_one(short_run: Path, tmp_path: Path
     header = load_scans(parts)[1][topics.METADATA_NAME]
     assert header[topics.ODOMETRY_TRACKS_KEY] == topics.ODOMETRY_TRACKS_JOINED
 
-    restarted = _split_like_baromapd(short_run, tmp_path / "restart", ("r1", "r2"), 200.0)
+    restarted = split_like_baromapd(short_run, tmp_path / "restart", 200.0, ("r1", "r2"))
     with pytest.raises(ConfigError, match=r"different runs.*--across-runs"):
         build_maps(restarted, tmp_path / "refused")
     assert not (tmp_path / "refused").exists()

@@ -20,7 +20,17 @@ def register(subparsers: Any) -> None:
         "as nav_msgs/OccupancyGrid on /floor_<k>/map (latched), and the map -> odom transforms "
         "of its maps.mcap on /tf.",
     )
-    ros2.add_argument("recording", help="baromap recording (.mcap)")
+    ros2.add_argument(
+        "recording",
+        nargs="+",
+        help="baromap recording (.mcap); a run baromapd rotated into several files: all of "
+        "them, or their directory (one bag)",
+    )
+    ros2.add_argument(
+        "--across-runs",
+        action="store_true",
+        help="the files are runs of one exploration (baromapd restarted in between)",
+    )
     ros2.add_argument("-o", "--output", required=True, help="bag directory to create")
     ros2.add_argument(
         "--maps", default=None, metavar="OUT", help="a build-maps output directory of this run"
@@ -43,7 +53,9 @@ def register(subparsers: Any) -> None:
 def run_ros2(args: argparse.Namespace) -> int:
     from baromap.export.ros2 import export_ros2
 
-    result = export_ros2(args.recording, args.output, maps_dir=args.maps)
+    result = export_ros2(
+        args.recording, args.output, maps_dir=args.maps, across_runs=args.across_runs
+    )
     total = sum(result.counts.values())
     print(f"wrote {result.path}: {total} messages on {len(result.counts)} topics")
     for topic, count in sorted(result.counts.items()):

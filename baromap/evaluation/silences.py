@@ -21,6 +21,7 @@ import numpy.typing as npt
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 
 from baromap.evaluation.mapping import evaluate_recording, truth_at
+from baromap.evaluation.recording_cuts import start_copy
 from baromap.evaluation.trajectory import fit_rigid
 from baromap.mapping import se2
 from baromap.mapping.build import build_maps
@@ -59,22 +60,8 @@ def without(
     anchor = np.zeros(3)
     with src.open("rb") as f, dst.open("wb") as g:
         reader = make_reader(f)
-        header = reader.get_header()
-        summary = reader.get_summary()
-        if summary is None:
-            raise ValueError(f"{src} has no summary section to copy channels from")
         writer = Writer(g)
-        writer.start(profile=header.profile, library=header.library)
-        schemas = {
-            sid: writer.register_schema(s.name, s.encoding, s.data)
-            for sid, s in summary.schemas.items()
-        }
-        channels = {
-            cid: writer.register_channel(
-                c.topic, c.message_encoding, schemas.get(c.schema_id, 0), c.metadata
-            )
-            for cid, c in summary.channels.items()
-        }
+        channels = start_copy(reader, writer, src)
         for record in reader.iter_metadata():
             writer.add_metadata(record.name, record.metadata)
         factory = ProtobufDecoderFactory()

@@ -33,6 +33,7 @@ their origin z at the floor's elevation (RViz and Foxglove stack them; Nav2 read
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import Counter
 from collections.abc import Callable
@@ -50,6 +51,7 @@ from baromap.export.map_yaml import read_yaml_mapping
 from baromap.mapping.export import read_pgm
 from baromap.mapping.run_data import laser_offset_from_metadata
 from baromap.recording import read_messages, read_metadata, topics
+from baromap.recording.run_parts import Recording, run_parts
 
 log = structlog.get_logger(__name__)
 
@@ -271,13 +273,19 @@ def _json(bag: _Bag, message: Any) -> Any:
 
 
 def export_ros2(
-    recording: str | Path, out_dir: str | Path, *, maps_dir: str | Path | None = None
+    recording: Recording,
+    out_dir: str | Path,
+    *,
+    maps_dir: str | Path | None = None,
+    across_runs: bool = False,
 ) -> Ros2Export:
-    """Write ``recording`` (and optionally a build-maps directory's maps) as a rosbag2."""
+    """Write ``recording`` (and optionally a build-maps directory's maps) as a rosbag2: every
+    file of the run in order (:func:`~baromap.recording.run_parts.run_parts`), one bag."""
     out = Path(out_dir)
     if out.exists():
         raise ConfigError(f"{out} exists: a rosbag2 goes into a new directory")
-    metadata = read_metadata(recording)
+    parts = run_parts(recording, across_runs=across_runs)
+    metadata = read_metadata(parts[0])
     mount = laser_offset_from_metadata(metadata)
     maps = _load_maps(Path(maps_dir)) if maps_dir is not None else []
     map_transforms = _map_transforms(Path(maps_dir)) if maps_dir is not None else []
@@ -296,7 +304,7 @@ def export_ros2(
         messages.TruthPose: "geometry_msgs/msg/PoseStamped",
     }
     with _Bag(out) as bag:
-        for rec in read_messages(recording):
+        for rec in itertools.chain.from_iterable(read_messages(p) for p in parts):
             msg = rec.message
             if not started:
                 started = True
@@ -330,7 +338,7 @@ def export_ros2(
             else:
                 skipped[rec.topic] += 1
         if not started:
-            raise InputFormatError(f"{recording} holds no messages")
+            raise InputFormatError(f"{', '.join(map(str, parts))}: no messages")
         while next_map is not None:
             _write_map_transform(bag, *next_map)
             next_map = next(pending_maps, None)
