@@ -211,7 +211,7 @@ def build_maps(
 
 
 def _build(
-    recording: tuple[Path, ...],
+    parts: tuple[Path, ...],
     out: Path,
     *,
     resolution: float,
@@ -224,9 +224,9 @@ def _build(
     with _Painter() as painter:
         t0 = time.perf_counter()
         # the series in the painter while this process reads the scans; then matplotlib
-        series = painter.submit(load_series, recording)
+        series = painter.submit(load_series, parts)
         painter.warm_up()
-        block, metadata = load_scans(recording)
+        block, metadata = load_scans(parts)
         run = run_data(block, metadata, series.result())
         timings["load"] = time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -250,7 +250,7 @@ def _build(
         t0 = time.perf_counter()
         result = BuildResult(run, segmentation, slam, {}, timings_s=timings)
         result.files = write_outputs(
-            result, recording, out, painter, resolution=resolution, config=config
+            result, parts, out, painter, resolution=resolution, config=config
         )
         result.files.append(pressure_png)
         painter.wait()
@@ -329,7 +329,7 @@ def scan_elevations(result: BuildResult) -> FloatArray:
 
 def write_outputs(
     result: BuildResult,
-    recording: tuple[Path, ...],
+    parts: tuple[Path, ...],
     out: Path,
     painter: _Painter,
     *,
@@ -396,8 +396,8 @@ def write_outputs(
     export.write_tum(tum, result.run.scans.t_ns[kept], result.slam.scan_poses[kept], z[kept])
     files.append(tum)
     building = {
-        "source": str(recording[0]),
-        **({"parts": [str(p) for p in recording]} if len(recording) > 1 else {}),
+        "source": str(parts[0]),
+        **({"parts": [str(p) for p in parts]} if len(parts) > 1 else {}),
         "frame": "one frame for all floors: the robot's start pose on its first floor",
         "resolution_m": resolution,
         "segmentation": seg.source,

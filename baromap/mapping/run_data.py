@@ -210,28 +210,6 @@ class RunSeries:
     reference: PressureSeries
 
 
-def load_series(parts: Parts) -> RunSeries:
-    """Both barometers and odometry, in one pass over each file of the run, one after the
-    other (``parts`` in order, as :func:`run_parts` gives them).
-
-    Separate from the scans so that another process can read them while this one reads the
-    scans (:mod:`baromap.mapping.build`): each pass decompresses the whole file.
-    """
-    parts = _listed(parts)
-    loaded = [
-        load_pressures_and_odometry(p, [topics.BARO, topics.REFERENCE_PRESSURE], topics.ODOM)
-        for p in parts
-    ]
-    odometry = _joined([o for _, o in loaded])
-    if len(odometry) == 0:
-        raise InputFormatError(f"{_named(parts)}: no odometry on {topics.ODOM}")
-    return RunSeries(
-        _joined([p[topics.BARO] for p, _ in loaded]),
-        odometry,
-        _joined([p[topics.REFERENCE_PRESSURE] for p, _ in loaded]),
-    )
-
-
 Series = TypeVar("Series", PressureSeries, OdometrySeries)
 
 
@@ -257,6 +235,28 @@ def _listed(parts: Parts) -> list[Path]:
 
 def _named(parts: Sequence[Path]) -> str:
     return str(parts[0]) if len(parts) == 1 else f"{parts[0]} (and {len(parts) - 1} more parts)"
+
+
+def load_series(parts: Parts) -> RunSeries:
+    """Both barometers and odometry, in one pass over each file of the run, one after the
+    other (``parts`` in order, as :func:`run_parts` gives them).
+
+    Separate from the scans so that another process can read them while this one reads the
+    scans (:mod:`baromap.mapping.build`): each pass decompresses the whole file.
+    """
+    parts = _listed(parts)
+    loaded = [
+        load_pressures_and_odometry(p, [topics.BARO, topics.REFERENCE_PRESSURE], topics.ODOM)
+        for p in parts
+    ]
+    odometry = _joined([o for _, o in loaded])
+    if len(odometry) == 0:
+        raise InputFormatError(f"{_named(parts)}: no odometry on {topics.ODOM}")
+    return RunSeries(
+        _joined([p[topics.BARO] for p, _ in loaded]),
+        odometry,
+        _joined([p[topics.REFERENCE_PRESSURE] for p, _ in loaded]),
+    )
 
 
 def load_scans(parts: Parts) -> tuple[ScanBlock, dict[str, dict[str, str]]]:
