@@ -636,3 +636,45 @@ def test_detect_calls_a_false_mcap_what_it_is(
     fake.write_text("time_s,pressure_pa\n0,101325\n")
     assert main(["detect", str(fake)]) == 1
     assert "is named .mcap but is not an MCAP" in capsys.readouterr().err
+
+
+def test_run_parts_orders_a_runs_files_and_refuses_what_is_not_one_run(tmp_path: Path) -> None:
+    """The files of a rotated run come in the order of their parts whatever order they are
+    named in; runs of one robot are taken across restarts only when asked, in time order,
+    and said in the log when hours apart; other robots and overlapping runs are refused."""
+    from structlog.testing import capture_logs
+
+    from baromap.errors import ConfigError
+    from baromap.recording.run_parts import run_parts
+
+    hour = 3600 * 10**9
+
+    def part(name: str, robot: str, run: str, number: int, t_ns: int) -> Path:
+        path = tmp_path / name
+        meta = {"run": run, "part": str(number)}
+        with RecordingWriter(path, robot=robot, metadata=meta) as writer:
+            writer.write(m.PressureSample(t_ns, 101325.0, 21.0, seq=1))
+            writer.write(m.PressureSample(t_ns + 10**9, 101325.0, 21.0, seq=2))
+        return path
+
+    first, second = (
+        part("a.mcap", "r1", "run1", 0, T0),
+        part("b.mcap", "r1", "run1", 1, T0 + 2 * 10**9),
+    )
+    assert run_parts([second, first]) == (first, second)
+    assert run_parts(tmp_path) == (first, second)
+    later = part("c.mcap", "r1", "run2", 0, T0 + 3 * hour)
+    with pytest.raises(ConfigError, match="different runs"):
+        run_parts([first, later])
+    with capture_logs() as logs:
+        assert run_parts([later, second, first], across_runs=True) == (first, second, later)
+    apart = [e["apart_min"] for e in logs if e["event"].startswith("runs far apart")]
+    assert apart == [pytest.approx(180.0, abs=0.1)]
+    overlapping = part("d.mcap", "r1", "run3", 0, T0 + 1)
+    with pytest.raises(ConfigError, match="overlap in time"):
+        run_parts([first, overlapping], across_runs=True)
+    other = part("e.mcap", "r2", "run1", 2, T0 + 4 * 10**9)
+    with pytest.raises(ConfigError, match="different robots"):
+        run_parts([first, other])
+    with pytest.raises(ConfigError, match="given twice"):
+        run_parts([first, first])

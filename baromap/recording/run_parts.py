@@ -24,6 +24,9 @@ from baromap.recording.summary import summarize
 
 log = structlog.get_logger(__name__)
 
+#: Runs further apart than this are said in the log when taken as one exploration.
+FAR_APART_NS = 30 * 60 * 1_000_000_000
+
 #: What names a run's recording: one file, a directory holding its files, or its files.
 Recording = str | Path | Sequence[str | Path]
 
@@ -92,4 +95,12 @@ def _in_time_order(files: list[Path]) -> tuple[Path, ...]:
     for (_, end, a), (start, _, b) in itertools.pairwise(spans):
         if start < end:
             raise ConfigError(f"{a.name} and {b.name} overlap in time: not one robot's runs")
+        if start - end > FAR_APART_NS:
+            # a restart takes seconds to minutes; hours apart is more likely another day
+            log.warning(
+                "runs far apart: are they one exploration?",
+                before=a.name,
+                after=b.name,
+                apart_min=round((start - end) / 60e9, 1),
+            )
     return tuple(f for _, _, f in spans)
