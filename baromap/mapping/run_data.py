@@ -7,7 +7,6 @@ nearest odometry pose.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -21,6 +20,7 @@ from baromap import messages
 from baromap.errors import InputFormatError
 from baromap.mapping import se2
 from baromap.mapping.scans import ScanBlock
+from baromap.odometry.integrator import ORIGIN_M, ORIGIN_RAD
 from baromap.recording import (
     LaserMount,
     OdometrySeries,
@@ -52,10 +52,9 @@ ODOMETRY_GAP_INTERVALS = 10.0
 #: its own (power-cycled, under a recorder that does not join its tracks as baromapd does)
 TRACK_SPEED_M_S = 2.0
 TRACK_SLACK_M = 0.5
-#: ... and so is, however near, a pose at the odometry's origin (within these) after one that
-#: was not: the first pose of a base that counts from zero again
-TRACK_ORIGIN_M = 0.05
-TRACK_ORIGIN_RAD = math.radians(2.0)
+#: ... and so is, however near, a pose at the odometry's origin (within the integrator's
+#: ORIGIN_M and ORIGIN_RAD, the same test baromapd makes) after one that was not: the first
+#: pose of a base that counts from zero again
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -136,9 +135,7 @@ def join_odometry_tracks(t_src: IntArray, poses: FloatArray) -> tuple[FloatArray
     limit = _gap_limit_ns(gaps)
     moved = np.hypot(*np.diff(p[:, :2], axis=0).T)
     reach = TRACK_SPEED_M_S * gaps / 1e9 + TRACK_SLACK_M
-    origin = (np.hypot(p[:, 0], p[:, 1]) <= TRACK_ORIGIN_M) & (
-        np.abs(se2.wrap(p[:, 2])) <= TRACK_ORIGIN_RAD
-    )
+    origin = (np.hypot(p[:, 0], p[:, 1]) <= ORIGIN_M) & (np.abs(se2.wrap(p[:, 2])) <= ORIGIN_RAD)
     restarted = (moved > reach) | (origin[1:] & ~origin[:-1])
     starts = np.flatnonzero((gaps > limit) & restarted) + 1
     for b in starts:
