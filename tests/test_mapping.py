@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from baromap.errors import ConfigError
 from baromap.mapping import se2
+from baromap.mapping.errors import MappingError
 from baromap.mapping.export import (
     FREE_VALUE,
     OCCUPIED_VALUE,
@@ -325,6 +326,27 @@ def test_without_kernel_the_wrong_closure_does_bend_the_map() -> None:
     good.optimize()
     bad.optimize()
     assert np.abs(bad.poses[:, :2] - good.poses[:, :2]).max() > 0.5
+
+
+def test_the_parts_of_a_pose_graph_are_what_the_edges_kept_join() -> None:
+    """Left out, the step across a gap cuts the chain in two; a closure across it, or one
+    from a later part back to the first, joins them again. Part 0 is node 0's."""
+    graph = PoseGraph()
+    for _ in range(8):
+        graph.add_node(np.zeros(3))
+    info = np.eye(3)
+    for i in range(7):
+        graph.add_edge(Edge(i, i + 1, np.array([1.0, 0.0, 0.0]), info, "odometry"))
+    gap = np.zeros(graph.edge_count, dtype=bool)
+    gap[2] = gap[5] = True  # the steps into nodes 3 and 6
+    assert graph.parts().tolist() == [0] * 8
+    assert graph.parts(gap).tolist() == [0, 0, 0, 1, 1, 1, 2, 2]
+    graph.add_edge(Edge(7, 4, np.array([-3.0, 0.0, 0.0]), info, "loop"))
+    assert graph.parts(np.append(gap, False)).tolist() == [0, 0, 0, 1, 1, 1, 1, 1]
+    graph.add_edge(Edge(1, 5, np.array([4.0, 0.0, 0.0]), info, "loop"))
+    assert graph.parts(np.append(gap, [False, False])).tolist() == [0] * 8
+    with pytest.raises(MappingError):
+        graph.parts(gap)  # a mask of another graph's edges
 
 
 def test_priors_fix_the_frame_without_pinning_the_first_node() -> None:

@@ -14,11 +14,12 @@ from baromap.evaluation.laser_logs import run_log
 from baromap.evaluation.mapping import evaluate_recording
 from baromap.evaluation.recording_cuts import split_like_baromapd
 from baromap.evaluation.silences import score_silence, without
-from baromap.mapping.build import build_maps
+from baromap.mapping.build import build_maps, summary_lines
 from baromap.mapping.export import read_pgm
 from baromap.recording import read_messages
 from baromap.sim.building import make_building
 from baromap.sim.record import record_run
+from baromap.sim.scenario import SIM_EPOCH_NS
 
 
 @pytest.fixture(scope="module")
@@ -58,6 +59,8 @@ def test_build_maps_files_and_model(short_run: Path, tmp_path: Path) -> None:
     assert building["loop_closures"]["cross_floor"] == 0
     # the car is matched across the rides: that is what joins the floors
     assert building["loop_closures"]["elevator_car"] > 0
+    # and every part of the run is tied to the rest by what the scans measured
+    assert building["untied"] == []
     # every ride between two floors of the model, in time order, inside the recording
     rides = building["rides"]
     assert rides and all(r["from_floor"] != r["to_floor"] for r in rides)
@@ -127,6 +130,43 @@ def test_a_run_in_several_files_is_mapped_as_one(short_run: Path, tmp_path: Path
         build_maps([parts[0], *restarted], tmp_path / "overlap", across_runs=True)
 
 
+def test_a_part_of_the_run_nothing_ties_to_the_rest_is_said(tmp_path: Path) -> None:
+    """Two explorations of one floor each, of different buildings, given as one run: the
+    second begins after a minute with nothing recorded, its odometry from zero, its pressure
+    another floor's. Nothing the scans measured ties it to the first (no revisit, no car, no
+    place found again): where it stands is the joined odometry's guess. The mapping says so
+    in its log, in ``building.yaml`` and in its summary, with the part's stretch of the
+    run."""
+    from structlog.testing import capture_logs
+
+    first, second = tmp_path / "first.mcap", tmp_path / "second.mcap"
+    record_run(first, seed=3, floors=1, minutes=4.0, progress=False)
+    later_ns = SIM_EPOCH_NS + 300 * 1_000_000_000
+    record_run(second, seed=5, floors=1, minutes=4.0, start_ns=later_ns, progress=False)
+    with capture_logs() as logs:
+        result = build_maps([first, second], tmp_path / "maps")
+    (said,) = [
+        e for e in logs if e["event"] == "part of the run is placed by odometry across a gap alone"
+    ]
+    (part,) = result.slam.untied
+    scan_t = result.run.scans.t_ns
+    assert (scan_t[result.slam.keyframes[part]] >= later_ns).all()
+    floor = result.segmentation.scan_floor
+    (second_floor,) = set(floor[(scan_t >= later_ns) & (floor >= 0)].tolist())
+    assert second_floor not in floor[scan_t < later_ns]
+    assert said["log_level"] == "warning" and said["parts"] == 1
+    assert said["floors"] == [second_floor]
+    assert said["keyframes"] == result.slam.stats["untied_keyframes"] == len(part) > 100
+    building = yaml.safe_load((tmp_path / "maps" / "building.yaml").read_text())
+    (stretch,) = building["untied"]
+    assert stretch["part"] == 1 and stretch["floors"] == [second_floor]
+    assert later_ns <= stretch["t_start_ns"] < stretch["t_end_ns"] <= scan_t[-1]
+    assert stretch["keyframes"] == len(part)
+    (line,) = [line for line in summary_lines(result, tmp_path) if "gap alone" in line]
+    assert f"{len(part)} keyframes from 3" in line
+    assert line.endswith(f"on floor(s) {second_floor}")
+
+
 def test_short_run_meets_the_geometry_bars(short_run: Path, tmp_path: Path) -> None:
     result = build_maps(short_run, tmp_path)
     report = evaluate_recording(result, short_run)
@@ -175,6 +215,7 @@ def test_a_laser_silent_for_a_minute_twice_is_driven_through(
     stats = result.slam.stats
     assert stats["front_after_gap"] == 2
     assert stats["car_rides_missed"] >= 1 and stats["car_far_matches"] >= 2
+    assert stats["untied_keyframes"] == 0  # loop closures and the car tied both back
     report = evaluate_recording(result, silent)
     assert report.trajectory_rms_m < 0.1
     assert report.one_map_per_floor()
@@ -211,6 +252,7 @@ def test_odometry_silent_or_counting_from_zero_is_found_again(
     assert events.count("odometry counted from zero again: joined at the pose before") == 1
     assert score.stats["odometry_gaps"] == 3
     assert score.stats["relocated"] == 2  # the power cycles, not the counters that went on
+    assert score.stats["untied_keyframes"] == 0
     assert 1200 < score.blind_scans < 1400
     assert score.kept_rms_m < 0.07
     assert score.kept_max_m < 0.4

@@ -416,6 +416,7 @@ def write_outputs(
             "cross_floor": result.cross_floor_closures,
             "elevator_car": len(result.slam.car_edges),
         },
+        "untied": _untied_entries(result),
         "keyframes": len(result.slam.keyframes),
         "scans": len(result.run.scans),
     }
@@ -439,6 +440,30 @@ def write_outputs(
     )
     files.append(maps)
     return files
+
+
+def _untied_entries(result: BuildResult) -> list[dict[str, Any]]:
+    """``building.yaml``'s account of the parts of the run that nothing but odometry across a
+    gap places in the building (:attr:`SlamResult.untied`): each stretch of consecutive
+    keyframes of such a part, in time order, with the floors it is on. Empty when the whole
+    run is tied together."""
+    t_ns = result.run.scans.t_ns
+    floor = result.segmentation.scan_floor
+    entries = []
+    for number, part in enumerate(result.slam.untied, start=1):
+        breaks = np.flatnonzero(np.diff(part) > 1) + 1
+        for stretch in np.split(part, breaks):
+            scans = result.slam.keyframes[stretch]
+            entries.append(
+                {
+                    "part": number,
+                    "t_start_ns": int(t_ns[scans[0]]),
+                    "t_end_ns": int(t_ns[scans[-1]]),
+                    "keyframes": len(stretch),
+                    "floors": sorted({int(f) for f in floor[scans] if f != BETWEEN_FLOORS}),
+                }
+            )
+    return sorted(entries, key=lambda e: e["t_start_ns"])
 
 
 def _path_with_gaps(
@@ -510,6 +535,14 @@ def summary_lines(result: BuildResult, out: Path) -> list[str]:
         f"{len(slam.loop_edges)} loop closures within floors, "
         f"{len(slam.car_edges)} between the elevator car at different rides"
     )
+    t0 = int(result.run.scans.t_ns[0])
+    for stretch in _untied_entries(result):
+        lines.append(
+            f"  placed by odometry across a gap alone (nothing the scans saw ties it to the "
+            f"rest): {stretch['keyframes']} keyframes from "
+            f"{(stretch['t_start_ns'] - t0) / 1e9:.1f} to {(stretch['t_end_ns'] - t0) / 1e9:.1f} s"
+            f" on floor(s) {', '.join(map(str, stretch['floors'])) or 'none'}"
+        )
     total = sum(result.timings_s.values())
     lines.append(
         "  time "

@@ -27,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 import structlog
 from scipy import sparse
+from scipy.sparse import csgraph
 from scipy.sparse import linalg as sparse_linalg
 
 from baromap.mapping import se2
@@ -151,6 +152,24 @@ class PoseGraph:
         rot[:, 2, 2] = 1.0
         info = np.asarray(information, dtype=np.float64).reshape(-1, 3, 3)
         self._prior_info = np.einsum("mki,mkl,mlj->mij", rot, info, rot)
+
+    def parts(self, left_out: npt.NDArray[np.bool_] | None = None) -> IntArray:
+        """The connected part of the graph each node is in, by the edges not ``left_out``
+        (a mask over the edges): nodes of different parts are placed against each other
+        only by the edges left out. Parts are numbered in the order of their first node, so
+        node 0's is part 0."""
+        keep = np.ones(self._m, dtype=bool) if left_out is None else ~np.asarray(left_out)
+        if keep.shape != (self._m,):
+            raise MappingError(f"a mask of {keep.shape} over {self._m} edges")
+        i, j = self._i[: self._m][keep], self._j[: self._m][keep]
+        adjacency = sparse.coo_matrix((np.ones(len(i)), (i, j)), shape=(self._n, self._n))
+        _, labels = csgraph.connected_components(adjacency, directed=False)
+        # renumbered by first node, whatever order scipy gives
+        _, first = np.unique(labels, return_index=True)
+        rank = np.empty(len(first), dtype=np.int64)
+        rank[np.argsort(first)] = np.arange(len(first))
+        parts: IntArray = rank[labels]
+        return parts
 
     def edge_errors(
         self, poses: FloatArray | None = None, edges: IntArray | None = None

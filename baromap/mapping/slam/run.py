@@ -58,6 +58,9 @@ class SlamResult:
     #: odometry's systematic errors as learnt (:mod:`baromap.mapping.odometry_calibration`):
     #: distance factor, turn factor - 1, heading creep [rad/m]; (1, 0, 0) when unknown
     odometry_correction: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    #: keyframes placed against the start's part of the map by odometry across a gap alone,
+    #: one array per part (:meth:`_Slam._untied`); empty when every part is tied
+    untied: list[IntArray] = field(default_factory=list)
 
 
 def select_keyframes(
@@ -169,6 +172,8 @@ class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
         self.stats["loops"] = len(self.loops)
         self.stats["submaps"] = len(self.finished)
         self.stats["submap_releases"] = self.cache.releases
+        untied = self._untied()
+        self.stats["untied_keyframes"] = sum(len(part) for part in untied)
         poses = self.graph.poses.copy()
         return SlamResult(
             self.kf_scan,
@@ -179,7 +184,39 @@ class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
             self.car_edges,
             {k: float(v) for k, v in self.stats.items()},
             (scale, turn, creep),
+            untied,
         )
+
+    def _untied(self) -> list[IntArray]:
+        """The keyframes that nothing but odometry across a gap places against the part of
+        the map where the run began, one array per part.
+
+        A step over a laser silence or a gap in the odometry (``silent_steps``, and a gap
+        in the odometry at a ride) is not matched; loop closures, the car at a ride or the
+        chain found again after a power cycle tie what comes after it back. Where none does
+        (the robot drove on through ground it never saw again, runs of two explorations
+        given as one) that part stands where the odometry across the gap put it, metres and
+        degrees off for all the scans can say, and its own map may be right while the
+        building's is not."""
+        across = self.silent_steps | set(np.flatnonzero(self.blind_step | self.unmeasured_step))
+        gaps = np.array(
+            [e.kind == "odometry" and e.j in across for e in self.graph.edges], dtype=bool
+        )
+        if not gaps.any():
+            return []
+        part = self.graph.parts(gaps)
+        untied = [np.flatnonzero(part == p) for p in range(1, int(part.max()) + 1)]
+        if not untied:
+            return []
+        t = self.t_ns[self.kf_scan]
+        log.warning(
+            "part of the run is placed by odometry across a gap alone",
+            parts=len(untied),
+            keyframes=sum(len(p) for p in untied),
+            first_after_s=[round(float(t[p[0]] - t[0]) / 1e9, 1) for p in untied],
+            floors=sorted({int(f) for p in untied for f in self.kf_floor[p] if f >= 0}),
+        )
+        return untied
 
     def _end_visit(self) -> None:
         self._settle_deferred()
