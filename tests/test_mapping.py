@@ -688,6 +688,26 @@ def test_odometry_calibration_learns_the_systematic_errors_where_scans_pin_the_m
     assert step == pytest.approx([1.0, 0.0, 0.3], abs=0.01)
 
 
+@pytest.mark.parametrize("turn_error", [0.4, -0.3])
+def test_odometry_calibration_learns_a_skid_steer_bases_large_turn_error(
+    turn_error: float,
+) -> None:
+    """A four-wheel skid-steer base (the P3-AT) slips sideways as it turns, so its encoders
+    read turns long by as much as its tyres and the floor make it: tens of percent where its
+    turn was calibrated on another floor. That is a calibration to learn, not a broken
+    odometry: learnt whole, not stopped at 20 %; and a base that reads turns 30 % short too."""
+    rng = np.random.default_rng(3)
+    cal = OdometryCalibration()
+    pinned = np.diag([0.01**2, 0.01**2, math.radians(0.2) ** 2])
+    for _ in range(300):
+        true = np.array([rng.uniform(0.3, 1.0), rng.normal(0, 0.02), rng.normal(0, 0.3)])
+        read = true * np.array([1.0, 1.0, 1.0 + turn_error])
+        cal.observe(read, true + rng.multivariate_normal(np.zeros(3), pinned), pinned)
+    a, _ = cal.turn_terms()
+    assert a == pytest.approx(1 / (1 + turn_error) - 1, abs=0.01)
+    assert cal.correct(read)[2] == pytest.approx(true[2], abs=math.radians(0.5))
+
+
 def test_an_error_models_correction_undoes_it() -> None:
     """What a perfect calibration learns of a model (distance factor, turn factor - 1, creep
     per odometric metre), applied as the SLAM applies it, gives back the true steps: checked
