@@ -199,6 +199,8 @@ class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
         degrees off for all the scans can say, and its own map may be right while the
         building's is not."""
         across = self.silent_steps | set(np.flatnonzero(self.blind_step | self.unmeasured_step))
+        if not across:
+            return []
         gaps = np.array(
             [e.kind == "odometry" and e.j in across for e in self.graph.edges], dtype=bool
         )
