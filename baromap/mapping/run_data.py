@@ -49,12 +49,11 @@ ODOMETRY_GAP_S = 1.0
 ODOMETRY_GAP_INTERVALS = 10.0
 #: Across such a gap, a move further than this speed times the gap plus TRACK_SLACK_M is no
 #: drive (indoor bases top out at 1-1.5 m/s): the base counts from zero again in a frame of
-#: its own (power-cycled, under a recorder that does not join its tracks as baromapd does)
+#: its own (power-cycled, under a recorder that does not join its tracks as baromapd does).
+#: So is, however near, a pose at the odometry's origin (within the integrator's ORIGIN_M
+#: and ORIGIN_RAD, the test baromapd makes) after one that was not.
 TRACK_SPEED_M_S = 2.0
 TRACK_SLACK_M = 0.5
-#: ... and so is, however near, a pose at the odometry's origin (within the integrator's
-#: ORIGIN_M and ORIGIN_RAD, the same test baromapd makes) after one that was not: the first
-#: pose of a base that counts from zero again
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -222,11 +221,7 @@ def _joined(parts: Sequence[Series]) -> Series:
     )
 
 
-#: A run's files in order, or its one file.
-Parts = str | Path | Sequence[str | Path]
-
-
-def _listed(parts: Parts) -> list[Path]:
+def _listed(parts: Recording) -> list[Path]:
     return [Path(parts)] if isinstance(parts, str | Path) else [Path(p) for p in parts]
 
 
@@ -234,7 +229,7 @@ def _named(parts: Sequence[Path]) -> str:
     return str(parts[0]) if len(parts) == 1 else f"{parts[0]} (and {len(parts) - 1} more parts)"
 
 
-def load_series(parts: Parts) -> RunSeries:
+def load_series(parts: Recording) -> RunSeries:
     """Both barometers and odometry, in one pass over each file of the run, one after the
     other (``parts`` in order, as :func:`run_parts` gives them).
 
@@ -256,7 +251,7 @@ def load_series(parts: Parts) -> RunSeries:
     )
 
 
-def load_scans(parts: Parts) -> tuple[ScanBlock, dict[str, dict[str, str]]]:
+def load_scans(parts: Recording) -> tuple[ScanBlock, dict[str, dict[str, str]]]:
     """The laser scans of a run's files (``parts`` in order, as :func:`run_parts` gives
     them) as one block, with the laser's mounting, and the metadata they came with (a later
     file's record of a name wins).
