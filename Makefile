@@ -50,8 +50,8 @@ $(TEST_STAMP): $(STAMP)
 	$(COMPILE)
 	touch $@
 
-# The laser's tap in C (daemon/tap.c; daemon/tap.py says why there is a tap): built beside the
-# venv's interpreter, where daemon.tap looks for it (the README's install: `make tap
+# The laser's tap in C (daemon/tap.c; daemon/baromapd/tap.py says why there is a tap): built beside the
+# venv's interpreter, where baromapd.tap looks for it (the README's install: `make tap
 # BIN=/opt/baromap/bin`). Without a C compiler the daemon runs the Python tap and logs which.
 tap: $(TAP)
 
@@ -60,7 +60,7 @@ $(TAP): daemon/tap.c
 	@if command -v $(CC) >/dev/null 2>&1; then \
 	  echo "$(CC) $(TAP_CFLAGS) -o $@ $<"; $(CC) $(TAP_CFLAGS) -o $@ $<; \
 	else \
-	  echo "tap: no C compiler ($(CC)): the daemon runs the Python tap (daemon/tap.py)"; \
+	  echo "tap: no C compiler ($(CC)): the daemon runs the Python tap (daemon/baromapd/tap.py)"; \
 	fi
 
 bench: $(STAMP) $(TAP)

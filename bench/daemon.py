@@ -78,7 +78,7 @@ def _free_port() -> int:
 
 
 def _children(pid: int) -> list[int]:
-    """The running child processes of ``pid`` (the daemon's taps, ``daemon.tap``)."""
+    """The running child processes of ``pid`` (the daemon's taps, ``baromapd.tap``)."""
     out = []
     for stat in Path("/proc").glob("[0-9]*/stat"):
         try:
@@ -233,7 +233,7 @@ def main() -> int:
             started = time.monotonic()
             try:
                 proc = subprocess.Popen(
-                    [sys.executable, "-m", "daemon.main", "--config", str(config)],
+                    [sys.executable, "-m", "baromapd.main", "--config", str(config)],
                     stderr=(work / "daemon.log").open("wb"),
                     env={**os.environ, "BAROMAPD_BENCH": "1"},
                 )

@@ -10,7 +10,7 @@ minute, per wall minute and per hour of running: the twins stream at their real 
 
 ``--old-read`` gives the daemon's readers the read they had before: ``os.read(fd, 65536)``,
 which allocates 64 KiB per read and shrinks it, its result handed on as it is (a name or two
-in ``daemon.session`` swapped, not a copy of the reader), to show the growth that read caused.
+in ``baromapd.session`` swapped, not a copy of the reader), to show the growth that read caused.
 
 ``rotations`` is the recorder's rotation alone, in this process: ``--files`` recordings opened,
 given the daemon's JSON messages (pressure and health), closed, deleted; printed every fifth of
@@ -62,7 +62,7 @@ def _is_daemon():
     # the bench's children inherit the environment: only the daemon is probed
     with open("/proc/self/cmdline", "rb") as f:
         argv = f.read().split(b"\0")
-    return any(a.endswith(b"/baromapd") or a == b"daemon.main" for a in argv)
+    return any(a.endswith(b"/baromapd") or a == b"baromapd.main" for a in argv)
 
 def _rollup():
     out = {}
@@ -164,7 +164,7 @@ def _sample():
 
 if _is_daemon():
     if os.environ.get("BAROMAP_MEMPROBE_OLD_READ"):
-        import daemon.session as _session
+        import baromapd.session as _session
         _session.os = _FormerOs()
         _session.memoryview = lambda _: _FormerBuffer()
     threading.Thread(target=_sample, name="memprobe", daemon=True).start()
@@ -290,7 +290,7 @@ def main() -> int:
             if args.old_read:
                 env["BAROMAP_MEMPROBE_OLD_READ"] = "1"
             proc = subprocess.Popen(
-                [sys.executable, "-m", "daemon.main", "--config", str(work / "baromapd.toml")],
+                [sys.executable, "-m", "baromapd.main", "--config", str(work / "baromapd.toml")],
                 stderr=(work / "daemon.log").open("wb"),
                 env=env,
             )

@@ -2,7 +2,7 @@
 decision to the event in a subscriber in another process, on loopback (the bar: p99 <= 5 ms).
 
 This process is the daemon's side, with the daemon's own parts: simulated runs (6 floors) go
-sample by sample to the daemon's floor tracker (``daemon.floors.FloorTracker``: the online
+sample by sample to the daemon's floor tracker (``baromapd.floors.FloorTracker``: the online
 detector, run in place on the offering thread as on a barometer reader's), which publishes
 events and states to the daemon's ``LivePublisher`` (a Zenoh peer on a free loopback port),
 as the daemon's fan-out does. A second process subscribes with ``FloorWatch`` (what
@@ -131,8 +131,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return subscribe(args.subscribe)
 
     from baromap.floors import FloorDetectorConfig
-    from daemon.floors import FloorTracker
-    from daemon.live import LivePublisher
+    from baromapd.floors import FloorTracker
+    from baromapd.live import LivePublisher
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     publisher = LivePublisher(LiveSettings(listen=(endpoint,)), ROBOT)

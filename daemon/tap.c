@@ -1,7 +1,7 @@
 /*
  * baromapd-tap: a device's port read by a small process of its own, which stamps every read.
  *
- * The same process as daemon/tap.py's serve() and main(), in C. Why a tap at all is in
+ * The same process as daemon/baromapd/tap.py's serve() and main(), in C. Why a tap at all is in
  * tap.py's docstring (a reader thread of the daemon waits for the GIL before it can take the
  * time, so its stamps are late by whatever held it). Why a C one: the tap wakes for every packet
  * the port delivers (four a scan from the twins, 300 and more a second at 500 kbaud), and per

@@ -205,7 +205,13 @@ def run_live(
         session = _Session(kids, show)
         daemon = kids.start(
             "baromapd",
-            [*command("baromapd", "daemon.main"), "--config", str(config), "--log-format", "json"],
+            [
+                *command("baromapd", "baromapd.main"),
+                "--config",
+                str(config),
+                "--log-format",
+                "json",
+            ],
         )
         session.wait_for(
             lambda: "zenoh session open" in session.daemon_events,

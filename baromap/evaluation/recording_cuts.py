@@ -2,7 +2,7 @@
 check what reads a run copes with: rotated into parts, or split by a restart of the daemon.
 
 A copy keeps every schema, channel and metadata record; only the header names the run and
-the part, as baromapd writes them (``daemon/recorder.py``).
+the part, as baromapd writes them (``daemon/baromapd/recorder.py``).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Live floor state over Zenoh: keys, payloads, settings, what to publish when, and watching.
 
-The threads and the session that publish live in the daemon (``daemon/live.py``); here are
+The threads and the session that publish live in the daemon (``daemon/baromapd/live.py``); here are
 the parts both sides share and everything that can be tested without a network:
 
 - :mod:`~baromap.live.keys`: the key expressions of DESIGN.md, in one module.

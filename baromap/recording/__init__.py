@@ -2,7 +2,7 @@
 
 The reader's names are imported on first use (PEP 562 ``__getattr__``): the daemon writes and
 never reads, and the reader brings the mcap package and protobuf's runtime, some 40 ms of CPU
-at every start of the daemon (``python -X importtime -c "import daemon.main"``).
+at every start of the daemon (``python -X importtime -c "import baromapd.main"``).
 """
 
 from typing import TYPE_CHECKING, Any

@@ -21,9 +21,9 @@ from baromap.messages import DeviceHealth, DeviceState
 from baromap.recording import read_messages
 from baromap.recording.reader import Record
 from baromap.sim.twins import SimDevices
-from daemon import tap
-from daemon.app import Daemon
-from daemon.config import DaemonConfig, parse_config
+from baromapd import tap
+from baromapd.app import Daemon
+from baromapd.config import DaemonConfig, parse_config
 
 
 @dataclass
@@ -64,7 +64,7 @@ def rig(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Rig]:
 
 @pytest.fixture(params=["python", "c"])
 def tap_program(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> list[str]:
-    """Each implementation of the laser's tap (``daemon/tap.py``, ``daemon/tap.c``), as the
+    """Each implementation of the laser's tap (``daemon/baromapd/tap.py``, ``daemon/tap.c``), as the
     program a ``Tap`` runs when none is given; the C one is skipped where it is not built."""
     if request.param == "python":
         program = list(tap.python_program())

@@ -7,10 +7,10 @@ import pytest
 
 from baromap.messages import LaserScan
 from baromap.protocols import lms200
-from daemon.clock import DeviceClockFit, HostClock, LinePosition, transmission_ns
-from daemon.config import parse_config
-from daemon.lms200 import Lms200Session
-from daemon.session import READ_PAUSE_OVERSHOOT_NS
+from baromapd.clock import DeviceClockFit, HostClock, LinePosition, transmission_ns
+from baromapd.config import parse_config
+from baromapd.lms200 import Lms200Session
+from baromapd.session import READ_PAUSE_OVERSHOOT_NS
 
 
 def test_a_wall_clock_step_after_start_changes_nothing() -> None:

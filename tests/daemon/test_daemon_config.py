@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from daemon.config import ConfigProblems, load_config, parse_config
-from daemon.main import main
+from baromapd.config import ConfigProblems, load_config, parse_config
+from baromapd.main import main
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLE = REPO / "systemd" / "baromapd.toml"
@@ -76,7 +76,7 @@ def test_values_reach_the_configuration() -> None:
     )
     assert config.laser.mount.x_m == 0.16
     assert config.laser.mount.yaw_rad == pytest.approx(1.5707963)
-    assert config.zenoh == {"mode": "peer", "listen": ["tcp/127.0.0.1:7448"]}  # for daemon.live
+    assert config.zenoh == {"mode": "peer", "listen": ["tcp/127.0.0.1:7448"]}  # for baromapd.live
     assert config.reference == {"station": "roof"}
     assert config.role == "robot"
 

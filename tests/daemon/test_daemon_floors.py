@@ -18,9 +18,9 @@ from typing import Any
 from baromap.floors import FloorDetectorConfig, OnlineFloorDetector
 from baromap.messages import NS_PER_S, FloorEvent, FloorState, Message, Odometry, PressureSample
 from baromap.sim.scenario import pressure_run
-from daemon.app import Daemon
-from daemon.config import parse_config
-from daemon.floors import FloorTracker
+from baromapd.app import Daemon
+from baromapd.config import parse_config
+from baromapd.floors import FloorTracker
 
 
 def _samples() -> list[PressureSample]:

@@ -12,8 +12,8 @@ from baromap.live.keys import Channel
 from baromap.live.settings import LiveSettings
 from baromap.live.watch import FloorWatch, HealthReport, PressureReport, RobotGone, RobotUp
 from baromap.messages import DeviceState
-from daemon.app import Daemon
-from daemon.config import parse_config
+from baromapd.app import Daemon
+from baromapd.config import parse_config
 
 
 def _free_port() -> int:

@@ -6,7 +6,7 @@ import os
 import socket
 from pathlib import Path
 
-from daemon.notify import Notifier
+from baromapd.notify import Notifier
 
 
 def test_notifications_reach_the_socket(tmp_path: Path) -> None:

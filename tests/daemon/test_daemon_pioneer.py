@@ -22,9 +22,9 @@ from baromap.errors import DeviceError
 from baromap.messages import DeviceState, Message, Odometry
 from baromap.protocols import p2os
 from baromap.protocols.robot_models import robot_model
-from daemon.clock import HostClock
-from daemon.config import BaseConfig, Retry
-from daemon.pioneer import PioneerSession, choose_model
+from baromapd.clock import HostClock
+from baromapd.config import BaseConfig, Retry
+from baromapd.pioneer import PioneerSession, choose_model
 
 
 class ScriptedRobot:

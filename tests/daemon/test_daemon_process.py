@@ -26,7 +26,7 @@ def _start(rig: Rig, tmp_path: Path, env: dict[str, str]) -> subprocess.Popen[by
     config = tmp_path / "baromapd.toml"
     config.write_text(config_text(rig))
     return subprocess.Popen(
-        [sys.executable, "-m", "daemon.main", "--config", str(config), "--log-format", "json"],
+        [sys.executable, "-m", "baromapd.main", "--config", str(config), "--log-format", "json"],
         env={**os.environ, **env},
         stdout=subprocess.DEVNULL,
         stderr=(tmp_path / "daemon.log").open("wb"),

@@ -9,9 +9,9 @@ from collections.abc import Iterator
 
 import pytest
 
-from daemon.clock import HostClock
-from daemon.config import Retry
-from daemon.session import READ_CHUNK, DeviceSession
+from baromapd.clock import HostClock
+from baromapd.config import Retry
+from baromapd.session import READ_CHUNK, DeviceSession
 
 
 class _Raw(DeviceSession):

@@ -12,9 +12,9 @@ from mcap.stream_reader import StreamReader
 from baromap.errors import RecordingError
 from baromap.messages import DeviceState, PressureSample
 from baromap.recording import RecordingWriter, read_messages, read_metadata, topics
-from daemon import recorder as recorder_module
-from daemon.config import ConfigProblems, RecordingConfig, parse_config
-from daemon.recorder import LatencyHistogram, Recorder
+from baromapd import recorder as recorder_module
+from baromapd.config import ConfigProblems, RecordingConfig, parse_config
+from baromapd.recorder import LatencyHistogram, Recorder
 
 
 def _recorder(tmp_path: Path, **settings: float) -> Recorder:

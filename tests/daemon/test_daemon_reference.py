@@ -18,8 +18,8 @@ from daemon_rig import Rig, RunningDaemon, config_text, read_all
 from baromap.live.settings import LiveSettings
 from baromap.messages import NS_PER_S, PressureSample
 from baromap.recording import topics
-from daemon.config import parse_config
-from daemon.live import LivePublisher
+from baromapd.config import parse_config
+from baromapd.live import LivePublisher
 
 #: Station readings far from any the robot's twin reports, so they cannot be mistaken.
 STATION_PA = 90_000.0

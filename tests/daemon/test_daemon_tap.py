@@ -1,7 +1,7 @@
 """The tap process: stamps taken when the bytes were there, flushes exact, a hang-up seen.
 
-Every test of the process runs both implementations (``daemon/tap.py`` and ``daemon/tap.c``,
-the ``tap_program`` fixture), the wire format checked byte for byte on each.
+Every test of the process runs both implementations (``daemon/baromapd/tap.py`` and
+``daemon/tap.c``, the ``tap_program`` fixture), the wire format checked byte for byte on each.
 """
 
 from __future__ import annotations
@@ -27,10 +27,10 @@ from structlog.testing import capture_logs
 
 from baromap.messages import LaserScan, Message
 from baromap.protocols import lms200
-from daemon.clock import HostClock
-from daemon.config import LaserConfig
-from daemon.lms200 import Lms200Session
-from daemon.tap import EXPECT, FLUSH_REQUEST, RECORD, Tap, default_program
+from baromapd.clock import HostClock
+from baromapd.config import LaserConfig
+from baromapd.lms200 import Lms200Session
+from baromapd.tap import EXPECT, FLUSH_REQUEST, RECORD, Tap, default_program
 
 UNIT = Path(__file__).resolve().parents[2] / "systemd" / "baromapd.service"
 
@@ -346,10 +346,10 @@ def test_the_c_tap_runs_when_built_beside_the_interpreter_and_the_log_says_which
     monkeypatch.setattr(sys, "executable", str(tmp_path / "python"))
     choose = default_program.__wrapped__  # not the process's cached choice
     with capture_logs() as logs:
-        assert choose() == (str(tmp_path / "python"), "-m", "daemon.tap")
+        assert choose() == (str(tmp_path / "python"), "-m", "baromapd.tap")
         native = tmp_path / "baromapd-tap"
         native.write_bytes(b"")
-        assert choose() == (str(tmp_path / "python"), "-m", "daemon.tap")  # not executable
+        assert choose() == (str(tmp_path / "python"), "-m", "baromapd.tap")  # not executable
         native.chmod(0o755)
         assert choose() == (str(native),)
     assert [e["implementation"] for e in logs] == ["python", "python", "c"]

@@ -117,7 +117,7 @@ def test_the_demo_leaves_no_process_behind(demo: DemoRun) -> None:
 
 def test_the_generated_configuration_passes_the_daemons_check(demo: DemoRun) -> None:
     check = subprocess.run(
-        [sys.executable, "-m", "daemon.main", "--check-config", str(demo.out / "baromapd.toml")],
+        [sys.executable, "-m", "baromapd.main", "--check-config", str(demo.out / "baromapd.toml")],
         capture_output=True,
         text=True,
         cwd=REPO,

@@ -22,7 +22,7 @@ from baromap.live.session import close_session, open_session
 from baromap.live.settings import LiveSettings
 from baromap.messages import DeviceHealth, DeviceState, PressureSample
 from baromap.sim.scenario import pressure_run
-from daemon.live import LivePublisher
+from baromapd.live import LivePublisher
 
 ROBOT = "pioneer-1"
 

@@ -3,7 +3,7 @@
 The robot is the daemon's publisher fed from a simulated run, for tests that need a robot's
 events in seconds and on cue (where the daemon on twins would take a minute): the run goes
 through the online floor detector, and every sample, event, state and a health message each
-simulated second are offered to :class:`daemon.live.LivePublisher`, as the daemon's fan-out
+simulated second are offered to :class:`baromapd.live.LivePublisher`, as the daemon's fan-out
 does. It talks JSON lines: ``{"ready": ...}`` once its session is open, then it waits for
 ``go`` on stdin, feeds the run, prints ``{"done": ..., "events": [...]}`` and waits for
 ``stop`` (or the end of stdin) to shut down cleanly.
@@ -78,7 +78,7 @@ def run_router(args: argparse.Namespace) -> int:
 def run_robot(args: argparse.Namespace) -> int:
     from baromap.floors import OnlineFloorDetector
     from baromap.sim.scenario import pressure_run
-    from daemon.live import LivePublisher
+    from baromapd.live import LivePublisher
 
     run = pressure_run(args.seed, floors=args.floors, minutes=args.minutes, rate_hz=25.0)
     samples = [

@@ -85,7 +85,15 @@ def test_two_daemons_a_router_and_two_watchers(tmp_path: Path, children: list[Ch
         config.write_text(daemon_config(robot, baro, tmp_path / robot, router_ep))
         daemons[robot] = Child(
             robot,
-            [sys.executable, "-m", "daemon.main", "--config", str(config), "--log-format", "json"],
+            [
+                sys.executable,
+                "-m",
+                "baromapd.main",
+                "--config",
+                str(config),
+                "--log-format",
+                "json",
+            ],
             tmp_path,
         )
         children.append(daemons[robot])

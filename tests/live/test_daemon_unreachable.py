@@ -23,8 +23,8 @@ from procs import endpoint, free_port
 from baromap.messages import DeviceState, LaserScan, Odometry, PressureSample
 from baromap.recording import read_messages, topics
 from baromap.sim.twins import SimDevices
-from daemon.app import Daemon
-from daemon.config import parse_config
+from baromapd.app import Daemon
+from baromapd.config import parse_config
 
 RUN_S = 4.0
 #: The twins and the daemon share this process: on a loaded machine all its threads can be held

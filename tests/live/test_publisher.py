@@ -26,7 +26,7 @@ from baromap.messages import (
     Odometry,
     PressureSample,
 )
-from daemon.live import URGENT_QUEUE, LivePublisher
+from baromapd.live import URGENT_QUEUE, LivePublisher
 
 S = NS_PER_S
 

@@ -20,9 +20,9 @@ from baromap.errors import ConfigError
 from baromap.floors import FloorDetectorConfig
 from baromap.live.settings import LiveSettings
 from baromap.messages import NS_PER_S, FloorEvent, Message, PressureSample
-from daemon.config import ConfigProblems, parse_config
-from daemon.floors import FloorTracker
-from daemon.live import LivePublisher, create_publisher
+from baromapd.config import ConfigProblems, parse_config
+from baromapd.floors import FloorTracker
+from baromapd.live import LivePublisher, create_publisher
 
 P0 = 100_000.0
 RATE_HZ = 5

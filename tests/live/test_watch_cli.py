@@ -11,7 +11,7 @@ from procs import endpoint, free_port
 from baromap.cli.main import main
 from baromap.live.settings import LiveSettings
 from baromap.messages import FloorPhase, FloorState
-from daemon.live import LivePublisher
+from baromapd.live import LivePublisher
 
 
 def test_watch_is_a_command(capsys: pytest.CaptureFixture[str]) -> None:

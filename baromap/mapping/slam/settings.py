@@ -11,9 +11,6 @@ import numpy.typing as npt
 
 from baromap.errors import ConfigError
 
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
-BoolArray = npt.NDArray[np.bool_]
 Int8Array = npt.NDArray[np.int8]
 
 #: Floor label of scans taken while the barometer says the robot is between floors.

@@ -25,9 +25,9 @@ from baromap.odometry.robot_metadata import ROBOT_METADATA, robot_metadata
 from baromap.protocols import p2os
 from baromap.protocols.framing import BadFrame
 from baromap.protocols.robot_models import RobotModel, find_model, select_model
-from daemon.clock import LinePosition, transmission_ns
-from daemon.config import BaseConfig
-from daemon.session import DeviceRefused, DeviceSession, wait_for
+from baromapd.clock import LinePosition, transmission_ns
+from baromapd.config import BaseConfig
+from baromapd.session import DeviceRefused, DeviceSession, wait_for
 
 log = structlog.get_logger(__name__)
 

@@ -5,7 +5,7 @@ bootloader and sends a HELLO nobody may see (pyserial flushes input on open), so
 asks with IDENTIFY until a HELLO answers (``firmware/PROTOCOL.md`` section 1). Settings are
 not stored on the board: after a reset (an unasked HELLO with sequence 0) the session sets
 the board up again. Each sample is stamped from the board's microsecond clock through
-:class:`~daemon.clock.DeviceClockFit`; STATUS counters and ERROR frames go into health.
+:class:`~baromapd.clock.DeviceClockFit`; STATUS counters and ERROR frames go into health.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ import structlog
 from baromap.errors import DeviceError
 from baromap.protocols import baro
 from baromap.protocols.framing import BadFrame
-from daemon.clock import DeviceClockFit, LinePosition, transmission_ns
-from daemon.config import BarometerConfig
-from daemon.session import DeviceRestarted, DeviceSession, wait_for
+from baromapd.clock import DeviceClockFit, LinePosition, transmission_ns
+from baromapd.config import BarometerConfig
+from baromapd.session import DeviceRestarted, DeviceSession, wait_for
 
 log = structlog.get_logger(__name__)
 

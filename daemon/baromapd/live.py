@@ -40,7 +40,7 @@ from baromap.messages import (
     FloorState,
     PressureSample,
 )
-from daemon.osthread import name_os_thread
+from baromapd.osthread import name_os_thread
 
 if TYPE_CHECKING:
     import zenoh
@@ -345,7 +345,7 @@ class LivePublisher:
 
 
 class LiveConfig(Protocol):
-    """What the publisher reads of the daemon's configuration (``daemon.config`` imports
+    """What the publisher reads of the daemon's configuration (``baromapd.config`` imports
     this module to check those tables, so the publisher names the fields, not the class)."""
 
     @property

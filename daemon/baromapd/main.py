@@ -19,9 +19,9 @@ import structlog
 
 from baromap import __version__, logs
 from baromap.errors import BaromapError
-from daemon.app import Daemon
-from daemon.config import ConfigProblems, DaemonConfig, load_config
-from daemon.notify import Notifier
+from baromapd.app import Daemon
+from baromapd.config import ConfigProblems, DaemonConfig, load_config
+from baromapd.notify import Notifier
 
 EXIT_FAILURE = 1
 EXIT_CONFIG = 2

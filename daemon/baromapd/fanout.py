@@ -4,7 +4,7 @@ A consumer (the recorder, the floor detector, the live Zenoh publisher) implemen
 ``offer(message)``, which must never block: the recorder and the publisher each keep their
 own bounded queue and count what they had to drop, so a slow disk or a slow network can never
 stall a device's reader thread. The floor detector is the one consumer that does its work in
-``offer``, on the reader's thread (``daemon/floors.py`` says why): a few microseconds of
+``offer``, on the reader's thread (``daemon/baromapd/floors.py`` says why): a few microseconds of
 arithmetic per sample, where a queue and a thread of its own cost a wake-up per sample.
 A consumer that measures latency from the wire may also implement
 ``offer_received(message, received_ns)`` (host monotonic ns at which the frame's last byte
@@ -29,7 +29,7 @@ from typing import Any, Protocol, runtime_checkable
 import structlog
 
 from baromap.messages import Message
-from daemon.osthread import name_os_thread
+from baromapd.osthread import name_os_thread
 
 log = structlog.get_logger(__name__)
 

@@ -26,17 +26,17 @@ from baromap.discovery import resolve_port
 from baromap.messages import NS_PER_S, DeviceHealth, DeviceState, Message, PressureSample
 from baromap.recording import topics
 from baromap.recording.frames import LaserMount
-from daemon.barometer import BarometerSession
-from daemon.clock import HostClock
-from daemon.config import DaemonConfig
-from daemon.fanout import Consumer, Fanout
-from daemon.floors import FloorTracker
-from daemon.live import create_publisher
-from daemon.lms200 import Lms200Session
-from daemon.notify import Notifier
-from daemon.pioneer import PioneerSession
-from daemon.recorder import Recorder
-from daemon.session import DeviceSession
+from baromapd.barometer import BarometerSession
+from baromapd.clock import HostClock
+from baromapd.config import DaemonConfig
+from baromapd.fanout import Consumer, Fanout
+from baromapd.floors import FloorTracker
+from baromapd.live import create_publisher
+from baromapd.lms200 import Lms200Session
+from baromapd.notify import Notifier
+from baromapd.pioneer import PioneerSession
+from baromapd.recorder import Recorder
+from baromapd.session import DeviceSession
 
 log = structlog.get_logger(__name__)
 

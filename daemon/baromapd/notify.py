@@ -7,7 +7,7 @@ libsystemd's headers and a C build, and the pure-Python ``sdnotify`` (last relea
 swallows every error with a bare ``except`` and never closes its socket.
 
 The watchdog interval comes from ``$WATCHDOG_USEC``; the daemon pings at half of it, and only
-while its main loop sees every part making progress (see ``daemon.app``).
+while its main loop sees every part making progress (see ``baromapd.app``).
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ from baromap.floors import FloorDetectorConfig, load_building_model
 from baromap.protocols import baro, lms200
 from baromap.protocols.robot_models import MODELS, find_model
 from baromap.recording.writer import COMPRESSIONS
-from daemon.live import config_problems
+from baromapd.live import config_problems
 
 Role = Literal["robot", "station"]
 ROLES: Final = ("robot", "station")

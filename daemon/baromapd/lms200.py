@@ -23,9 +23,9 @@ import structlog
 from baromap.errors import DeviceError
 from baromap.protocols import lms200
 from baromap.protocols.framing import BadFrame
-from daemon.clock import LinePosition, transmission_ns
-from daemon.config import LaserConfig
-from daemon.session import DeviceRestarted, DeviceSession, wait_for
+from baromapd.clock import LinePosition, transmission_ns
+from baromapd.config import LaserConfig
+from baromapd.session import DeviceRestarted, DeviceSession, wait_for
 
 log = structlog.get_logger(__name__)
 

@@ -1,6 +1,6 @@
 """A device's port read by a small process of its own, which stamps every read.
 
-A frame's time comes from the instant its bytes were read (``daemon.clock.LinePosition``), so a
+A frame's time comes from the instant its bytes were read (``baromapd.clock.LinePosition``), so a
 reader thread that wakes for the bytes but must then wait for the GIL stamps them late: the
 recorder compressing a chunk, the Zenoh publisher or another device's reader may hold it for
 milliseconds, and on a busy machine a thread that holds it can be preempted with it. The tap is
@@ -12,7 +12,7 @@ kilobytes), so nothing is lost either.
 
 The tap wakes for every packet the port delivers (four a scan from the twins, about eight from
 a USB adapter with a 1 ms latency timer): a frame's end is stamped from the read that brought
-its last bytes, and from every earlier read in it (``daemon.clock.LinePosition``), so the read
+its last bytes, and from every earlier read in it (``baromapd.clock.LinePosition``), so the read
 woken by the last packet makes the stamp exact however late any other read was. Those
 wake-ups are cheap (a few lines of Python, no lock shared with anything). The daemon tells the
 tap how long its frames are (:meth:`Tap.expect`, the laser's scans), and the tap hands a frame
@@ -32,7 +32,7 @@ interpreter's work around them and its megabytes (docs/daemon.md has the figures
 stays: it runs where there is no C compiler, and it is the protocol's readable statement.
 
     baromapd-tap FD NAME             (started by DeviceSession, with FD passed to it)
-    python -m daemon.tap FD NAME     (the same, where baromapd-tap was not built)
+    python -m baromapd.tap FD NAME     (the same, where baromapd-tap was not built)
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ import time
 from pathlib import Path
 from typing import Final
 
-from daemon.osthread import name_os_thread
+from baromapd.osthread import name_os_thread
 
 #: One record: monotonic ns at which the read returned, then the byte count; bytes follow.
 RECORD: Final = struct.Struct("<qI")
@@ -105,7 +105,7 @@ def serve(port: int, out: int, control: int) -> int:
     requests = bytearray()
     frame = 0  # bytes in one of the device's frames, as the daemon last said (0: unknown)
     held = 0  # bytes read and not yet forwarded
-    # One reused read buffer, as the daemon's readers (daemon.session): os.read(port,
+    # One reused read buffer, as the daemon's readers (baromapd.session): os.read(port,
     # READ_CHUNK) allocates READ_CHUNK bytes and shrinks them to what came, and holding the
     # shrunk blocks while reading on fragments the heap (bench/memory.py --old-read).
     chunk = memoryview(bytearray(READ_CHUNK))
@@ -207,13 +207,13 @@ def native_program() -> Path:
 
 def python_program() -> tuple[str, ...]:
     """This module as the tap."""
-    return (sys.executable, "-m", "daemon.tap")
+    return (sys.executable, "-m", "baromapd.tap")
 
 
 @functools.cache
 def default_program() -> tuple[str, ...]:
     """The C tap when it was built, else this module; logged once, when first asked."""
-    import structlog  # here: `python -m daemon.tap` would carry it (10 MB) and never log
+    import structlog  # here: `python -m baromapd.tap` would carry it (10 MB) and never log
 
     log = structlog.get_logger(__name__)
     native = native_program()
@@ -223,7 +223,7 @@ def default_program() -> tuple[str, ...]:
     log.info(
         "port tap",
         implementation="python",
-        program="python -m daemon.tap",
+        program="python -m baromapd.tap",
         why=f"{native} not built (make setup builds it with a C compiler)",
     )
     return python_program()

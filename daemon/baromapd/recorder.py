@@ -30,9 +30,9 @@ from baromap.errors import BaromapError
 from baromap.recording import RecordingWriter, topics
 from baromap.recording.frames import LaserMount
 from baromap.recording.writer import DEFAULT_TOPICS, fsync_path
-from daemon.config import RecordingConfig
-from daemon.fanout import QueueWorker
-from daemon.osthread import name_os_thread
+from baromapd.config import RecordingConfig
+from baromapd.fanout import QueueWorker
+from baromapd.osthread import name_os_thread
 
 log = structlog.get_logger(__name__)
 

@@ -38,10 +38,10 @@ from baromap.discovery import resolve_port
 from baromap.errors import BaromapError, DeviceError
 from baromap.messages import DeviceHealth, DeviceState, Message
 from baromap.protocols.framing import BadFrame
-from daemon.clock import HostClock
-from daemon.config import Retry
-from daemon.osthread import name_os_thread
-from daemon.tap import Tap
+from baromapd.clock import HostClock
+from baromapd.config import Retry
+from baromapd.osthread import name_os_thread
+from baromapd.tap import Tap
 
 log = structlog.get_logger(__name__)
 
@@ -86,7 +86,7 @@ class DeviceRefused(DeviceError):
 class DeviceSession(abc.ABC):
     """A device on a serial port, served by its own reader thread."""
 
-    #: Read the port through a tap process (``daemon.tap``) that stamps every read without
+    #: Read the port through a tap process (``baromapd.tap``) that stamps every read without
     #: waiting for the GIL: for a device whose frames are stamped with the host's clock alone
     #: (the laser). A port without a file descriptor (``loop://``) is read directly.
     tapped: bool = False
@@ -325,7 +325,7 @@ class DeviceSession(abc.ABC):
         meanwhile (a 500 kbaud scan comes in four 2 ms packets from the twins or eight 1 ms
         packets from an adapter, a 9600 baud SIP in twenty or forty): two wake-ups a frame.
         The read woken by the frame's first bytes was a prompt one, and it bounds the frame's
-        end as tightly as the last read would (:class:`~daemon.clock.LinePosition`).
+        end as tightly as the last read would (:class:`~baromapd.clock.LinePosition`).
         """
         return 0
 
