@@ -9,12 +9,11 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
+from baromap.arrays import FloatArray, IntArray
 from baromap.evaluation.trajectory import fit_rigid
 from baromap.mapping import se2
 from baromap.mapping.revisits import (
     TRUNCATE_M,
-    FloatArray,
-    IntArray,
     ScanGeometry,
     partner_cloud,
 )

@@ -33,9 +33,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import numpy.typing as npt
 import structlog
 
+from baromap.arrays import FloatArray, IntArray
 from baromap.errors import ConfigError
 from baromap.evaluation.trajectory import TrajectoryError, trajectory_error
 from baromap.mapping.relations import (
@@ -61,8 +61,6 @@ from baromap.sim.big_loop import big_loop
 
 log = structlog.get_logger(__name__)
 
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
 
 #: A draw's perturbation of the synthesised odometry, in metres and radians either way: half
 #: the last digit of a pose printed to six decimals, as CARMEN logs print them. The SLAM's

@@ -24,20 +24,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 import yaml
 from scipy import ndimage
 
+from baromap.arrays import BoolArray, FloatArray, IntArray
 from baromap.errors import InputFormatError
 from baromap.evaluation.mapping import LOBBY_RADIUS_M, WALL_TOLERANCE_M
 from baromap.evaluation.trajectory import fit_rigid, mean_pose_error
 from baromap.mapping import se2
 from baromap.mapping.export import read_pgm, read_tum
 from baromap.sim.building import Building, FloorPlan
-
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
-BoolArray = npt.NDArray[np.bool_]
 
 #: A trajectory pose belongs to a floor when its z is that floor's elevation (the TUM file
 #: rounds to 0.1 mm, building.yaml to 1 mm); poses in a ride lie in between.

@@ -37,15 +37,13 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
+from baromap.arrays import FloatArray, IntArray
 from baromap.evaluation.trajectory import fit_rigid, mean_pose_error
 from baromap.mapping import se2
 from baromap.mapping.build import grid_scans
 from baromap.mapping.occupancy import OccupancyGrid, build_grid
 from baromap.mapping.run_data import interpolate_poses
 from baromap.mapping.slam import BETWEEN_FLOORS
-
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
 
 WALL_TOLERANCE_M = 0.10
 #: The building bar (issue 14): trajectory under one transform, and every floor's walls.

@@ -17,9 +17,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 
+from baromap.arrays import FloatArray
 from baromap.evaluation.mapping import evaluate_recording, truth_at
 from baromap.evaluation.recording_cuts import start_copy
 from baromap.evaluation.trajectory import fit_rigid
@@ -27,9 +27,6 @@ from baromap.mapping import se2
 from baromap.mapping.build import build_maps
 from baromap.messages import NS_PER_S
 from baromap.recording import read_messages, topics
-
-FloatArray = npt.NDArray[np.float64]
-
 
 #: What a base's odometry does after a silence (:func:`without`'s ``counters``).
 COUNTERS = ("kept", "zeroed", "joined")

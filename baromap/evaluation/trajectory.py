@@ -12,11 +12,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
+from baromap.arrays import FloatArray
 from baromap.mapping import se2
-
-FloatArray = npt.NDArray[np.float64]
 
 
 def fit_rigid(src: FloatArray, dst: FloatArray) -> FloatArray:

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from baromap.arrays import FloatArray, IntArray
 from baromap.errors import InputFormatError
 from baromap.floors.evaluation import FloorTruth, truth_from_series
 from baromap.messages import NS_PER_S
@@ -25,9 +26,6 @@ from baromap.recording import read_metadata, topics
 from baromap.sim.motion import PoseSamples
 from baromap.sim.scenario import Scenario
 from baromap.sim.twins.truth import FrameTruth
-
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
 
 #: Twins whose truth records carry route time (the robot's own clock, which stands still
 #: while the base's watchdog holds it): the laser and the base. The barometer's carry the

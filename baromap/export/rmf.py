@@ -33,13 +33,13 @@ import numpy.typing as npt
 import structlog
 import yaml
 
+from baromap.arrays import FloatArray
 from baromap.errors import InputFormatError
 from baromap.export.map_yaml import read_yaml_mapping
 from baromap.mapping.export import read_pgm, read_tum
 
 log = structlog.get_logger(__name__)
 
-FloatArray = npt.NDArray[np.float64]
 
 #: traffic-editor's parameter type code for a double.
 PARAM_DOUBLE = 3

@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 import structlog
 
+from baromap.arrays import FloatArray
 from baromap.errors import ConfigError
 from baromap.mapping import export, figures
 from baromap.mapping.foxglove_maps import write_maps_mcap
@@ -37,8 +38,6 @@ from baromap.mapping.slam import BETWEEN_FLOORS, SlamConfig, SlamResult
 from baromap.recording.run_parts import Recording, run_parts
 
 log = structlog.get_logger(__name__)
-
-FloatArray = npt.NDArray[np.float64]
 
 
 @dataclass(slots=True)

@@ -14,11 +14,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
+from baromap.arrays import FloatArray
 from baromap.mapping.occupancy import OccupancyGrid
-
-FloatArray = npt.NDArray[np.float64]
 
 #: Most wall points drawn per floor in the 3D view (more only slows matplotlib down).
 MAX_POINTS_PER_FLOOR = 25_000

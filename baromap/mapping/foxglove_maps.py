@@ -24,11 +24,11 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from baromap.arrays import FloatArray
 from baromap.mapping import se2
 from baromap.mapping.occupancy import OccupancyGrid
 from baromap.recording import topics
 
-FloatArray = npt.NDArray[np.float64]
 FRAME = topics.MAP_FRAME
 
 

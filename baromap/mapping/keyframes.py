@@ -10,10 +10,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import numpy.typing as npt
 
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
+from baromap.arrays import FloatArray, IntArray
 
 
 def motion_spaced(

@@ -18,10 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from baromap.arrays import FloatArray
 from baromap.mapping import se2
 from baromap.mapping.scans import ScanBlock
-
-FloatArray = npt.NDArray[np.float64]
 
 #: Log odds of one hit and one pass-through (inverse sensor model: p = 0.7 and p = 0.4).
 L_HIT = math.log(0.7 / 0.3)

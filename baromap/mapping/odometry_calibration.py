@@ -38,10 +38,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 from scipy.optimize import nnls
 
-FloatArray = npt.NDArray[np.float64]
+from baromap.arrays import FloatArray
 
 #: The distance factor is applied once its standard error is below this (0.3 %: 9 cm over a
 #: 30 m corridor).

@@ -30,13 +30,12 @@ from scipy import sparse
 from scipy.sparse import csgraph
 from scipy.sparse import linalg as sparse_linalg
 
+from baromap.arrays import FloatArray, IntArray
 from baromap.mapping import se2
 from baromap.mapping.errors import MappingError
 
 log = structlog.get_logger(__name__)
 
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
 
 #: Stiffness that holds the anchor node in place (the gauge freedom of a pose graph).
 ANCHOR_INFORMATION = 1e9

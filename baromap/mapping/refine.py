@@ -27,11 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from baromap.arrays import FloatArray, IntArray
 from baromap.mapping import se2
 from baromap.mapping.scan_matcher import LikelihoodField
-
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
 
 #: Gauss-Newton iterations per refinement (from poses already within a centimetre or two).
 ITERATIONS = 6

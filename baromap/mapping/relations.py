@@ -13,14 +13,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import numpy.typing as npt
 
+from baromap.arrays import FloatArray, IntArray
 from baromap.errors import InputFormatError
 from baromap.mapping import se2
 from baromap.recording.carmen import parse_time_ns
-
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
 
 #: Two stamps closer than this are the same instant. The published Intel relations were made
 #: from a differently rounded copy of the log: two of their stamps sit 0.78 ms from the scan

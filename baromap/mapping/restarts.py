@@ -31,11 +31,11 @@ from multiprocessing.process import BaseProcess
 import numpy as np
 import structlog
 
+from baromap.arrays import BoolArray, FloatArray, IntArray
 from baromap.errors import ConfigError
 from baromap.mapping.revisits import ScanGeometry, consistency, revisit_partners
 from baromap.mapping.scans import ScanBlock
 from baromap.mapping.slam import BETWEEN_FLOORS, SlamConfig, SlamResult, run_slam
-from baromap.mapping.slam.settings import BoolArray, FloatArray, IntArray
 
 log = structlog.get_logger(__name__)
 

@@ -55,11 +55,9 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
+from baromap.arrays import FloatArray, IntArray
 from baromap.mapping import se2
 from baromap.mapping.scans import ScanBlock, surface_points
-
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
 
 #: A revisit: at least this much driving between the two scans. A loop of a few rooms; any
 #: shorter and the two scans are neighbours the matcher aligned with each other directly.

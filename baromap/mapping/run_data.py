@@ -13,10 +13,10 @@ from pathlib import Path
 from typing import TypeVar
 
 import numpy as np
-import numpy.typing as npt
 import structlog
 
 from baromap import messages
+from baromap.arrays import BoolArray, FloatArray, IntArray
 from baromap.errors import InputFormatError
 from baromap.mapping import se2
 from baromap.mapping.scans import ScanBlock
@@ -54,10 +54,6 @@ ODOMETRY_GAP_INTERVALS = 10.0
 #: and ORIGIN_RAD, the test baromapd makes) after one that was not.
 TRACK_SPEED_M_S = 2.0
 TRACK_SLACK_M = 0.5
-
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
-BoolArray = npt.NDArray[np.bool_]
 
 
 @dataclass(frozen=True, slots=True)
@@ -184,7 +180,7 @@ def interpolate_poses(t_src: IntArray, poses: FloatArray, t_query: IntArray) -> 
     out = np.stack(
         [np.interp(q, t, p[:, 0]), np.interp(q, t, p[:, 1]), np.interp(q, t, theta)], axis=1
     )
-    out[:, 2] = (out[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    out[:, 2] = se2.wrap(out[:, 2])
     return out
 
 

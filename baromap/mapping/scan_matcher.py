@@ -23,9 +23,9 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
+from baromap.arrays import FloatArray
 from baromap.mapping import se2
 
-FloatArray = npt.NDArray[np.float64]
 Float32Array = npt.NDArray[np.float32]
 
 

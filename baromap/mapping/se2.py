@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-FloatArray = npt.NDArray[np.float64]
+from baromap.arrays import FloatArray
 
 
 def wrap(theta: npt.ArrayLike) -> FloatArray:

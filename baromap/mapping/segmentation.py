@@ -24,11 +24,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from baromap.arrays import BoolArray, FloatArray, IntArray
+from baromap.mapping import se2
 from baromap.mapping.slam import BETWEEN_FLOORS
-
-IntArray = npt.NDArray[np.int64]
-FloatArray = npt.NDArray[np.float64]
-BoolArray = npt.NDArray[np.bool_]
 
 #: Fewest pressure samples worth running a detector on.
 MIN_PRESSURE_SAMPLES = 10
@@ -93,7 +91,7 @@ def moving_scans(scan_odom: FloatArray) -> BoolArray:
     if len(scan_odom) < 2:
         return np.zeros(len(scan_odom), dtype=bool)
     step = np.diff(scan_odom, axis=0)
-    turn = np.abs((step[:, 2] + np.pi) % (2 * np.pi) - np.pi)
+    turn = np.abs(se2.wrap(step[:, 2]))
     moved = (np.hypot(step[:, 0], step[:, 1]) > STILL_STEP) | (turn > STILL_STEP)
     return np.concatenate([moved[:1], moved])
 

@@ -23,10 +23,9 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
+from baromap.arrays import FloatArray
 from baromap.mapping import se2
 from baromap.mapping.scan_matcher import LikelihoodField, kernel_radius, stamp
-
-FloatArray = npt.NDArray[np.float64]
 
 #: A growing field is enlarged by at least this much on a side it outgrows, so a submap
 #: driven through grows a handful of times rather than once per keyframe.

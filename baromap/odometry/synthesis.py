@@ -12,10 +12,9 @@ import math
 import numpy as np
 import numpy.typing as npt
 
+from baromap.arrays import FloatArray
 from baromap.errors import ConfigError
 from baromap.odometry.errors import OdometryErrorModel
-
-FloatArray = npt.NDArray[np.float64]
 
 
 def synthesize_odometry(

@@ -36,6 +36,7 @@ import numpy as np
 import numpy.typing as npt
 import structlog
 
+from baromap.arrays import FloatArray
 from baromap.errors import InputFormatError
 from baromap.messages import NS_PER_S
 
@@ -60,8 +61,6 @@ NO_RETURN_CODE_MIN_SCANS = 10
 NO_RETURN_CODE_BIN_M = 0.005
 #: Stamps are Unix seconds; int64 nanoseconds hold about 292 years either side of 1970.
 MAX_ABS_TIME_S = 9_200_000_000
-
-FloatArray = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True, slots=True)

@@ -28,9 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from baromap.arrays import FloatArray
 from baromap.sim.motion import Move, Moves
-
-FloatArray = npt.NDArray[np.float64]
 
 R_DRY_AIR = 287.05  # J / (kg K)
 GRAVITY = 9.80665  # m / s^2

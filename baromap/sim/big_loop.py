@@ -29,13 +29,11 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from baromap.arrays import FloatArray
 from baromap.errors import ConfigError
 from baromap.recording.carmen import NO_RETURN_M, CarmenLog, CarmenScan, flaser_geometry
 from baromap.sim.building import RASTER_M, raster_boundary
 from baromap.sim.laser import cast
-
-FloatArray = npt.NDArray[np.float64]
-BoolArray = npt.NDArray[np.bool_]
 
 #: Beams of the laser: CARMEN's FLASER with 181 beams is 180 degrees at 1 degree.
 BEAMS = 181

@@ -19,7 +19,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.signal import lfilter
 
-FloatArray = npt.NDArray[np.float64]
+from baromap.arrays import FloatArray
 
 PRESSURE_LSB_PA = 0.16
 TEMPERATURE_LSB_C = 0.01

@@ -27,13 +27,11 @@ import numpy.typing as npt
 import structlog
 from scipy import ndimage
 
+from baromap.arrays import BoolArray, FloatArray, IntArray
 from baromap.errors import ConfigError
 
 log = structlog.get_logger(__name__)
 
-FloatArray = npt.NDArray[np.float64]
-BoolArray = npt.NDArray[np.bool_]
-IntArray = npt.NDArray[np.int64]
 
 #: Building footprint (x, y) in metres; the building frame has its origin at the south-west corner.
 FOOTPRINT_M = (60.0, 24.0)

@@ -21,11 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from baromap.arrays import FloatArray
 from baromap.errors import ConfigError
 from baromap.messages import BeamFlag, LaserScan
 from baromap.protocols import lms200
-
-FloatArray = npt.NDArray[np.float64]
 
 #: Bytes of a B0 telegram besides the range words: STX ADR LEN(2) CMD count(2) status CRC(2).
 B0_OVERHEAD_BYTES = 10

@@ -18,14 +18,11 @@ import math
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
+from baromap.arrays import FloatArray, IntArray
 from baromap.odometry.errors import OdometryErrorModel
 from baromap.protocols import p2os
 from baromap.protocols.robot_models import RobotModel
-
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
 
 SIP_PERIOD_S = 0.1
 

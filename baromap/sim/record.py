@@ -31,6 +31,7 @@ import numpy as np
 import numpy.typing as npt
 import structlog
 
+from baromap.arrays import FloatArray
 from baromap.messages import Message, PressureSample, TruthFloor, TruthPose
 from baromap.odometry.errors import OdometryErrorModel
 from baromap.odometry.integrator import OdometryIntegrator
@@ -61,7 +62,6 @@ from baromap.sim.scenario import (
 
 log = structlog.get_logger(__name__)
 
-FloatArray = npt.NDArray[np.float64]
 
 METADATA_NAME = "baromap.sim"
 REFERENCE_TOPIC = "/reference/pressure"

@@ -19,6 +19,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
+from baromap.arrays import FloatArray, IntArray
 from baromap.errors import ConfigError
 from baromap.messages import NS_PER_S
 from baromap.protocols.baro import MAX_RATE_HZ, Q24_8
@@ -29,9 +30,6 @@ from baromap.sim.bmp280 import Bmp280
 from baromap.sim.building import Building, make_building
 from baromap.sim.motion import Move, Moves, PoseSamples, sample
 from baromap.sim.route import Planner, Visit, check_route, check_stops, default_route
-
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
 
 #: Start of every simulated run unless asked otherwise (2023-11-14 22:13:20 UTC).
 SIM_EPOCH_NS = 1_700_000_000 * NS_PER_S

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import structlog
 
+from baromap.arrays import FloatArray
 from baromap.mapping import se2
 from baromap.mapping.pose_graph import Edge
 from baromap.mapping.refine import concatenate, refine_batch
@@ -43,7 +44,6 @@ from baromap.mapping.slam.settings import (
     MIN_WINDOW_M,
     MIN_WINDOW_RAD,
     WINDOW_SIGMAS,
-    FloatArray,
 )
 from baromap.mapping.slam.state import SlamState, graph_of
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import structlog
 
+from baromap.arrays import FloatArray, IntArray
 from baromap.mapping import se2
 from baromap.mapping.odometry_calibration import NOISE_OUTLIER_SIGMAS, OdometryNoise, fit_noise
 from baromap.mapping.pose_graph import Edge, PoseGraph
@@ -30,8 +31,6 @@ from baromap.mapping.slam.settings import (
     MIN_NOISE_STEPS,
     MIN_SCATTER_EDGES,
     SCATTER_KINDS,
-    FloatArray,
-    IntArray,
 )
 from baromap.mapping.slam.state import graph_of
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from baromap.arrays import FloatArray
 from baromap.mapping import se2
 from baromap.mapping.pose_graph import Edge
 from baromap.mapping.scan_matcher import (
@@ -42,7 +43,6 @@ from baromap.mapping.slam.settings import (
     MIN_WINDOW_RAD,
     PRIOR_WEIGHT,
     WINDOW_SIGMAS,
-    FloatArray,
 )
 from baromap.mapping.slam.state import SlamState
 from baromap.mapping.submaps import Submap

@@ -9,6 +9,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
+from baromap.arrays import FloatArray
 from baromap.mapping import se2
 from baromap.mapping.pose_graph import Edge
 from baromap.mapping.scan_matcher import LikelihoodField, Prior, match
@@ -33,7 +34,6 @@ from baromap.mapping.slam.settings import (
     MIN_WINDOW_M,
     MIN_WINDOW_RAD,
     PRIOR_WEIGHT,
-    FloatArray,
 )
 from baromap.mapping.slam.state import SlamState
 from baromap.mapping.submaps import Submap

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from baromap.arrays import FloatArray
 from baromap.mapping import se2
 from baromap.mapping.scan_matcher import LikelihoodField, SearchWindow
 from baromap.mapping.scans import voxel_filter
@@ -20,7 +21,6 @@ from baromap.mapping.slam.settings import (
     MAX_ANGLE_STEP_RAD,
     MIN_ANGLE_STEP_RAD,
     UNMEASURED_INFORMATION,
-    FloatArray,
 )
 
 

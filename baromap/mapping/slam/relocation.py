@@ -8,6 +8,7 @@ import math
 import numpy as np
 import structlog
 
+from baromap.arrays import FloatArray
 from baromap.mapping import se2
 from baromap.mapping.occupancy import OccupancyGrid, build_grid
 from baromap.mapping.scan_matcher import LikelihoodField, SearchWindow, match
@@ -28,7 +29,6 @@ from baromap.mapping.slam.settings import (
     RELOCATE_TRIES,
     RELOCATE_VIEW_M,
     WINDOW_SIGMAS,
-    FloatArray,
 )
 from baromap.mapping.slam.state import Lost, SlamState
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import structlog
 
+from baromap.arrays import BoolArray, FloatArray, IntArray
 from baromap.mapping import se2
 from baromap.mapping.errors import MappingError
 from baromap.mapping.keyframes import motion_spaced
@@ -35,10 +36,7 @@ from baromap.mapping.slam.settings import (
     REGISTER_BEAMS,
     TURN_AS_M,
     WINDOW_SIGMAS,
-    BoolArray,
-    FloatArray,
     Int8Array,
-    IntArray,
     SlamConfig,
 )
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import structlog
 
+from baromap.arrays import BoolArray, FloatArray, IntArray
 from baromap.mapping import se2
 from baromap.mapping.odometry_calibration import OdometryCalibration, OdometryNoise
 from baromap.mapping.pose_graph import Edge, PoseGraph
@@ -35,9 +36,6 @@ from baromap.mapping.slam.settings import (
     SOLVE_ITERATIONS,
     SUBMAP_MAX_KEYFRAMES,
     SUBMAP_MEMORY_BYTES,
-    BoolArray,
-    FloatArray,
-    IntArray,
     SlamConfig,
 )
 from baromap.mapping.submaps import Submap, SubmapCache
