@@ -21,7 +21,7 @@ settings.load_profile("baromap")
 
 
 def find_shared_data() -> Path | None:
-    """The project's outside data (../shared/data), wherever this checkout was cloned to.
+    """The evaluation data (docs/contributing.md), wherever this checkout was cloned to.
 
     Looked up in $BAROMAP_SHARED_DATA, next to this checkout, then next to the repository it
     was cloned from (a CI clone in a scratch directory still tests against the real data).

@@ -1,8 +1,9 @@
 """The package's layers, checked on the real import graph (every import statement, also
 those inside functions): a lower layer never imports a higher one, and nothing forms a cycle.
 
-DESIGN.md: protocols and messages at the bottom; floors, recording, mapping above; sim,
-evaluation and export above those; the CLI and the daemon on top.
+docs/design.md lists the layers: the errors, logs and array aliases at the bottom, then messages;
+protocols; odometry; recording; floors; mapping; sim; evaluation, export and live; the CLI and
+the daemon on top.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ import math
 import sys
 from typing import Any
 
-REAL_DATA_HINT = "directory of IPIN logs (e.g. ../shared/data/baro)"
+REAL_DATA_HINT = "directory of IPIN 2023 barometer logs with floor waypoints (*.txt)"
 
 
 def register(subparsers: Any) -> None:

@@ -1,8 +1,9 @@
 """SLAM on public CARMEN laser logs, scored against what the logs' publishers measured.
 
-The logs (``../shared/data/laser``, see its README) carry GMapping-corrected poses and no raw
-odometry, so odometry is synthesised from the corrected poses with the seeded error model of
-``baromap import carmen --synth-odometry``; the SLAM then has to undo that error. Two scores:
+The logs (the evaluation data's ``laser/`` folder, docs/contributing.md) carry
+GMapping-corrected poses and no raw odometry, so odometry is synthesised from the corrected
+poses with the seeded error model of ``baromap import carmen --synth-odometry``; the SLAM then
+has to undo that error. Two scores:
 
 - the Kuemmerle et al. relations (Intel, Freiburg 079): ground-truth relative motions, the
   metric the literature reports;
@@ -83,11 +84,11 @@ class LaserLog:
     world: int | None = None
 
 
-#: The logs of ``../shared/data/laser``. The ``abstime`` copies hold the same scans and poses
-#: as the originals, with the timestamps the relations refer to. ``bigloop``: a synthetic
-#: corridor ring of 60-120 m a side driven once round and 40 m on (:mod:`baromap.sim.big_loop`),
-#: its true poses as the corrected ones: the first revisit after hundreds of metres, which
-#: the public logs never make.
+#: The logs of the evaluation data's ``laser/`` folder. The ``abstime`` copies hold the same
+#: scans and poses as the originals, with the timestamps the relations refer to.
+#: ``bigloop``: a synthetic corridor ring of 60-120 m a side driven once round and 40 m on
+#: (:mod:`baromap.sim.big_loop`), its true poses as the corrected ones: the first revisit
+#: after hundreds of metres, which the public logs never make.
 LOGS = {
     "intel": LaserLog("intel", "intel-corrected-abstime.log.gz", "intel.relations"),
     "fr079": LaserLog("fr079", "freiburg-079-corrected-abstime.log.gz", "fr079.relations"),

@@ -3,7 +3,7 @@
 The threads and the session that publish live in the daemon (``daemon/baromapd/live.py``); here are
 the parts both sides share and everything that can be tested without a network:
 
-- :mod:`~baromap.live.keys`: the key expressions of DESIGN.md, in one module.
+- :mod:`~baromap.live.keys`: the key expressions of docs/design.md, in one module.
 - :mod:`~baromap.live.payloads`: JSON payloads, the same as a recording's JSON channels.
 - :mod:`~baromap.live.settings`: the ``[zenoh]`` and ``[reference]`` configuration tables.
 - :mod:`~baromap.live.schedule`: which messages are published, and when (sans-I/O).

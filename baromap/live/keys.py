@@ -1,4 +1,4 @@
-"""Zenoh key expressions of baromap, all in one place (DESIGN.md names them).
+"""Zenoh key expressions of baromap, all in one place (docs/design.md names them).
 
 A robot publishes under ``baromap/<robot>/``, a reference station under
 ``baromap/reference/<station>/``. Ids become one chunk of a key expression, so they are held

@@ -2,7 +2,7 @@
 
 Order of work: load the run, cut it into floors from the barometer, run floor-aware graph
 SLAM over the whole run (one frame for all floors), rasterise each floor's keyframes into an
-occupancy grid, then write the files DESIGN.md promises. Everything in one place here so the
+occupancy grid, then write the files docs/design.md promises. Everything in one place here so the
 CLI, the demo, tests and the benchmark produce identical outputs.
 """
 

@@ -1,8 +1,8 @@
 """The coordinate frames of a run and the one static transform the robot carries.
 
-DESIGN.md's tree: ``laser`` -> ``base_link`` (static, from the laser mount) -> ``odom``
-(odometry, on ``/tf``) -> ``map`` (the SLAM correction, in maps.mcap). The robot is planar, so
-every transform here is (x, y, yaw); quaternions are only the wire form.
+The frame tree (docs/design.md): ``laser`` -> ``base_link`` (static, from the laser mount) ->
+``odom`` (odometry, on ``/tf``) -> ``map`` (the SLAM correction, in maps.mcap). The robot is
+planar, so every transform here is (x, y, yaw); quaternions are only the wire form.
 """
 
 from __future__ import annotations

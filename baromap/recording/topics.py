@@ -1,4 +1,4 @@
-"""Topic names of a baromap recording (DESIGN.md), in one place."""
+"""Topic names of a baromap recording (docs/design.md), in one place."""
 
 from baromap.recording.frames import BASE_FRAME, LASER_FRAME, MAP_FRAME, ODOM_FRAME
 

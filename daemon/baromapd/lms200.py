@@ -1,6 +1,6 @@
 """The SICK LMS200 session: baud search, set-up, continuous scans, and back to 9600 on stop.
 
-The init sequence is the one mature drivers use (``shared/reference/protocols.md`` section 1):
+The init sequence is the one mature drivers use (SICK's LMS2xx toolbox, Player's sicklms200):
 find the sensor's current baud by asking for its status at each speed (a sensor left
 streaming by an earlier run is found too: any telegram with a good CRC proves the speed),
 switch to the configured baud, stop streaming, read type and status, set units through the

@@ -38,7 +38,7 @@ from baromap.sim.twins.truth import FrameTruth, read_truth_log
 
 pytestmark = pytest.mark.timeout(DEMO_TIMEOUT_S + 120)
 
-#: Channels DESIGN.md promises in a daemon's recording.
+#: Channels docs/design.md promises in a daemon's recording.
 DESIGN_CHANNELS = (
     topics.BARO,
     topics.SCAN,
