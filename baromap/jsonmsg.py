@@ -73,9 +73,8 @@ def field_names(cls: type) -> tuple[str, ...]:
     ``dataclasses.fields()`` builds a new tuple from a generator on every call, and CPython
     keeps freed tuples on a free list per size (up to 2000 of each). In the daemon, which
     encodes health reports (6 fields) and floor states (11) several times a second, the free
-    lists of those sizes grew for minutes after start, and its memory with them
-    (``bench/soak.py --probe``: pymalloc's 96- and 128-byte blocks); with the names cached
-    the soak's steady growth went from 4.2-5.2 to 1.4 MB an hour.
+    lists of those sizes would grow for minutes after start, and its memory with them
+    (``bench/soak.py --probe`` shows it in pymalloc's 96- and 128-byte blocks).
     """
     return tuple(f.name for f in dataclasses.fields(cls))
 

@@ -64,8 +64,8 @@ from baromap.odometry.synthesis import synthesize_odometry
 REPO = Path(__file__).resolve().parent.parent
 LASER = Path(os.environ.get("BAROMAP_SHARED_DATA", REPO.parent / "shared" / "data")) / "laser"
 
-#: Relations whose ends are more than this many scans apart are revisits (the split of
-#: docs/mapping.md: 634 of Freiburg 079's 1615).
+#: Relations whose ends are more than this many scans apart are revisits (634 of Freiburg
+#: 079's 1615 relations).
 REVISIT_SCANS = 200
 #: Pairs of trajectories are counted as ordered alike or not when their relation errors differ
 #: by more than these shares: how large a difference the consistency resolves.

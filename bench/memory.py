@@ -8,9 +8,10 @@ free-but-held memory with nothing more in use is fragmentation. Printed: each fi
 after warm-up, at the end, and its slope after warm-up (the median of its increments over a
 minute, per wall minute and per hour of running: the twins stream at their real rates).
 
-``--old-read`` gives the daemon's readers the read they had before: ``os.read(fd, 65536)``,
+``--old-read`` gives the daemon's readers an allocate-and-shrink read: ``os.read(fd, 65536)``,
 which allocates 64 KiB per read and shrinks it, its result handed on as it is (a name or two
-in ``baromapd.session`` swapped, not a copy of the reader), to show the growth that read caused.
+in ``baromapd.session`` swapped, not a copy of the reader), to show the growth such a read
+causes and why the readers read into a reused buffer.
 
 ``rotations`` is the recorder's rotation alone, in this process: ``--files`` recordings opened,
 given the daemon's JSON messages (pressure and health), closed, deleted; printed every fifth of

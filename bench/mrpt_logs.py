@@ -27,9 +27,9 @@ log's ranges and the synthesised odometry as both the laser and the robot pose, 
 CARMEN parser ignores the log's times), and icp-slam's odometry extrapolation then drops every
 odometry step as a zero time difference; the rawlog's timestamps are rewritten in place to the
 log's own times (each object's 8-byte stamp, all equal after conversion, found by its value).
-Beams beyond ``--max-range`` (default 20 m, baromap's ``SlamConfig.max_range_m`` when the
-figures in docs/mapping.md were measured; 30 m since) are no return: Acapulco's scanner
-reports no return as 50-51.2 m, which ICP otherwise takes for walls.
+Beams beyond ``--max-range`` (default 20 m; baromap's ``SlamConfig.max_range_m`` is 30 m, so
+compare like with like when changing either) are no return: Acapulco's scanner reports no
+return as 50-51.2 m, which ICP otherwise takes for walls.
 Not part of the package: it needs MRPT's binaries and writes files.
 """
 

@@ -15,7 +15,7 @@ trajectory is carried to the laser before comparing. How well the relations pin 
 relations perturbed by noise of their robust scatter (after the fit: the median residual as a
 Gaussian's, 1.5 times for the fit's own degrees of freedom), solved again, ``--draws`` times,
 and again with the fit's residuals themselves resampled (outliers and all, a pessimistic bound).
-Not part of the package: a check of the bench's reference, printed for docs/mapping.md.
+Not part of the package: a check of the bench's reference (docs/results.md, Freiburg 079's ATE).
 """
 
 from __future__ import annotations

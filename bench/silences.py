@@ -10,7 +10,7 @@ it or left zeroed as another recorder would (baromap.evaluation.silences). Each 
 with build-maps and scored against the simulator's truth under one rigid transform: over every
 scan on a floor, and over the scans the odometry spoke for (a scan without odometry is not
 mapped; its pose is drawn across the gap). Figures, not a pass or fail: no bar is set on
-silences; docs/mapping.md ("A laser silent for a minute" and after) gives what they were.
+silences; docs/results.md ("Maps: the simulated building") keeps what they print.
 """
 
 from __future__ import annotations

@@ -108,8 +108,8 @@ def scan_paths(
     writer: RecordingWriter, scan_list: list[messages.LaserScan]
 ) -> dict[str, Callable[[int], None]]:
     """A scan's encoding and log alone, two ways, into the same file on channels of their own:
-    the SDK's message objects from two lists on a ``LaserScanChannel`` (what the writer did
-    before), and :mod:`baromap.recording.foxglove_wire`'s bytes on a plain channel (now)."""
+    the SDK's message objects from two lists on a ``LaserScanChannel``, and
+    :mod:`baromap.recording.foxglove_wire`'s bytes on a plain channel (what the writer does)."""
     import foxglove
     from foxglove.channels import LaserScanChannel
     from foxglove.messages import LaserScan, Pose, Quaternion, Timestamp, Vector3

@@ -1,11 +1,10 @@
 """The synthetic big loop (baromap.sim.big_loop) and the loop closure after a long drive.
 
 A small ring (130-160 m round) with the strong odometry model: in world 1 the front end has
-drifted 4-5 m by the time the robot is back where it started, beyond the capped 2 m window a
-dense target used to get, where only corridor aliases lie (the map kept two copies of the
-corridor, ATE about 2 m). docs/mapping.md, "Closing a loop after a long drive". (World 0
-drifted 2.4-5.0 m too until the turn calibration weighed odometry's noise; it learns the
-strong model's creep now and comes back 0.4-1.0 m off.)
+drifted 4-5 m by the time the robot is back where it started, beyond the capped 2 m loop
+window, where only corridor aliases lie; without the wide search the map keeps two copies of
+the corridor (ATE about 2 m). docs/mapping.md, "Loop closures". (In world 0 the turn
+calibration learns the strong model's creep, and the robot comes back 0.4-1.0 m off.)
 """
 
 from __future__ import annotations
@@ -94,7 +93,7 @@ def test_the_loop_closes_after_metres_of_drift(world: int, seed: int) -> None:
     rms, worst, stats = _slam_on(big_loop(world, SMALL), seed)
     # the input does what it is for: the first revisit corrects metres, past LOOP_MAX_M
     assert stats["loop_max_correction_mm"] > 3000
-    # one copy of the corridor: before the fix 2.16 m and 2.28 m RMS (main at 00e940e)
+    # one copy of the corridor (two copies, without the wide search: 2.16 m and 2.28 m RMS)
     assert rms < 0.4
     assert worst < 0.8
 
@@ -104,8 +103,8 @@ def test_a_run_that_ends_just_past_its_start_closes_its_loop(world: int, seed: i
     """Back at the start after 130-160 m, then 6 m on, with the default odometry: the map
     reaches past the wide window on one side only there (nothing comes before the start),
     so these closures wait for the run's end and, no closure framed on both sides having
-    come, are taken. Refused outright they were (main at e8fbcdb): no loop, 0.460 m and
-    0.627 m RMS (max 1.10 and 1.12 m); taken: 0.159 and 0.157 m (max 0.28 and 0.30 m)."""
+    come, are taken: 0.159 and 0.157 m RMS (max 0.28 and 0.30 m). Refused outright, no loop
+    closes: 0.460 m and 0.627 m RMS (max 1.10 and 1.12 m)."""
     short = BigLoopConfig(side_m=SMALL.side_m, overrun_m=6.0)
     rms, worst, stats = _slam_on(big_loop(world, short), seed, OdometryErrorModel())
     assert stats["loop_deferred_taken"] >= 2
@@ -114,10 +113,11 @@ def test_a_run_that_ends_just_past_its_start_closes_its_loop(world: int, seed: i
 
 
 def test_the_last_refinement_never_throws_a_keyframe_to_other_walls() -> None:
-    """World 1, seed 2, default odometry: the last refinement turned two keyframes by 113 and
-    168 degrees (scans with little to turn them by) and held them there against their
-    odometry: scans 275-278 up to 2.33 m off in a run of 0.201 m RMS (b3a13d2). A fit that
-    moves further than any search of the front end is not a refinement and is not used."""
+    """World 1, seed 2, default odometry: a refinement can turn a keyframe with little to turn
+    it by along the field's ridges to other walls (by 113 and 168 degrees here, putting scans
+    275-278 up to 2.33 m off), and the last solve then holds it there against its odometry. A
+    fit that moves further than any search of the front end is not a refinement and is not
+    used."""
     rms, worst, _ = _slam_on(big_loop(1, SMALL), 2, OdometryErrorModel())
     assert rms < 0.2
     assert worst < 0.5
@@ -125,11 +125,9 @@ def test_the_last_refinement_never_throws_a_keyframe_to_other_walls() -> None:
 
 def test_closures_against_a_one_sided_map_give_way_when_the_run_goes_on() -> None:
     """The same ring driven 40 m past its start: the closures made against the run's first
-    metres are kept, then dropped, since framed ones follow (the figures of the run are
-    those of refusing them outright: 0.125 m RMS, max 0.25 m at e516ecd; 0.205 m, max 0.39 m
-    since the turn calibration weighs odometry's noise, which has it learn the creep here
-    while the old fit learnt none: the ring's nine runs with this odometry went 0.156 ->
-    0.164 m mean, a draw of the front end, docs/mapping.md)."""
+    metres are kept, then dropped, since framed ones follow: the run's figures are those of
+    refusing them outright (0.205 m RMS, max 0.39 m; the bounds leave room for the spread of
+    one run of the front end)."""
     rms, worst, stats = _slam_on(big_loop(0, SMALL), 0, OdometryErrorModel())
     assert stats["loop_deferred"] > 0
     assert stats.get("loop_deferred_taken", 0) == 0

@@ -905,10 +905,10 @@ def test_a_laser_that_sees_nothing_for_a_while_is_driven_through_on_odometry(
     shared_data: Path, tmp_path: Path
 ) -> None:
     """Thirty Intel scans (about 20 m) with no return on any beam, the laser blinded: the
-    submap the front end then matched against held no point, and the lookup in its empty
-    grid raised an IndexError. Now an empty submap scores nothing, the matches are refused as
-    any poor one is, the stretch is driven on odometry, and the scans after it are placed
-    again (the first 300 scans, seed 0: 0.041 m ATE; 0.046 m with the scans intact)."""
+    submap the front end then matches against holds no point. An empty submap scores
+    nothing, so the matches are refused as any poor one is, the stretch is driven on
+    odometry, and the scans after it are placed again (the first 300 scans, seed 0: 0.041 m
+    ATE; 0.046 m with the scans intact)."""
     import gzip
 
     from baromap.evaluation.laser_logs import LOGS, PreparedLog, run_prepared
@@ -1064,11 +1064,10 @@ def test_a_closure_beyond_the_drift_model_puts_a_wrong_front_end_turn_right(
     """Freiburg 079, every 30th scan kept: 160 scans, 2-3 m and turns of up to 170 degrees
     between scans. After such a turn the front end can take a match degrees off (seed 0:
     keyframe 131 12 degrees off, where corrected odometry was 2 degrees off), a jump no drift
-    model foresees: the closures that would put it right, a few metres later, were dropped
-    as implausible (4 of that run's 6 were right to 7 cm and 1.4 degrees) and the rest of the
-    run stayed turned. Such a closure is now proposed, to be taken when a second one agrees,
-    where the chain it corrects holds a step the front end could not vouch for (seed 8:
-    1.55 -> 0.14 m)."""
+    model foresees. The closures that would put it right, a few metres later, lie beyond the
+    drift model; dropped, the rest of the run stays turned (seed 8: 1.55 m ATE). Such a
+    closure is proposed, to be taken when a second one agrees, where the chain it corrects
+    holds a step the front end could not vouch for (seed 8: 0.14 m)."""
     from baromap.evaluation.laser_logs import run_log
 
     report = run_log(shared_data / "laser", "fr079", seed=8, stride=30)
@@ -1083,10 +1082,10 @@ def test_one_scan_matching_two_submaps_beyond_the_drift_model_confirms_itself(
     """The same input, odometry of the varied family, seed 1. After turns of 111 and 165
     degrees the front end left the run 22 degrees off (a failed match left keyframe 127 to
     odometry, 9.5 degrees off; keyframe 130's match was taken 12 degrees off); keyframe 151
-    found the correction against two submaps (scores 0.79 and 0.74), beyond the drift model.
-    Held until another keyframe agreed, it was never taken while the next keyframes searched
-    around the turned estimate: the run ended 2 m off, 0.63 m ATE. Two closures of one scan
-    against different submaps, both scoring as loops, now confirm each other."""
+    finds the correction against two submaps (scores 0.79 and 0.74), beyond the drift model.
+    Held until another keyframe agrees, it is never taken while the next keyframes search
+    around the turned estimate (the run ends 2 m off, 0.63 m ATE), so two closures of one scan
+    against different submaps, both scoring as loops, confirm each other."""
     _check_thinned_log_run(
         shared_data,
         "fr079",
@@ -1133,8 +1132,9 @@ def test_a_front_end_match_odometry_cannot_explain_yields_in_the_last_solve(
 def test_odometry_calibration_learns_the_creep_along_corridors_with_noisy_odometry() -> None:
     """A run of long corridors: straight half-metre steps, a corner every 20 m, odometry 5 %
     long, creeping 2.5 deg/m with 0.5 deg of noise a step, matches to 0.2 deg. Fitted on the
-    odometric turn (whose noise on a straight step is exactly what is left to explain), the
-    creep came out at 1.16 deg/m of the 2.38 per odometric metre (main at 1df4341)."""
+    odometric turn (whose noise on a straight step is exactly what is left to explain), a fit
+    takes the noise for a turn error and learns about half the creep (1.16 deg/m of the 2.38
+    per odometric metre); fitted on the matched turn it learns all of it."""
     rng = np.random.default_rng(5)
     cal = OdometryCalibration()
     pinned = np.diag([0.01**2, 0.01**2, math.radians(0.2) ** 2])
@@ -1155,10 +1155,9 @@ def test_odometry_calibration_is_near_the_truth_after_its_first_few_samples() ->
     """Sparse steps (0.5-2.5 m, turns of tens of degrees), odometry 3 % long in turn and
     creeping 1.5 deg/m with a degree of noise per metre or radian, matches to 0.3 deg: after
     10 and 20 samples the corrected heading of a 1.5 m, 46 deg step, over 40 runs. Uncorrected
-    it is 3.6 deg off. Samples weighted by the match's variance alone passed a few early ones
-    for a sure fit and applied it (main at 1df4341: 1.48 deg RMS, 3.6 max after 10 samples;
-    0.73, 3.6 after 20); weighted by their whole variance and shrunk towards no error, 0.68,
-    1.77 and 0.46, 1.04."""
+    it is 3.6 deg off. Samples weighted by the match's variance alone pass a few early ones
+    for a sure fit (1.48 deg RMS, 3.6 max after 10 samples; 0.73, 3.6 after 20); weighted by
+    their whole variance and shrunk towards no error, 0.68, 1.77 and 0.46, 1.04."""
     pinned = np.diag([0.01**2, 0.01**2, math.radians(0.3) ** 2])
     errors: dict[int, list[float]] = {10: [], 20: []}
     for run in range(40):
@@ -1293,8 +1292,8 @@ def test_scans_after_a_silence_follow_odometry_back_from_the_keyframe_after_it()
     """A step the graph turned by 160 degrees (a power-cycled base turned on the spot while
     its odometry was silent): the scans between its keyframes taken after the silence
     follow odometry back from the keyframe after it, the one before it odometry from the
-    keyframe before; spreading the turn along the stretch put them up to 1.6 m off. Other scans
-    are as before."""
+    keyframe before; spreading the turn along the stretch would put them up to 1.6 m off.
+    Other scans get the graph's correction spread along their stretch."""
     odom = np.array([[0.1 * i, 0.0, 0.0] for i in range(12)])
     kf_scan = np.array([0, 4, 8, 11])
     kf_poses = odom[kf_scan].copy()
@@ -1374,8 +1373,8 @@ def test_the_intel_log_cut_just_after_its_first_return_to_the_start_closes_that_
 ) -> None:
     """The Intel log's first 109 scans: round the lab (71 m) and 3 m past where it began, no
     closure before. The revisit can only be matched against the run's first metres, a map
-    framed on one side; refused outright (main at e8fbcdb) the loop stayed open, 0.169 m ATE
-    (seeds 1 and 2: 0.137, 0.102 m); kept until the run ends and then taken: 0.086 m."""
+    framed on one side; refused outright, the loop stays open (0.169 m ATE; seeds 1 and 2:
+    0.137, 0.102 m); kept until the run ends and then taken: 0.086 m."""
     from baromap.evaluation.laser_logs import run_log
 
     report = run_log(shared_data / "laser", "intel", seed=0, scans=slice(0, 109))

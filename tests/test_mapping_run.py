@@ -235,8 +235,8 @@ def test_odometry_silent_or_counting_from_zero_is_found_again(
     - 2200-2260 s, unplugged, its counters going on.
 
     The scans inside are left out of the map; after each power cycle the chain is looked
-    for in the map from before. Before: 35 m RMS (every floor after the first lost); the
-    kept-counter gap alone was 0.045 m, max 0.30 m."""
+    for in the map from before the gap. Without that search every floor after the first is
+    lost (35 m RMS)."""
     from structlog.testing import capture_logs
 
     first, second, silent = (tmp_path / f"{n}.mcap" for n in ("first", "second", "silent"))

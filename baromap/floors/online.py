@@ -84,8 +84,8 @@ log = structlog.get_logger(__name__)
 MAX_WEATHER_RATE_PA_S = 0.2
 #: Fewest samples in the settle window: a line through two points says nothing about stillness.
 #: A barometer read more slowly than that (a sample every 1.5 s or more against the window's
-#: 1.5 s) has the window stretched past ``settle_s`` to hold this many; before, it never held
-#: three, and such a run never settled on a floor at all.
+#: 1.5 s) has the window stretched past ``settle_s`` to hold this many; a window of
+#: ``settle_s`` alone would never hold three, and such a run would never settle on a floor.
 MIN_WINDOW_SAMPLES = 3
 
 _UNKNOWN, _SETTLED, _CHANGING, _STOPPED = 0, 1, 2, 3

@@ -11,7 +11,7 @@ with the method and not with a strawman: segments whose means lie within the min
 transition height of a known floor's mean are that floor (the nearest), and adjacent segments
 on the same floor are merged, so a spike between two pieces of the same floor is no event.
 
-Where it must fail, and why (see docs/floors.md for figures): the threshold is relative to
+Where it must fail, and why (figures in docs/results.md): the threshold is relative to
 the run's own statistics, so in a long run that is mostly still it sits at the noise level and
 every gust or ventilation spike crosses it, while the mean of a segment drifts with the
 weather (1.5 hPa/h is one storey in 15-20 minutes), so a revisited floor lands on another

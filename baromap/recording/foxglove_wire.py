@@ -5,7 +5,7 @@ through the SDK, a scan becomes two Python lists of 181 floats, a tree of messag
 a protobuf encoding in Rust. Here the fixed fields (frame, pose, angles) are bytes made once,
 the time stamp a few bytes a message, and the ranges and flags one packed ``repeated double``
 each, straight from their numpy arrays: half the CPU in a loop, and less on the daemon's
-recorder, whose caches are cold at every scan (``bench/writer.py``; docs/daemon.md).
+recorder, whose caches are cold at every scan (``bench/writer.py``; docs/decisions.md).
 
 The bytes are the SDK's (prost's proto3 encoding), which the tests check on random messages:
 fields in tag order, scalars equal to zero left out (``-0.0`` too: it compares equal to

@@ -303,9 +303,9 @@ class RecordingWriter:
 
         The SDK keeps every ``foxglove.Channel`` ever made in a module-level registry (by id,
         for ``foxglove.log``) and never removes one, closed or not: each file's channels, with
-        their schemas, would live as long as the process. A daemon that rotates every minute
-        made four a minute, 1.5 kB each with the SDK's state (``bench/soak.py --probe``;
-        ``bench/memory.py rotations``: a thousand files in one process). Dropping the
+        their schemas, would live as long as the process: a daemon that rotates every minute
+        makes four a minute, 1.5 kB each with the SDK's state (``bench/memory.py rotations``
+        opens a thousand files in one process). Dropping the
         registry's reference frees them; the SDK's typed channels (scans, odometry,
         transforms) are not in it.
         """
@@ -337,8 +337,7 @@ class RecordingWriter:
 
         The bytes are those the SDK's ``LaserScanChannel`` would write, on a channel with the
         same schema and metadata; building the SDK's message objects from two Python lists
-        took twice the CPU a scan in a loop (``bench/writer.py``), and the daemon's recorder
-        thread 0.26-0.32 points of a core more over five quiet minutes (docs/daemon.md).
+        takes twice the CPU a scan (``bench/writer.py``; docs/decisions.md).
         """
         key = (topic, scan.range_max_m)
         channel = self._scan_channels.get(key)

@@ -161,9 +161,9 @@ class Daemon:
 
     def start(self) -> None:
         # Everything imported and built so far lives as long as the daemon: out of the
-        # collector's way, a full collection no longer walks the ~55 000 objects of the
-        # libraries (30-40 ms with the GIL held, every thread stopped, measured) while a
-        # reader has bytes waiting.
+        # collector's way, a full collection does not walk the ~55 000 objects of the
+        # libraries (30-40 ms with the GIL held, every thread stopped) while a reader has
+        # bytes waiting.
         gc.collect()
         gc.freeze()
         self.recorder.start()

@@ -152,7 +152,7 @@ class DeviceClockFit:
 
     Stamps always increase, across resets too: while the fit is young its line moves at every
     new bucket, and a frame stamped at its send time (the line above it) can be followed by one
-    the lowered line puts earlier (seen with the demo's twins, whose clocks run at 6x). A later
+    the lowered line puts earlier (a clock running fast, as the demo's 6x twins' do). A later
     frame is never stamped before an earlier one; it gets the earlier stamp plus 1 ns at least.
     """
 

@@ -6,9 +6,9 @@ visit to that floor (``OnlineFloorDetector.update_odometry``).
 It runs in place, on the thread that offers it a message (a synchronous consumer of the
 fanout: the barometer's reader for pressure, the base's for odometry, a Zenoh thread for a
 reference station), under a lock, so the detector sees one message at a time in the order
-they came, as a queue would give them. It used to be a thread behind its own queue, like the
-recorder; that cost a thread wake-up per pressure sample (50 a second, on a VM where a wake-up
-costs more CPU than the detector's work on the sample) and a queue hop in every floor event.
+they came, as a queue would give them. A thread behind its own queue, like the recorder's,
+would cost a thread wake-up per pressure sample (50 a second, on a VM where a wake-up costs
+more CPU than the detector's work on the sample) and a queue hop in every floor event.
 The detector's work per sample is a few arithmetic steps (no level solve: that is post-run);
 an event adds a registry look-up and the messages it publishes. What it delays is the
 barometer's next read, by that much, and a late read bends nothing: the samples are stamped

@@ -52,7 +52,7 @@ URGENT_QUEUE = 256
 #: First wait before opening a session again after a failure, s (doubled up to retry_max_s).
 RETRY_FIRST_S = 0.25
 #: Longest a pressure sample waits in the queue: pressure does not wake the worker (at 50 Hz
-#: that was a wake-up per sample, each to add the sample to a block mean published every
+#: that would be a wake-up per sample, each to add the sample to a block mean published every
 #: 0.2 s by default); the worker looks at least this often instead.
 PRESSURE_HOLD_S = 0.2
 #: The publisher's state as a device state (anything else, like "connecting", is degraded).

@@ -10,7 +10,7 @@ in, messages out), :meth:`keepalive` and :meth:`shutdown`.
 Why one thread per device: blocking reads with a short timeout are the simplest code to
 reason about (a handshake is a straight sequence of write, wait-for-reply), a stuck or slow
 device cannot stall another, and the work per byte is small enough that three threads cost
-less than the event loop machinery (see ``docs/daemon.md``).
+less than the event loop machinery (see ``docs/decisions.md``).
 
 Recovery: any failure (the port vanished, a handshake that got no answer, a line of garbage,
 a silent device) closes the port, marks the session DOWN with the reason, and retries with
@@ -51,8 +51,8 @@ READ_TIMEOUT_MS: Final = round(READ_TIMEOUT_S * 1000)
 #: Longest a read blocks while the device streams: a handshake's waits must end on time, a
 #: stream only needs its keepalive (the base's PULSE, due every 500 ms) and a stop noticed.
 #: A device whose frames come further apart than this wakes for its frames only, not also at
-#: a timeout between them (at 50 ms the base's thread polled 3 times a 10 Hz SIP, strace: one
-#: of them a timeout).
+#: a timeout between them (at 50 ms a 10 Hz SIP stream would wake the base's thread at a
+#: timeout between most SIPs).
 STREAM_READ_TIMEOUT_MS: Final = 200
 #: Longest sleep for the rest of a frame (a 9600 baud SIP is ~40 ms; a stop waits no longer).
 READ_PAUSE_MAX_NS: Final = 50_000_000

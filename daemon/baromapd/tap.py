@@ -28,7 +28,7 @@ input closes, and with the daemon (``PR_SET_PDEATHSIG``).
 The tap runs as ``baromapd-tap`` (``daemon/tap.c``, the same protocol byte for byte) when that
 was built beside the interpreter (``make setup``: the venv's ``bin``, where ``baromapd`` is),
 and as this module otherwise. Both make the same system calls per wake-up; the C one skips the
-interpreter's work around them and its megabytes (docs/daemon.md has the figures). This one
+interpreter's work around them and its megabytes (docs/results.md has the figures). This one
 stays: it runs where there is no C compiler, and it is the protocol's readable statement.
 
     baromapd-tap FD NAME             (started by DeviceSession, with FD passed to it)
