@@ -1,32 +1,91 @@
 """The daemon's configuration: one TOML file, checked whole before anything opens a port.
 
-Every problem is collected with its dotted key and a hint, so one ``--check-config`` run
-names all of them instead of the first; unknown keys are errors (a typo in ``rate_hz`` must
-not silently leave the default in force). The ``[zenoh]`` and ``[reference]`` tables are
-handed unparsed to the live publisher, which owns their meaning.
+Each table of the file is a :class:`Table`, a msgspec Struct: its fields are the table's keys,
+their types and ``Meta`` constraints are the checks, and ``doc(...)`` says what a
+key does and is the hint printed with its problems. msgspec stops at the first error, so the
+file is handed to it one key at a time and every problem is collected with its dotted key: one
+``--check-config`` run names all of them. Unknown keys are errors (a typo in ``rate_hz`` must
+not silently leave the default in force). A key that fails takes its default, so the checks
+across keys and tables still run. The ``[zenoh]`` and ``[reference]`` tables are handed
+unparsed to the live publisher, which owns their meaning.
+
+Adding a table ``[name]``:
+
+1. Write ``class NameConfig(Table, frozen=True)`` with one field per key: its type (a
+   ``Literal`` for a choice, ``Annotated[int, Meta(ge=1)]`` for a range), its default unless
+   the key is required, and ``doc(...)``.
+2. Give :class:`DaemonConfig` a field ``name: NameConfig | None = None`` (the daemon runs
+   without it) or ``name: NameConfig = msgspec.field(default_factory=NameConfig)``.
+3. A check that spans keys of the table goes in ``NameConfig.problems``; one across tables
+   goes in :func:`_across_tables`.
+4. Show the keys in systemd/baromapd.toml and docs/daemon.md.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-import re
 import tomllib
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, fields
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final, Literal
+from typing import (
+    Annotated,
+    Any,
+    ClassVar,
+    Final,
+    Literal,
+    TypeVar,
+    get_args,
+    get_origin,
+    get_type_hints,
+)
+
+import msgspec
+from msgspec import Meta
 
 from baromap.discovery import USB_IDENTITY
 from baromap.errors import BaromapError, ConfigError
 from baromap.floors import FloorDetectorConfig, load_building_model
-from baromap.protocols import baro, lms200
+from baromap.protocols import lms200
+from baromap.protocols.baro import MAX_RATE_HZ
 from baromap.protocols.robot_models import MODELS, find_model
-from baromap.recording.writer import COMPRESSIONS
 from baromapd.live import config_problems
 
 Role = Literal["robot", "station"]
-ROLES: Final = ("robot", "station")
+ROLES: Final = get_args(Role)
+#: (angle, resolution in degrees) -> (angle, resolution in hundredths of a degree).
 LMS_VARIANTS: Final = {(a, r / 100): (a, r) for a, r in lms200.VARIANTS}
+#: The choices below are the protocol's and the writer's; a test holds them equal.
+LmsBaud = Literal[9600, 19200, 38400, 500000]
+P2osBaud = Literal[9600, 19200, 38400, 57600, 115200]
+Oversampling = Literal[1, 2, 4, 8, 16]  # baro.OVERSAMPLING_VALUES
+IirFilter = Literal[0, 2, 4, 8, 16]  # baro.IIR_FILTER_VALUES
+Compression = Literal["zstd", "lz4", "none"]  # recording.writer.COMPRESSIONS
+LogLevel = Literal["debug", "info", "warning", "error"]
+
+
+def doc(text: str) -> Meta:
+    """What a key does: the reference of the setting, and the hint printed with its problems."""
+    return Meta(description=text)
+
+
+Positive = Annotated[float, Meta(gt=0)]
+PositiveInt = Annotated[int, Meta(gt=0)]
+#: Marks a field whose keys sit in its parent's table rather than in a table of their own.
+SAME_TABLE: Final = Meta(extra={"same_table": True})
+
+PORT_HINT: Final = (
+    "a device path like /dev/baromap-laser, a URL like loop://, or 0403:6001[:SERIAL]"
+)
+ROBOT_HINT: Final = (
+    "letters, digits, '-', '_' and '.': it names files and Zenoh keys, e.g. robot = \"p3at-01\""
+)
+START_FLOOR_HINT: Final = 'the floor the robot starts on, e.g. start_floor = "0" or "lobby"'
+BUILDING_HINT: Final = (
+    "a building.yaml written by `baromap build-maps` (floors: index, elevation_m, name); "
+    "a relative path is taken from the configuration file's directory"
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -51,161 +110,36 @@ class ConfigProblems(ConfigError):
         super().__init__(f"{source}: {len(problems)} problem(s)\n{lines}")
 
 
-@dataclass(frozen=True, slots=True)
-class Retry:
-    """How a failed device is retried: capped exponential backoff, and what counts as failed."""
+class Table(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A table of the file (how to add one: the module docstring)."""
 
-    initial_s: float = 0.5
-    max_s: float = 30.0
-    silence_s: float = 2.0  # no good frame for this long: the device is silent
-    garbage_s: float = 2.0  # bytes but no good frame for this long: the line is garbage
+    #: Fields the daemon fills in itself; the file cannot set them.
+    not_in_file: ClassVar[frozenset[str]] = frozenset()
 
-
-@dataclass(frozen=True, slots=True)
-class Mount:
-    """Where the laser sits on the base (base_link frame), metres and radians."""
-
-    x_m: float = 0.0
-    y_m: float = 0.0
-    yaw_rad: float = 0.0
-
-
-@dataclass(frozen=True, slots=True)
-class LaserConfig:
-    port: str
-    baud: int = 38400
-    angle_deg: int = 180
-    resolution_cdeg: int = 100
-    units: lms200.Units = "mm"
-    mount: Mount = field(default_factory=Mount)
-    restore_9600: bool = True
-    retry: Retry = field(default_factory=Retry)
-
-
-@dataclass(frozen=True, slots=True)
-class BaseConfig:
-    port: str
-    baud: int = 9600
-    model: str = "auto"
-    allow_model_mismatch: bool = False
-    enable_motors: bool = False
-    retry: Retry = field(default_factory=Retry)
-
-
-@dataclass(frozen=True, slots=True)
-class BarometerConfig:
-    port: str
-    baud: int = 115200
-    rate_hz: int = 50
-    oversampling: int = 16
-    temperature_oversampling: int = 2
-    iir_filter: int = 16
-    retry: Retry = field(default_factory=Retry)
-
-
-@dataclass(frozen=True, slots=True)
-class RecordingConfig:
-    directory: Path = Path("/var/lib/baromapd")
-    rotate_size_mb: float = 1024.0
-    rotate_minutes: float = 60.0
-    compression: str = "zstd"
-    min_free_mb: float = 200.0
-    flush_interval_s: float = 1.0
-    queue_size: int = 8192
-
-
-@dataclass(frozen=True, slots=True)
-class DaemonConfig:
-    robot: str
-    role: Role = "robot"
-    recording: RecordingConfig = field(default_factory=RecordingConfig)
-    laser: LaserConfig | None = None
-    base: BaseConfig | None = None
-    barometer: BarometerConfig | None = None
-    floors: FloorDetectorConfig = field(default_factory=FloorDetectorConfig)
-    #: ``[zenoh]`` and ``[reference]`` as written, for the live publisher (None when absent).
-    zenoh: Mapping[str, Any] | None = None
-    reference: Mapping[str, Any] | None = None
-    log_level: str = "info"
-    #: The file's text, recorded in every recording's metadata.
-    source_text: str = ""
-
-    def devices(self) -> list[tuple[str, LaserConfig | BaseConfig | BarometerConfig]]:
-        """(name, settings) of each configured device."""
-        named = (("laser", self.laser), ("base", self.base), ("barometer", self.barometer))
-        return [(name, device) for name, device in named if device is not None]
+    def problems(self) -> Iterator[Problem]:
+        """What is wrong across this table's keys (keys relative to the table)."""
+        return iter(())
 
 
 # ---------------------------------------------------------------------------------------------
-# Reading
+# The tables
 # ---------------------------------------------------------------------------------------------
 
-Check = Callable[[Any], str | None]
 
+class Retry(Table, frozen=True, rename={"initial_s": "retry_initial_s", "max_s": "retry_max_s"}):
+    """How a failed device is retried: capped exponential backoff, and what counts as failed.
 
-class _Reader:
-    """Takes keys out of TOML tables, type-checks them, and remembers every problem."""
+    Its keys sit in the device's table (``retry_initial_s = 0.5`` under ``[laser]``).
+    """
 
-    def __init__(self) -> None:
-        self.problems: list[Problem] = []
+    initial_s: Annotated[Positive, doc("reconnect backoff doubles from here")] = 0.5
+    max_s: Annotated[Positive, doc("...up to here")] = 30.0
+    silence_s: Annotated[Positive, doc("no good frame for this long: the device is silent")] = 2.0
+    garbage_s: Annotated[Positive, doc("bytes, no good frame for this long: garbage")] = 2.0
 
-    def problem(self, key: str, message: str, hint: str = "") -> None:
-        self.problems.append(Problem(key, message, hint))
-
-    def table(self, data: Mapping[str, Any], key: str, prefix: str = "") -> dict[str, Any] | None:
-        value = data.get(key)
-        if value is None:
-            return None
-        if not isinstance(value, dict):
-            self.problem(prefix + key, f"must be a table, not {type(value).__name__}")
-            return None
-        return dict(value)
-
-    def take(  # noqa: PLR0917 (a table, its prefix, the key, its type and default read best in a row)
-        self,
-        data: dict[str, Any],
-        prefix: str,
-        key: str,
-        kind: type | tuple[type, ...],
-        default: Any,
-        check: Check | None = None,
-        hint: str = "",
-    ) -> Any:
-        if key not in data:
-            return default
-        value = data.pop(key)
-        kinds = kind if isinstance(kind, tuple) else (kind,)
-        ok = isinstance(value, kinds) and not (isinstance(value, bool) and bool not in kinds)
-        if float in kinds and isinstance(value, int) and not isinstance(value, bool):
-            value, ok = float(value), True
-        if not ok:
-            names = " or ".join(k.__name__ for k in kinds)
-            self.problem(f"{prefix}{key}", f"must be {names}, not {value!r}", hint)
-            return default
-        if isinstance(value, float) and not math.isfinite(value):
-            self.problem(f"{prefix}{key}", f"must be finite, not {value!r}", hint)
-            return default
-        if check is not None:
-            message = check(value)
-            if message:
-                self.problem(f"{prefix}{key}", message, hint)
-                return default
-        return value
-
-    def unknown(self, data: Mapping[str, Any], prefix: str, known: str) -> None:
-        for key in data:
-            self.problem(f"{prefix}{key}", "unknown key", f"known here: {known}")
-
-
-def _positive(value: float) -> str | None:
-    return None if value > 0 else f"must be positive, not {value}"
-
-
-def _one_of(choices: tuple[Any, ...] | list[Any]) -> Check:
-    def check(value: Any) -> str | None:
-        return None if value in choices else f"{value!r} is not one of {list(choices)}"
-
-    return check
+    def problems(self) -> Iterator[Problem]:
+        if self.max_s < self.initial_s:
+            yield Problem("retry_max_s", f"{self.max_s} is below retry_initial_s {self.initial_s}")
 
 
 def port_problem(value: str) -> str | None:
@@ -217,195 +151,315 @@ def port_problem(value: str) -> str | None:
     return f"{value!r} is neither a path, a pyserial URL, nor a USB identity vid:pid[:serial]"
 
 
-PORT_HINT = "a device path like /dev/baromap-laser, a URL like loop://, or 0403:6001[:SERIAL]"
+class _Device(Table, frozen=True):
+    """What every device table has: where it is and how it is retried."""
+
+    port: Annotated[str, doc(PORT_HINT)]
+
+    def problems(self) -> Iterator[Problem]:
+        message = port_problem(self.port)
+        if message:
+            yield Problem("port", message, PORT_HINT)
 
 
-def _retry(r: _Reader, data: dict[str, Any], prefix: str, silence_s: float) -> Retry:
-    initial = r.take(data, prefix, "retry_initial_s", float, 0.5, _positive)
-    cap = r.take(data, prefix, "retry_max_s", float, 30.0, _positive)
-    if cap < initial:
-        r.problem(prefix + "retry_max_s", f"{cap} is below retry_initial_s {initial}")
-    silence = r.take(data, prefix, "silence_s", float, silence_s, _positive)
-    garbage = r.take(data, prefix, "garbage_s", float, max(2.0, silence_s), _positive)
-    return Retry(initial, cap, silence, garbage)
+class Mount(Table, frozen=True):
+    """Where the laser sits on the base (base_link frame)."""
+
+    x_m: float = 0.0
+    y_m: float = 0.0
+    yaw_deg: float = 0.0
+
+    @property
+    def yaw_rad(self) -> float:
+        return math.radians(self.yaw_deg)
 
 
-_RETRY_KEYS = "retry_initial_s, retry_max_s, silence_s, garbage_s"
+class LaserConfig(_Device, frozen=True):
+    """``[laser]``: a SICK LMS200."""
+
+    baud: Annotated[LmsBaud, doc("RS-232: 9600, 19200, 38400; RS-422: 500000")] = 38400
+    angle_deg: Literal[100, 180] = 180
+    resolution_deg: Annotated[float, doc("1.0, 0.5 or 0.25 (0.25 at 100 deg)")] = 1.0
+    units: Annotated[lms200.Units, doc("mm: 8 m, cm: 80 m")] = "mm"
+    mount: Annotated[Mount, doc("x_m, y_m, yaw_deg of the laser on the base")] = Mount()
+    restore_9600: Annotated[bool, doc("leave it at 9600 baud on stop, where it powers up")] = True
+    retry: Annotated[Retry, SAME_TABLE] = Retry(silence_s=1.0)
+
+    @property
+    def resolution_cdeg(self) -> int:
+        return round(self.resolution_deg * 100)
+
+    def problems(self) -> Iterator[Problem]:
+        yield from super().problems()
+        if self.resolution_deg not in (0.25, 0.5, 1.0):
+            yield Problem("resolution_deg", f"{self.resolution_deg} is not one of [0.25, 0.5, 1.0]")
+        elif (self.angle_deg, self.resolution_deg) not in LMS_VARIANTS:
+            yield Problem(
+                "resolution_deg",
+                f"no LMS200 variant {self.angle_deg} deg at {self.resolution_deg} deg",
+            )
 
 
-def _laser(r: _Reader, data: dict[str, Any]) -> LaserConfig | None:
-    p = "laser."
-    port = r.take(data, p, "port", str, "", port_problem, PORT_HINT)
-    bauds = sorted(lms200.BAUD_MODES)
-    baud = r.take(data, p, "baud", int, 38400, _one_of(bauds), "the LMS200 speaks these only")
-    angle = r.take(data, p, "angle_deg", int, 180, _one_of([100, 180]))
-    resolution = r.take(data, p, "resolution_deg", float, 1.0, _one_of([0.25, 0.5, 1.0]))
-    if (angle, resolution) not in LMS_VARIANTS:
-        r.problem(p + "resolution_deg", f"no LMS200 variant {angle} deg at {resolution} deg")
-    units = r.take(data, p, "units", str, "mm", _one_of(["mm", "cm"]), "mm: 8 m, cm: 80 m")
-    mount_data = r.table(data, "mount", p)
-    data.pop("mount", None)
-    mount = Mount()
-    if mount_data is not None:
-        mp = p + "mount."
-        x = r.take(mount_data, mp, "x_m", float, 0.0)
-        y = r.take(mount_data, mp, "y_m", float, 0.0)
-        yaw = r.take(mount_data, mp, "yaw_deg", float, 0.0)
-        r.unknown(mount_data, mp, "x_m, y_m, yaw_deg")
-        mount = Mount(x, y, math.radians(yaw))
-    restore = r.take(data, p, "restore_9600", bool, True)
-    retry = _retry(r, data, p, silence_s=1.0)
-    r.unknown(
-        data, p, f"port, baud, angle_deg, resolution_deg, units, mount, restore_9600, {_RETRY_KEYS}"
-    )
-    if not port:
-        r.problem(p + "port", "is required", PORT_HINT)
-        return None
-    variant = LMS_VARIANTS.get((angle, resolution), (180, 100))
-    return LaserConfig(port, baud, variant[0], variant[1], units, mount, restore, retry)
+MODEL_HINT: Final = f'"auto" takes the robot\'s SYNC2 subclass; models: {", ".join(sorted(MODELS))}'
 
 
-def _model_problem(value: str) -> str | None:
-    if value.strip().lower() == "auto" or find_model(value) is not None:
-        return None
-    return f"no parameter set for robot model {value!r}"
+class BaseConfig(_Device, frozen=True):
+    """``[base]``: a Pioneer (P2OS / ARCOS)."""
+
+    baud: P2osBaud = 9600
+    model: Annotated[str, doc(MODEL_HINT)] = "auto"
+    allow_model_mismatch: Annotated[bool, doc("a pinned model wins over the robot's")] = False
+    enable_motors: Annotated[bool, doc("the daemon records; it never drives unless told")] = False
+    retry: Annotated[Retry, SAME_TABLE] = Retry()
+
+    def __post_init__(self) -> None:
+        # "auto" or a model name, written as the robot reports it (case does not matter).
+        msgspec.structs.force_setattr(self, "model", self.model.strip().lower())
+
+    def problems(self) -> Iterator[Problem]:
+        yield from super().problems()
+        if self.model != "auto" and find_model(self.model) is None:
+            yield Problem("model", f"no parameter set for robot model {self.model!r}", MODEL_HINT)
 
 
-def _base(r: _Reader, data: dict[str, Any]) -> BaseConfig | None:
-    p = "base."
-    port = r.take(data, p, "port", str, "", port_problem, PORT_HINT)
-    baud = r.take(data, p, "baud", int, 9600, _one_of([9600, 19200, 38400, 57600, 115200]))
-    model = r.take(
-        data,
-        p,
-        "model",
-        str,
-        "auto",
-        _model_problem,
-        f'"auto" takes the robot\'s SYNC2 subclass; models: {", ".join(sorted(MODELS))}',
-    )
-    mismatch = r.take(data, p, "allow_model_mismatch", bool, False)
-    motors = r.take(data, p, "enable_motors", bool, False)
-    retry = _retry(r, data, p, silence_s=2.0)
-    r.unknown(data, p, f"port, baud, model, allow_model_mismatch, enable_motors, {_RETRY_KEYS}")
-    if not port:
-        r.problem(p + "port", "is required", PORT_HINT)
-        return None
-    return BaseConfig(port, baud, model.strip().lower(), mismatch, motors, retry)
+class BarometerConfig(_Device, frozen=True):
+    """``[barometer]``: the barometer board (firmware/)."""
+
+    baud: PositiveInt = 115200
+    rate_hz: Annotated[int, Meta(ge=1, le=MAX_RATE_HZ), doc("samples per second")] = 50
+    oversampling: Annotated[Oversampling, doc("pressure oversampling")] = 16
+    temperature_oversampling: Oversampling = 2
+    iir_filter: Annotated[IirFilter, doc("the sensor's IIR filter coefficient")] = 16
+    retry: Annotated[Retry, SAME_TABLE] = Retry()
 
 
-def _barometer(r: _Reader, data: dict[str, Any]) -> BarometerConfig | None:
-    p = "barometer."
-    port = r.take(data, p, "port", str, "", port_problem, PORT_HINT)
-    baud = r.take(data, p, "baud", int, 115200, _positive)
-    rate = r.take(
-        data,
-        p,
-        "rate_hz",
-        int,
-        50,
-        lambda v: None if 1 <= v <= baro.MAX_RATE_HZ else f"{v} is outside 1..{baro.MAX_RATE_HZ}",
-    )
-    osrs = list(baro.OVERSAMPLING_VALUES)
-    osrs_p = r.take(data, p, "oversampling", int, 16, _one_of(osrs))
-    osrs_t = r.take(data, p, "temperature_oversampling", int, 2, _one_of(osrs))
-    iir = r.take(data, p, "iir_filter", int, 16, _one_of(list(baro.IIR_FILTER_VALUES)))
-    retry = _retry(r, data, p, silence_s=2.0)
-    r.unknown(
-        data,
-        p,
-        f"port, baud, rate_hz, oversampling, temperature_oversampling, iir_filter, {_RETRY_KEYS}",
-    )
-    if not port:
-        r.problem(p + "port", "is required", PORT_HINT)
-        return None
-    return BarometerConfig(port, baud, rate, osrs_p, osrs_t, iir, retry)
+class RecordingConfig(Table, frozen=True):
+    """``[recording]``: where and how runs are written."""
+
+    directory: Path = Path("/var/lib/baromapd")
+    rotate_size_mb: Annotated[Positive, doc("start a new file past this size")] = 1024.0
+    rotate_minutes: Annotated[Positive, doc("...or this age")] = 60.0
+    compression: Annotated[Compression, doc("zstd: smallest, lz4: cheapest on the CPU")] = "zstd"
+    min_free_mb: Annotated[float, Meta(ge=0), doc("stop writing below this free disk")] = 200.0
+    flush_interval_s: Annotated[float, Meta(gt=0, le=1), doc("what a power cut loses")] = 1.0
+    queue_size: Annotated[PositiveInt, doc("messages waiting; beyond it, counted drops")] = 8192
 
 
-def _recording(r: _Reader, data: dict[str, Any]) -> RecordingConfig:
-    p = "recording."
-    directory = r.take(data, p, "directory", str, "/var/lib/baromapd")
-    size = r.take(data, p, "rotate_size_mb", float, 1024.0, _positive)
-    minutes = r.take(data, p, "rotate_minutes", float, 60.0, _positive)
-    compression = r.take(
-        data,
-        p,
-        "compression",
-        str,
-        "zstd",
-        _one_of(list(COMPRESSIONS)),
-        "zstd is smallest; lz4 costs the CPU less; none leaves chunks as written",
-    )
-    min_free = r.take(
-        data, p, "min_free_mb", float, 200.0, lambda v: None if v >= 0 else "must not be negative"
-    )
-    flush = r.take(
-        data,
-        p,
-        "flush_interval_s",
-        float,
-        1.0,
-        lambda v: None if 0 < v <= 1.0 else f"{v} is outside (0, 1]",
-        "DESIGN.md: a power cut loses at most about a second",
-    )
-    queue = r.take(data, p, "queue_size", int, 8192, _positive)
-    r.unknown(
-        data,
-        p,
-        "directory, rotate_size_mb, rotate_minutes, compression, min_free_mb, "
-        "flush_interval_s, queue_size",
-    )
-    return RecordingConfig(Path(directory), size, minutes, compression, min_free, flush, queue)
+class DaemonConfig(Table, frozen=True):
+    """The whole file: top-level keys, then one field per table."""
+
+    robot: Annotated[str, Meta(pattern=r"^[A-Za-z0-9_.-]+$"), doc(ROBOT_HINT)]
+    role: Annotated[Role, doc("a station records a barometer only")] = "robot"
+    recording: RecordingConfig = msgspec.field(default_factory=RecordingConfig)
+    laser: LaserConfig | None = None
+    base: BaseConfig | None = None
+    barometer: BarometerConfig | None = None
+    floors: FloorDetectorConfig = msgspec.field(default_factory=FloorDetectorConfig)
+    #: ``[zenoh]`` and ``[reference]`` as written, for the live publisher (None when absent).
+    zenoh: dict[str, Any] | None = None
+    reference: dict[str, Any] | None = None
+    log_level: LogLevel = "info"
+    #: The file's text, recorded in every recording's metadata.
+    source_text: str = ""
+
+    not_in_file: ClassVar[frozenset[str]] = frozenset({"source_text"})
+
+    def devices(self) -> list[tuple[str, LaserConfig | BaseConfig | BarometerConfig]]:
+        """(name, settings) of each configured device."""
+        named = (("laser", self.laser), ("base", self.base), ("barometer", self.barometer))
+        return [(name, device) for name, device in named if device is not None]
 
 
-#: Settings of the detector that are not numbers (the rest are floats).
-_FLOOR_TEXT: Final = ("start_floor", "building")
-START_FLOOR_HINT: Final = 'the floor the robot starts on, e.g. start_floor = "0" or "lobby"'
-BUILDING_HINT: Final = (
-    "a building.yaml written by `baromap build-maps` (floors: index, elevation_m, name); "
-    "a relative path is taken from the configuration file's directory"
-)
+# ---------------------------------------------------------------------------------------------
+# Reading
+# ---------------------------------------------------------------------------------------------
+
+#: A value that failed its check (its problem is already recorded).
+_INVALID: Final = object()
+_T = TypeVar("_T", bound=Table)
 
 
-def _floors(r: _Reader, data: dict[str, Any], directory: Path | None) -> FloorDetectorConfig:
-    p = "floors."
-    names = [f.name for f in fields(FloorDetectorConfig)]
-    values: dict[str, Any] = {
-        name: r.take(data, p, name, float, None)
-        for name in names
-        if name in data and name not in _FLOOR_TEXT
-    }
-    values["start_floor"] = r.take(
-        data,
-        p,
-        "start_floor",
-        str,
-        None,
-        lambda v: None if v.strip() else "must not be empty",
-        START_FLOOR_HINT,
-    )
-    building = r.take(data, p, "building", str, None, None, BUILDING_HINT)
-    r.unknown(data, p, ", ".join(names))
-    if building is not None:
-        path = Path(building)
-        if not path.is_absolute() and directory is not None:
-            path = directory / path
+def _bare(annotation: Any) -> Any:
+    """The type without Annotated and without ``| None``."""
+    if get_origin(annotation) is Annotated:
+        annotation = get_args(annotation)[0]
+    args = [a for a in get_args(annotation) if a is not type(None)]
+    if type(None) in get_args(annotation) and len(args) == 1:
+        return _bare(args[0])
+    return annotation
+
+
+def _hint(annotation: Any) -> str:
+    metadata = getattr(annotation, "__metadata__", ())
+    return "; ".join(m.description for m in metadata if m.description)
+
+
+def _message(exc: msgspec.ValidationError, value: Any, annotation: Any) -> str:
+    """msgspec's message, with the value it refused when msgspec does not say it."""
+    bare = _bare(annotation)
+    if get_origin(bare) is Literal:
+        return f"{value!r} is not one of {list(get_args(bare))}"
+    message = str(exc)
+    return message if ", got " in message else f"{message}, got {value!r}"
+
+
+def _decode_other(kind: type, value: Any) -> Any:
+    """What msgspec does not convert by itself: a path, written as a string."""
+    if kind is Path and isinstance(value, str):
+        return Path(value)
+    raise TypeError(f"Expected `str` (a path), got `{type(value).__name__}`")
+
+
+class _Reading:
+    """Hands the file to msgspec key by key and remembers every problem."""
+
+    def __init__(self, directory: Path | None) -> None:
+        self.directory = directory
+        self.problems: list[Problem] = []
+
+    def problem(self, key: str, message: str, hint: str = "") -> None:
+        self.problems.append(Problem(key, message, hint))
+
+    def table(
+        self, kind: type[_T], data: dict[str, Any], prefix: str, base: _T | None = None
+    ) -> _T | None:
+        """``kind`` read from ``data`` and checked across its keys; None when a required key is
+        missing or wrong. Keys ``data`` lacks are ``base``'s (the defaults when None)."""
+        values, complete = self.values(kind, data, prefix)
+        if not complete:
+            return None
+        table = msgspec.structs.replace(base, **values) if base is not None else kind(**values)
+        for p in table.problems():
+            self.problem(prefix + p.key, p.message, p.hint)
+        return table
+
+    def values(
+        self, kind: type[Table], data: dict[str, Any], prefix: str
+    ) -> tuple[dict[str, Any], bool]:
+        """The valid values of ``data`` by field name, and whether every required key is."""
+        hints = get_type_hints(kind, include_extras=True)
+        values: dict[str, Any] = {}
+        known: list[str] = []
+        complete = True
+        for info in msgspec.structs.fields(kind):
+            if info.name in kind.not_in_file:
+                continue
+            annotation = hints[info.name]
+            if SAME_TABLE in getattr(annotation, "__metadata__", ()):
+                inner = _bare(annotation)
+                keys = [f.encode_name for f in msgspec.structs.fields(inner)]
+                known += keys
+                own = {k: data[k] for k in keys if k in data}
+                value = self.table(inner, own, prefix, info.default) or _INVALID
+            elif info.encode_name in data:
+                known.append(info.encode_name)
+                value = self.value(annotation, data[info.encode_name], prefix + info.encode_name)
+            else:
+                known.append(info.encode_name)
+                if info.required:
+                    self.problem(prefix + info.encode_name, "is required", _hint(annotation))
+                    complete = False
+                continue
+            if value is _INVALID:
+                complete = complete and not info.required
+            else:
+                values[info.name] = value
+        for key in data:
+            if key not in known:
+                self.problem(prefix + key, "unknown key", f"known here: {', '.join(known)}")
+        return values, complete
+
+    def value(self, annotation: Any, raw: Any, key: str) -> Any:
+        """``raw`` as ``annotation`` says, or _INVALID with its problem recorded."""
+        hint = _hint(annotation)
+        bare = _bare(annotation)
+        is_table = bare is FloorDetectorConfig or get_origin(bare) is dict or _is_table(bare)
+        if is_table and not isinstance(raw, dict):
+            self.problem(key, f"must be a table, not {type(raw).__name__}", hint)
+            return _INVALID
+        if bare is FloorDetectorConfig:  # the library's own class, checked by the library
+            return _floors(self, raw, key + ".")
+        if _is_table(bare):
+            return self.table(bare, raw, key + ".") or _INVALID
         try:
-            values["building"] = load_building_model(path)
-        except BaromapError as exc:
-            r.problem(p + "building", str(exc), BUILDING_HINT)
+            value = msgspec.convert(raw, annotation, dec_hook=_decode_other)
+        except msgspec.ValidationError as exc:
+            self.problem(key, _message(exc, raw, annotation), hint)
+            return _INVALID
+        if isinstance(value, float) and not math.isfinite(value):
+            self.problem(key, f"must be finite, not {value!r}", hint)
+            return _INVALID
+        return value
+
+
+def _is_table(kind: Any) -> bool:
+    return isinstance(kind, type) and issubclass(kind, Table)
+
+
+def _floors(reading: _Reading, data: dict[str, Any], prefix: str) -> Any:
+    """``[floors]``: the detector's own settings (the library checks them), with the building
+    model given as the path of its file."""
+    names = [f.name for f in dataclasses.fields(FloorDetectorConfig)]
+    types = get_type_hints(FloorDetectorConfig)
+    values: dict[str, Any] = {}
+    for key, raw in data.items():
+        if key not in names:
+            reading.problem(prefix + key, "unknown key", f"known here: {', '.join(names)}")
+        elif key == "building":
+            values[key] = _building(reading, raw, prefix + key)
+        elif key == "start_floor":
+            name = reading.value(Annotated[str, doc(START_FLOOR_HINT)], raw, prefix + key)
+            if isinstance(name, str) and not name.strip():
+                reading.problem(prefix + key, "must not be empty", START_FLOOR_HINT)
+            else:
+                values[key] = name
+        else:
+            values[key] = reading.value(types[key], raw, prefix + key)
     try:
-        return FloorDetectorConfig(**{k: v for k, v in values.items() if v is not None})
+        return FloorDetectorConfig(**{k: v for k, v in values.items() if v is not _INVALID})
     except ConfigError as exc:
         # The detector names the setting first ("start_floor 'x' is not a floor of ...").
         first = str(exc).split(" ", 1)[0]
-        key = p + first if first in names else "floors"
+        key = prefix + first if first in names else prefix.rstrip(".")
         hint = {"start_floor": START_FLOOR_HINT, "building": BUILDING_HINT}.get(first, "")
-        r.problem(key, str(exc), hint)
+        reading.problem(key, str(exc), hint)
         return FloorDetectorConfig()
 
 
-_TOP_KEYS = "robot, role, log_level, recording, laser, base, barometer, floors, zenoh, reference"
+def _building(reading: _Reading, raw: Any, key: str) -> Any:
+    name = reading.value(Annotated[str, doc(BUILDING_HINT)], raw, key)
+    if name is _INVALID:
+        return _INVALID
+    path = Path(name)
+    if not path.is_absolute() and reading.directory is not None:
+        path = reading.directory / path
+    try:
+        return load_building_model(path)
+    except BaromapError as exc:
+        reading.problem(key, str(exc), BUILDING_HINT)
+        return _INVALID
+
+
+DEVICES: Final = ("laser", "base", "barometer")
+
+
+def _across_tables(reading: _Reading, values: dict[str, Any]) -> None:
+    """Checks that need more than one table (``values``: what was read, by field name)."""
+    robot, role = values.get("robot", ""), values.get("role", "robot")
+    for key, message in config_problems(
+        values.get("zenoh"), values.get("reference"), robot=robot, role=role
+    ):
+        reading.problem(key, message)
+    devices = {name: values[name] for name in DEVICES if values.get(name) is not None}
+    if role == "station" and devices.keys() & {"laser", "base"}:
+        reading.problem("role", "a station records a barometer only", "remove [laser] and [base]")
+    if not devices and not reading.problems:
+        reading.problem("<file>", "no device configured", "add [laser], [base] and/or [barometer]")
+    seen: dict[str, str] = {}
+    for name, device in devices.items():
+        if device.port in seen and "://" not in device.port:
+            reading.problem(f"{name}.port", f"{device.port!r} is also {seen[device.port]}.port")
+        seen.setdefault(device.port, name)
 
 
 def parse_config(
@@ -416,66 +470,16 @@ def parse_config(
     ``directory`` is where the file lives: relative paths in it (``floors.building``) are
     taken from there (the working directory when None).
     """
-    r = _Reader()
     try:
-        data: dict[str, Any] = tomllib.loads(text)
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigProblems(source, [Problem("<file>", f"not valid TOML: {exc}")]) from exc
-    if "robot" not in data:
-        r.problem("robot", "is required", 'e.g. robot = "p3at-01"')
-    robot = r.take(
-        data,
-        "",
-        "robot",
-        str,
-        "",
-        lambda v: None if re.fullmatch(r"[A-Za-z0-9_.-]+", v) else f"{v!r} has other characters",
-        "letters, digits, '-', '_' and '.': it names files and Zenoh keys",
-    )
-    role = r.take(data, "", "role", str, "robot", _one_of(list(ROLES)))
-    level = r.take(
-        data, "", "log_level", str, "info", _one_of(["debug", "info", "warning", "error"])
-    )
-    sections: dict[str, dict[str, Any] | None] = {}
-    for name in ("recording", "laser", "base", "barometer", "floors", "zenoh", "reference"):
-        sections[name] = r.table(data, name)
-        data.pop(name, None)
-    r.unknown(data, "", _TOP_KEYS)
-    recording = _recording(r, sections["recording"] or {})
-    laser = _laser(r, sections["laser"]) if sections["laser"] is not None else None
-    base = _base(r, sections["base"]) if sections["base"] is not None else None
-    barometer = _barometer(r, sections["barometer"]) if sections["barometer"] is not None else None
-    floors = _floors(r, sections["floors"] or {}, directory)
-    live = config_problems(sections["zenoh"], sections["reference"], robot=robot, role=role)
-    for key, message in live:
-        r.problem(key, message)
-    if role == "station" and (laser is not None or base is not None):
-        r.problem("role", "a station records a barometer only", "remove [laser] and [base]")
-    if laser is None and base is None and barometer is None and not r.problems:
-        r.problem("<file>", "no device configured", "add [laser], [base] and/or [barometer]")
-    ports = [
-        (n, d.port) for n, d in (("laser", laser), ("base", base), ("barometer", barometer)) if d
-    ]
-    seen: dict[str, str] = {}
-    for name, port in ports:
-        if port in seen and "://" not in port:
-            r.problem(f"{name}.port", f"{port!r} is also {seen[port]}.port")
-        seen.setdefault(port, name)
-    if r.problems:
-        raise ConfigProblems(source, r.problems)
-    return DaemonConfig(
-        robot=robot,
-        role=role,
-        recording=recording,
-        laser=laser,
-        base=base,
-        barometer=barometer,
-        floors=floors,
-        zenoh=sections["zenoh"],
-        reference=sections["reference"],
-        log_level=level,
-        source_text=text,
-    )
+    reading = _Reading(directory)
+    values, _ = reading.values(DaemonConfig, data, "")
+    _across_tables(reading, values)
+    if reading.problems:
+        raise ConfigProblems(source, reading.problems)
+    return DaemonConfig(**values, source_text=text)
 
 
 def load_config(path: str | Path) -> DaemonConfig:

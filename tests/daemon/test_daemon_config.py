@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import get_args
 
 import pytest
 
-from baromapd.config import ConfigProblems, load_config, parse_config
+from baromap.protocols import baro, lms200
+from baromap.recording.writer import COMPRESSIONS
+from baromapd import config as config_module
+from baromapd.config import ConfigProblems, Retry, load_config, parse_config
 from baromapd.main import main
 
 REPO = Path(__file__).resolve().parents[2]
@@ -120,7 +124,7 @@ def test_check_config_names_a_bad_start_floor_or_building_with_a_hint(
     cases = {
         'start_floor = "roof"\nbuilding = "building.yaml"': ("floors.start_floor", "roof"),
         'building = "missing.yaml"': ("floors.building", "missing.yaml"),
-        "start_floor = 3": ("floors.start_floor", "must be str"),
+        "start_floor = 3": ("floors.start_floor", "Expected `str`, got `int`"),
         'start_floor = " "': ("floors.start_floor", "must not be empty"),
     }
     for body, (key, what) in cases.items():
@@ -131,3 +135,35 @@ def test_check_config_names_a_bad_start_floor_or_building_with_a_hint(
         line = next((x for x in err.splitlines() if key in x), "")
         assert what in line, (body, err)
         assert 'e.g. start_floor = "0"' in line or "baromap build-maps" in line, line  # hint
+
+
+def test_the_choices_the_file_offers_are_the_protocols_and_the_writers() -> None:
+    assert set(get_args(config_module.LmsBaud)) == set(lms200.BAUD_MODES)
+    assert get_args(config_module.Oversampling) == baro.OVERSAMPLING_VALUES
+    assert get_args(config_module.IirFilter) == baro.IIR_FILTER_VALUES
+    assert get_args(config_module.Compression) == tuple(COMPRESSIONS)
+    assert set(get_args(lms200.Units)) == {"mm", "cm"}
+
+
+def test_a_retry_key_sits_in_the_device_table_and_keeps_that_devices_defaults() -> None:
+    config = parse_config(
+        'robot = "r1"\n[laser]\nport = "/dev/l"\nretry_initial_s = 2\n'
+        '[base]\nport = "/dev/b"\nmodel = " P3-AT-SH "\n'
+    )
+    assert config.laser is not None and config.base is not None
+    assert config.laser.retry == Retry(initial_s=2.0, max_s=30.0, silence_s=1.0, garbage_s=2.0)
+    assert config.base.retry == Retry()
+    assert config.base.model == "p3-at-sh"
+    with pytest.raises(ConfigProblems) as caught:
+        parse_config(
+            'robot = "r1"\n[barometer]\nport = "/dev/b"\nretry_initial_s = 5\nretry_max_s = 1\n'
+            'silence_s = inf\n[recording]\ndirectory = 3\n[laser]\nport = "/dev/l"\n'
+            "mount = { x_m = 1, z_m = 2 }\n"
+        )
+    problems = {p.key: p.message for p in caught.value.problems}
+    assert problems == {
+        "barometer.retry_max_s": "1.0 is below retry_initial_s 5.0",
+        "barometer.silence_s": "must be finite, not inf",
+        "recording.directory": "Expected `str` (a path), got `int`",
+        "laser.mount.z_m": "unknown key",
+    }
