@@ -19,7 +19,7 @@ import baromap
 #: import each other either. A module may import any module of a lower layer.
 LAYERS: tuple[str | set[str], ...] = (
     "baromap.cli",
-    {"baromap.evaluation", "baromap.export", "baromap.live"},
+    {"baromap.evaluation", "baromap.export", "baromap.live", "baromap.liveview"},
     "baromap.sim",
     "baromap.mapping",
     "baromap.floors",

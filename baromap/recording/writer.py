@@ -91,6 +91,74 @@ def yaw_quaternion(theta: float) -> Quaternion:
     return Quaternion(x=x, y=y, z=z, w=w)
 
 
+# What a message becomes on its channel: here, so the daemon's live view (baromapd serving
+# the Foxglove WebSocket protocol) sends the very channels, schemas and frames a recording
+# holds, and a layout made on one opens the other.
+
+#: The ``/odom`` channel's metadata: where the P2OS counters are.
+ODOMETRY_CHANNEL_METADATA: dict[str, str] = {
+    "metadata": "P2OS counters: " + ", ".join(RAW_ODOMETRY_KEYS)
+}
+
+
+def json_schema(cls: type) -> foxglove.Schema:
+    """The JSON Schema of a message type's JSON channel."""
+    return foxglove.Schema(
+        name=jsonmsg.schema_name(cls), encoding="jsonschema", data=jsonmsg.json_schema(cls)
+    )
+
+
+def scan_channel_metadata(scan: messages.LaserScan) -> dict[str, str]:
+    """A scan channel's metadata: the range limits, and what ``intensities`` carry."""
+    return {
+        "range_max_m": repr(scan.range_max_m),
+        "range_min_m": repr(scan.range_min_m),
+        "intensities": "baromap.BeamFlag bits per beam",
+    }
+
+
+def odometry_message(odom: messages.Odometry) -> Odometry:
+    """``/odom``'s ``foxglove.Odometry``: the pose in ``odom``, the P2OS counters as metadata."""
+    return Odometry(
+        timestamp=stamp(odom.t_ns),
+        frame_id=topics.ODOM_FRAME,
+        body_frame_id=topics.BASE_FRAME,
+        pose=Pose(
+            position=Vector3(x=odom.x_m, y=odom.y_m, z=0.0),
+            orientation=yaw_quaternion(odom.theta_rad),
+        ),
+        linear_velocity=Vector3(x=odom.v_mps, y=0.0, z=0.0),
+        angular_velocity=Vector3(x=0.0, y=0.0, z=odom.omega_radps),
+        metadata=[
+            KeyValuePair(key="raw_x", value=str(odom.raw_x)),
+            KeyValuePair(key="raw_y", value=str(odom.raw_y)),
+            KeyValuePair(key="raw_theta", value=str(odom.raw_theta)),
+        ],
+    )
+
+
+def odometry_transform(odom: messages.Odometry) -> FrameTransform:
+    """``/tf``'s ``odom -> base_link`` at an odometry message."""
+    return FrameTransform(
+        timestamp=stamp(odom.t_ns),
+        parent_frame_id=topics.ODOM_FRAME,
+        child_frame_id=topics.BASE_FRAME,
+        translation=Vector3(x=odom.x_m, y=odom.y_m, z=0.0),
+        rotation=yaw_quaternion(odom.theta_rad),
+    )
+
+
+def laser_transform(mount: LaserMount, t_ns: int) -> FrameTransform:
+    """``/tf_static``'s ``base_link -> laser``."""
+    return FrameTransform(
+        timestamp=stamp(t_ns),
+        parent_frame_id=topics.BASE_FRAME,
+        child_frame_id=topics.LASER_FRAME,
+        translation=Vector3(x=mount.x_m, y=mount.y_m, z=0.0),
+        rotation=yaw_quaternion(mount.yaw_rad),
+    )
+
+
 class RecordingWriter:
     """One MCAP file of one run.
 
@@ -321,13 +389,8 @@ class RecordingWriter:
         key = (topic, cls)
         channel = self._json_channels.get(key)
         if channel is None:
-            schema = foxglove.Schema(
-                name=jsonmsg.schema_name(cls),
-                encoding="jsonschema",
-                data=jsonmsg.json_schema(cls),
-            )
             channel = foxglove.Channel(
-                topic, schema=schema, message_encoding="json", context=self.context
+                topic, schema=json_schema(cls), message_encoding="json", context=self.context
             )
             self._json_channels[key] = channel
         return channel
@@ -346,11 +409,7 @@ class RecordingWriter:
                 topic,
                 schema=foxglove_wire.laser_scan_schema(),
                 message_encoding="protobuf",
-                metadata={
-                    "range_max_m": repr(scan.range_max_m),
-                    "range_min_m": repr(scan.range_min_m),
-                    "intensities": "baromap.BeamFlag bits per beam",
-                },
+                metadata=scan_channel_metadata(scan),
                 context=self.context,
             )
             self._scan_channels[key] = channel
@@ -360,44 +419,15 @@ class RecordingWriter:
         channel = self._odom_channels.get(topic)
         if channel is None:
             channel = OdometryChannel(
-                topic,
-                metadata={"metadata": "P2OS counters: " + ", ".join(RAW_ODOMETRY_KEYS)},
-                context=self.context,
+                topic, metadata=ODOMETRY_CHANNEL_METADATA, context=self.context
             )
             self._odom_channels[topic] = channel
-        channel.log(
-            Odometry(
-                timestamp=stamp(odom.t_ns),
-                frame_id=topics.ODOM_FRAME,
-                body_frame_id=topics.BASE_FRAME,
-                pose=Pose(
-                    position=Vector3(x=odom.x_m, y=odom.y_m, z=0.0),
-                    orientation=yaw_quaternion(odom.theta_rad),
-                ),
-                linear_velocity=Vector3(x=odom.v_mps, y=0.0, z=0.0),
-                angular_velocity=Vector3(x=0.0, y=0.0, z=odom.omega_radps),
-                metadata=[
-                    KeyValuePair(key="raw_x", value=str(odom.raw_x)),
-                    KeyValuePair(key="raw_y", value=str(odom.raw_y)),
-                    KeyValuePair(key="raw_theta", value=str(odom.raw_theta)),
-                ],
-            ),
-            log_time=odom.t_ns,
-        )
+        channel.log(odometry_message(odom), log_time=odom.t_ns)
 
     def _write_tf(self, odom: messages.Odometry) -> None:
         if self._tf_channel is None:
             self._tf_channel = FrameTransformChannel(topics.TF, context=self.context)
-        self._tf_channel.log(
-            FrameTransform(
-                timestamp=stamp(odom.t_ns),
-                parent_frame_id=topics.ODOM_FRAME,
-                child_frame_id=topics.BASE_FRAME,
-                translation=Vector3(x=odom.x_m, y=odom.y_m, z=0.0),
-                rotation=yaw_quaternion(odom.theta_rad),
-            ),
-            log_time=odom.t_ns,
-        )
+        self._tf_channel.log(odometry_transform(odom), log_time=odom.t_ns)
 
     def _write_static(self, t_ns: int) -> None:
         mount = self._laser_mount
@@ -407,16 +437,7 @@ class RecordingWriter:
         self._last_static_ns = t_ns
         if self._static_channel is None:
             self._static_channel = FrameTransformChannel(topics.TF_STATIC, context=self.context)
-        self._static_channel.log(
-            FrameTransform(
-                timestamp=stamp(t_ns),
-                parent_frame_id=topics.BASE_FRAME,
-                child_frame_id=topics.LASER_FRAME,
-                translation=Vector3(x=mount.x_m, y=mount.y_m, z=0.0),
-                rotation=yaw_quaternion(mount.yaw_rad),
-            ),
-            log_time=t_ns,
-        )
+        self._static_channel.log(laser_transform(mount, t_ns), log_time=t_ns)
         self.counts[topics.TF_STATIC] = self.counts.get(topics.TF_STATIC, 0) + 1
 
 

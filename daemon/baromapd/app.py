@@ -1,4 +1,4 @@
-"""The daemon put together: sessions -> fanout -> recorder, floor tracker, live publisher.
+"""The daemon put together: sessions -> fanout -> recorder, floor tracker, live publisher and view.
 
 The main loop does little on purpose: once a second (or at half the watchdog interval, if
 that is shorter) it checks that every part is making progress (each thread updates a
@@ -32,6 +32,7 @@ from baromapd.config import DaemonConfig
 from baromapd.fanout import Consumer, Fanout
 from baromapd.floors import FloorTracker
 from baromapd.live import create_publisher
+from baromapd.liveview import LiveView, LiveViewConfig
 from baromapd.lms200 import Lms200Session
 from baromapd.notify import Notifier
 from baromapd.pioneer import PioneerSession
@@ -65,6 +66,7 @@ class Daemon:
         notifier: Notifier | None = None,
         resolve: Callable[[str], str] = resolve_port,
         live: bool = True,
+        view: LiveViewConfig | None = None,
     ) -> None:
         self.config = config
         self.clock = clock or HostClock()
@@ -91,6 +93,11 @@ class Daemon:
         self.live: Consumer | None = self._live_publisher() if live else None
         if self.live is not None:
             self.fanout.subscribe(self.live)
+        # the live view's process: every message, never waited for (baromapd/liveview.py)
+        self.view: LiveView | None = None
+        if view is not None and view.enabled:
+            self.view = LiveView.for_daemon(view, config.robot, mount, config.log_level)
+            self.fanout.subscribe(self.view)
         common: dict[str, Any] = {
             "clock": self.clock,
             "publish": self.fanout.publish,
@@ -184,6 +191,9 @@ class Daemon:
         if self.live is not None:
             self.fanout.unsubscribe(self.live)
             self.live.close()
+        if self.view is not None:
+            self.fanout.unsubscribe(self.view)
+            self.view.close()
         self.recorder.close()
         gc.unfreeze()  # a process that goes on (the tests) collects as before
         log.info("baromapd stopped", files=[str(p) for p in self.recorder.files])
@@ -217,6 +227,8 @@ class Daemon:
         live_health = getattr(self.live, "device_health", None)
         if live_health is not None:  # the Zenoh publisher's state and counters
             out.append(live_health(t))
+        if self.view is not None:
+            out.append(self.view.health(t))
         return out
 
     def _publish_health(self) -> list[DeviceHealth]:

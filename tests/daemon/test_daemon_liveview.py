@@ -1,0 +1,116 @@
+"""The daemon with its live view: viewers see what it records; a port in use costs the view,
+never the recording.
+
+The live view runs in a process of its own (``baromapd.liveview``); these tests run the real
+one, with the daemon on the rig's devices and a ``websockets`` client as the viewer.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+import time
+
+import pytest
+import structlog
+from daemon_rig import Rig, RunningDaemon, make_config, read_all
+from websockets.asyncio.client import connect
+
+from baromap import messages
+from baromap.recording import topics
+from baromapd.liveview import LiveViewConfig
+from baromapd.liveview_front import WEBSOCKET_SUBPROTOCOL
+
+pytestmark = pytest.mark.timeout(180)
+
+#: The live view's process imports the SDK, numpy and scipy: slow on a loaded machine.
+START_S = 60.0
+
+
+def _view_health(run: RunningDaemon) -> messages.DeviceHealth:
+    (health,) = [h for h in run.daemon.health() if h.device == "live_view"]
+    return health
+
+
+def test_a_port_in_use_costs_the_view_and_not_the_recording(rig: Rig) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with structlog.testing.capture_logs() as logged:
+            run = RunningDaemon(make_config(rig), view=LiveViewConfig(port=port))
+            with run:
+                run.wait_up()
+                run.wait_until(
+                    lambda: _view_health(run).state is messages.DeviceState.DOWN,
+                    START_S,
+                    "the live view gave up its port",
+                )
+                health = _view_health(run)
+                time.sleep(1.5)  # the daemon records on; ticks go by without more lines
+                assert run.states()["laser"] is messages.DeviceState.UP
+    assert "cannot listen on 127.0.0.1" in health.detail
+    said = [e for e in logged if e["log_level"] in ("error", "warning", "critical")]
+    view_lines = [e for e in said if "live view" in e["event"]]
+    assert len(view_lines) == 1, view_lines
+    assert "Address already in use" in view_lines[0]["reason"]
+    records = read_all(run.daemon.recorder.files, [topics.SCAN, topics.DIAGNOSTICS])
+    assert sum(r.topic == topics.SCAN for r in records) > 50
+    recorded = [
+        r.message
+        for r in records
+        if isinstance(r.message, messages.DeviceHealth) and r.message.device == "live_view"
+    ]
+    assert recorded[-1].state is messages.DeviceState.DOWN
+
+
+def test_a_viewer_sees_the_recorded_channels_and_is_counted(rig: Rig) -> None:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    with RunningDaemon(make_config(rig), view=LiveViewConfig(port=port)) as run:
+        run.wait_up()
+        run.wait_until(
+            lambda: _view_health(run).state is messages.DeviceState.UP,
+            START_S,
+            "the live view serves",
+        )
+
+        async def view() -> tuple[set[str], int]:
+            async with asyncio.timeout(60):
+                async with connect(
+                    f"ws://127.0.0.1:{port}", subprotocols=[WEBSOCKET_SUBPROTOCOL], max_size=None
+                ) as ws:
+                    advertised: dict[str, int] = {}
+                    scans = 0
+                    while scans < 20 or topics.DIAGNOSTICS not in advertised:
+                        frame = await ws.recv()
+                        if isinstance(frame, str):
+                            message = json.loads(frame)
+                            if message["op"] == "advertise":
+                                fresh = {c["topic"]: c["id"] for c in message["channels"]}
+                                advertised.update(fresh)
+                                subscriptions = [{"id": i, "channelId": i} for i in fresh.values()]
+                                await ws.send(
+                                    json.dumps({"op": "subscribe", "subscriptions": subscriptions})
+                                )
+                        elif frame[0] == 0x01:  # data: the subscription id is the channel's
+                            scans += int.from_bytes(frame[1:5], "little") == advertised.get(
+                                topics.SCAN
+                            )
+                    # the daemon's diagnostics count this viewer
+                    while _view_health(run).counters.get("clients") != 1:
+                        await asyncio.sleep(0.2)
+                    return set(advertised), scans
+
+        seen, scans = asyncio.run(view())
+    assert {topics.SCAN, topics.ODOM, topics.TF, topics.BARO, topics.DIAGNOSTICS} <= seen
+    assert scans >= 20
+    recorded = [
+        r.message
+        for r in read_all(run.daemon.recorder.files, [topics.DIAGNOSTICS])
+        if isinstance(r.message, messages.DeviceHealth) and r.message.device == "live_view"
+    ]
+    assert max(h.counters["clients"] for h in recorded) == 1
+    assert recorded[-1].state is messages.DeviceState.UP
