@@ -6,7 +6,8 @@ Prints a throughput table (MB/s, frames/s, multiple of the device's fastest line
 fuzzes every decoder with N inputs (default 1,000,000): random bytes, and windows of valid
 streams with bit flips, insertions, deletions, truncations, duplicated slices and tampered
 LEN/COUNT bytes, each fed in random chunks; a sample is also fed whole and must decode to the
-same messages. Exits non-zero if any input raised or chunking changed the output.
+same messages, and the wire sizes of the items decoded must add up to the bytes fed. Exits
+non-zero if any input raised, chunking changed the output, or the wire sizes did not add up.
 
 The codecs are a registry so each codec's author adds one line: ``CODECS[name] =
 (make_stream, make_decoder)`` where ``make_stream(n_frames) -> bytes`` is a deterministic valid
@@ -217,6 +218,7 @@ class FuzzResult:
     inputs: int = 0
     exceptions: int = 0
     mismatches: int = 0
+    miscounted: int = 0  # inputs whose items' wire sizes do not add up to the bytes fed
     messages: int = 0
     bad: Counter[str] = field(default_factory=Counter)
     seconds: float = 0.0
@@ -298,6 +300,13 @@ def fuzz_codec(
             out, decoder = _decode_all(make_decoder, chunks)
             result.messages += len(out)
             result.bad.update(decoder.stats.bad)
+            counted = sum(item.wire_size for item in out) + getattr(decoder, "idle", 0)
+            if counted != len(data):
+                result.miscounted += 1
+                if len(result.first_errors) < 3:
+                    result.first_errors.append(
+                        f"wire sizes add up to {counted} of {len(data)} bytes for {data.hex()}"
+                    )
             if compare_every and i % compare_every == 0:
                 whole, _ = _decode_all(make_decoder, [data])
                 if whole != out:
@@ -349,19 +358,19 @@ def main(argv: list[str] | None = None) -> int:
     if args.fuzz > 0:
         print(f"\nfuzz ({args.fuzz} inputs per decoder, random chunking, seed {args.seed})")
         print(
-            f"{'codec':8} {'inputs':>9} {'exceptions':>10} {'mismatch':>9} {'messages':>10} "
-            f"{'s':>7}  bad frames by reason"
+            f"{'codec':8} {'inputs':>9} {'exceptions':>10} {'mismatch':>9} {'wire':>5} "
+            f"{'messages':>10} {'s':>7}  bad frames by reason"
         )
         for name in names:
             r = fuzz_codec(name, args.fuzz, args.seed, progress=sys.stderr.isatty())
             reasons = ", ".join(f"{k}={v}" for k, v in sorted(r.bad.items()))
             print(
-                f"{name:8} {r.inputs:9d} {r.exceptions:10d} {r.mismatches:9d} "
+                f"{name:8} {r.inputs:9d} {r.exceptions:10d} {r.mismatches:9d} {r.miscounted:5d} "
                 f"{r.messages:10d} {r.seconds:7.1f}  {reasons}"
             )
             for err in r.first_errors:
                 print(err, file=sys.stderr)
-            failed |= r.exceptions > 0 or r.mismatches > 0
+            failed |= r.exceptions > 0 or r.mismatches > 0 or r.miscounted > 0
     return 1 if failed else 0
 
 

@@ -2,7 +2,8 @@
 
 Inputs are random bytes and mutated windows of valid streams (bit flips, insertions,
 deletions, truncations, duplicated slices, tampered LEN/COUNT), fed in random chunks: no input
-may raise, and every input fed whole must decode exactly as it did chunked.
+may raise, every input fed whole must decode exactly as it did chunked, and the wire sizes of
+the items decoded must add up to the bytes fed.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ def test_fuzz_pass_raises_nothing_and_chunking_never_matters(name: str) -> None:
     assert result.inputs == FUZZ_INPUTS
     assert result.exceptions == 0, "\n".join(result.first_errors)
     assert result.mismatches == 0, "\n".join(result.first_errors)
+    assert result.miscounted == 0, "\n".join(result.first_errors)
     assert result.messages > FUZZ_INPUTS // 2  # the mutated windows still hold real frames
     assert result.bad["garbage"] > 0
 

@@ -21,7 +21,7 @@ from typing import ClassVar, Final
 
 from baromap.errors import EncodeError
 from baromap.messages import PressureSample
-from baromap.protocols.framing import BadFrame, DecoderStats, DiscardRun
+from baromap.protocols.framing import BadFrame, DecoderStats, DiscardRun, WireSized
 
 PROTOCOL_VERSION: Final = 1
 DELIMITER: Final = 0x00
@@ -137,7 +137,7 @@ class ResetCause(enum.IntFlag):
 
 
 @dataclass(frozen=True, slots=True)
-class FrameHeader:
+class FrameHeader(WireSized):
     """What every frame's header carries besides its type: the sender's sequence number (one
     counter per frame type) and its clock in microseconds, both wrapping."""
 
@@ -369,8 +369,9 @@ def identify(seq: int = 0, time_us: int = 0) -> bytes:
     return b"\x00" + encode(IdentifyCommand(seq, time_us))
 
 
-def decode_raw(raw: bytes) -> Frame | str:
-    """Frame from COBS-decoded bytes, or the bad-frame reason."""
+def decode_raw(raw: bytes, wire_size: int = 0) -> Frame | str:
+    """Frame from COBS-decoded bytes (``wire_size`` bytes on the line), or the bad-frame
+    reason."""
     if len(raw) < MIN_FRAME:
         return "short"
     body = raw[:-2]
@@ -386,7 +387,7 @@ def decode_raw(raw: bytes) -> Frame | str:
     if payload_size < cls.PAYLOAD.size:
         return "length"
     # Longer payloads are a newer revision of the same version: the extra bytes are ignored.
-    return cls(seq, time_us, *cls.PAYLOAD.unpack_from(body, HEADER.size))
+    return cls(seq, time_us, *cls.PAYLOAD.unpack_from(body, HEADER.size), wire_size=wire_size)
 
 
 DecodedItem = Frame | BadFrame
@@ -399,6 +400,8 @@ class Decoder:
 
     Holds at most :data:`MAX_ENCODED` bytes of a frame between calls, plus as many bytes of the
     tail of an over-long run (a valid frame glued behind line noise is still recovered).
+    An item's wire size counts the 0x00 that ended it; a 0x00 that ends no frame (the
+    firmware's lone one at start, an empty frame) counts toward the next item (:attr:`idle`).
     """
 
     def __init__(self) -> None:
@@ -408,6 +411,8 @@ class Decoder:
         # its last MAX_ENCODED bytes (the tail), which may still end in a whole frame.
         self._run = DiscardRun(self.stats)
         self._tail = b""
+        #: Delimiters read that ended no frame, not yet counted in an item's wire size.
+        self.idle = 0
 
     @property
     def _skipping(self) -> bool:
@@ -439,6 +444,8 @@ class Decoder:
                     raw_frame = piece
                 if raw_frame:
                     self._decode(raw_frame, out)
+                else:
+                    self.idle += 1
             else:
                 self._buf += piece
             if stop < 0:
@@ -454,9 +461,14 @@ class Decoder:
         if self._skipping:
             self._end_skip(out, at_delimiter=False)
         if self._buf:
-            out.append(self.stats.count_bad(BadFrame.of("truncated", self._buf)))
+            truncated = BadFrame.of("truncated", self._buf, self._take_idle())
+            out.append(self.stats.count_bad(truncated))
             self._buf.clear()
         return out
+
+    def _take_idle(self) -> int:
+        idle, self.idle = self.idle, 0
+        return idle
 
     @property
     def buffered(self) -> int:
@@ -477,7 +489,9 @@ class Decoder:
         found = _glued_frame_start(self._tail, 0) if at_delimiter else None
         garbage = len(self._tail) if found is None else found[0]
         self._run.absorb(self._tail, 0, garbage, out)
-        self._run.end(out)
+        closing = 1 if at_delimiter and found is None else 0  # the delimiter ends the run
+        if not self._run.end(out, closing):
+            self.idle += closing
         if found is not None:
             self.stats.frames += 1
             out.append(found[1])
@@ -485,7 +499,9 @@ class Decoder:
 
     def _decode(self, encoded: bytes, out: list[DecodedItem]) -> None:
         raw = cobs_decode(encoded)
-        result: Frame | str = "cobs" if raw is None else decode_raw(raw)
+        framing = 1 + self._take_idle()  # the delimiter, and any before it that ended nothing
+        size = len(encoded) + framing
+        result: Frame | str = "cobs" if raw is None else decode_raw(raw, size)
         if not isinstance(result, str):
             self.stats.frames += 1
             out.append(result)
@@ -495,16 +511,18 @@ class Decoder:
         # frame whose CRC holds is one frame (of a newer version or type): nothing is glued.
         found = None if result in _CRC_GOOD_REASONS else _glued_frame_start(encoded, 1)
         if found is None:
-            out.append(self.stats.count_bad(BadFrame.of(result, encoded)))
+            out.append(self.stats.count_bad(BadFrame.of(result, encoded, framing)))
             return
         offset, frame = found
-        out.append(self.stats.count_bad(BadFrame.of("garbage", encoded[:offset])))
+        garbage = BadFrame.of("garbage", encoded[:offset], framing - 1)
+        out.append(self.stats.count_bad(garbage))
         self.stats.frames += 1
         out.append(frame)
 
 
 def _glued_frame_start(encoded: bytes, first: int) -> tuple[int, Frame] | None:
-    """Offset (>= ``first``) and frame of the longest suffix of ``encoded`` that is a frame.
+    """Offset (>= ``first``) and frame of the longest suffix of ``encoded`` that is a frame
+    (its wire size counts the delimiter after ``encoded``).
 
     Only offsets from which the COBS code chain lands exactly on the end can start a frame;
     they are found in one backward pass, so the search costs little more than one decode.
@@ -521,7 +539,7 @@ def _glued_frame_start(encoded: bytes, first: int) -> tuple[int, Frame] | None:
         raw = cobs_decode(encoded[j:])
         if raw is None:
             continue
-        result = decode_raw(raw)
+        result = decode_raw(raw, n - j + 1)
         if not isinstance(result, str):
             return j, result
     return None

@@ -12,12 +12,23 @@ BAD_FRAME_SAMPLE_BYTES = 64
 
 
 @dataclass(frozen=True, slots=True)
-class BadFrame:
+class WireSized:
+    """What every decoded item says besides its content: how many bytes it took on the line,
+    its framing included, so a reader can place the item's end in the byte stream (the daemon
+    stamps frames from when their last byte arrived). Items a decoder returns account for
+    every byte fed, in order; an item built in code rather than decoded took none (0)."""
+
+    wire_size: int = field(default=0, kw_only=True, compare=False)
+
+
+@dataclass(frozen=True, slots=True)
+class BadFrame(WireSized):
     """Bytes a decoder threw away, and why.
 
     ``reason`` is a short stable identifier (``"crc"``, ``"garbage"``, ``"length"``,
     ``"truncated"``, ...) that health counters are keyed by; ``size`` counts every discarded
-    byte while ``sample`` keeps at most :data:`BAD_FRAME_SAMPLE_BYTES` of them.
+    byte while ``sample`` keeps at most :data:`BAD_FRAME_SAMPLE_BYTES` of them. Its wire size
+    is ``size`` plus any framing byte that ended it (the baro codec's 0x00 delimiter).
     """
 
     reason: str
@@ -25,8 +36,10 @@ class BadFrame:
     sample: bytes = b""
 
     @classmethod
-    def of(cls, reason: str, data: bytes | bytearray | memoryview) -> BadFrame:
-        return cls(reason, len(data), bytes(data[:BAD_FRAME_SAMPLE_BYTES]))
+    def of(cls, reason: str, data: bytes | bytearray | memoryview, framing: int = 0) -> BadFrame:
+        """``data`` discarded for ``reason``; ``framing`` bytes on the line ended it."""
+        size = len(data)
+        return cls(reason, size, bytes(data[:BAD_FRAME_SAMPLE_BYTES]), wire_size=size + framing)
 
 
 @dataclass(slots=True)
@@ -101,16 +114,22 @@ class DiscardRun:
         self.absorb(buf, pos, pos + 1, out)
         return pos + 1
 
-    def end(self, out: list[Any]) -> None:
-        """Back in sync: report what was discarded."""
-        self._emit(out)
+    def end(self, out: list[Any], framing: int = 0) -> bool:
+        """Back in sync: report what was discarded, ended by ``framing`` bytes on the line
+        (a delimiter); False if there was nothing to report."""
+        emitted = self._emit(out, framing)
         self.reason = None
+        return emitted
 
-    def _emit(self, out: list[Any]) -> None:
-        if self.reason is not None and self.size:
-            out.append(self._stats.count_bad(BadFrame(self.reason, self.size, bytes(self.sample))))
+    def _emit(self, out: list[Any], framing: int = 0) -> bool:
+        reason, size, sample = self.reason, self.size, self.sample
         self.size = 0
         self.sample = bytearray()
+        if reason is None or not size:
+            return False
+        bad = BadFrame(reason, size, bytes(sample), wire_size=size + framing)
+        out.append(self._stats.count_bad(bad))
+        return True
 
 
 def flush_truncated(buf: bytearray, run: DiscardRun, process: Callable[[], list[Any]]) -> list[Any]:

@@ -26,7 +26,7 @@ import numpy.typing as npt
 
 from baromap.errors import ConfigError, EncodeError
 from baromap.messages import BeamFlag, LaserScan
-from baromap.protocols.framing import BadFrame, BufferedDecoder
+from baromap.protocols.framing import BadFrame, BufferedDecoder, WireSized
 
 STX: Final = 0x02
 ACK: Final = 0x06
@@ -216,17 +216,17 @@ def crc16(data: bytes | bytearray | memoryview) -> int:
 
 
 @dataclass(frozen=True, slots=True)
-class Ack:
+class Ack(WireSized):
     """The sensor accepted the last command (a reply telegram follows)."""
 
 
 @dataclass(frozen=True, slots=True)
-class Nak:
+class Nak(WireSized):
     """The sensor rejected the last command's framing or CRC (no reply follows)."""
 
 
-ACK_MESSAGE: Final = Ack()
-NAK_MESSAGE: Final = Nak()
+ACK_MESSAGE: Final = Ack(wire_size=1)
+NAK_MESSAGE: Final = Nak(wire_size=1)
 
 
 class Severity(enum.IntEnum):
@@ -265,7 +265,7 @@ def decode_status(status: int) -> SensorStatus:
 
 
 @dataclass(frozen=True, slots=True)
-class Telegram:
+class Telegram(WireSized):
     """Any telegram other than a B0 scan, either direction.
 
     ``status`` is the trailing status byte of sensor replies (ADR 0x80) and None for host
@@ -398,7 +398,7 @@ _SCAN_HEADERS: Final[dict[int, tuple[bool, bool]]] = {
 
 
 @dataclass(frozen=True, slots=True, eq=False)
-class ScanTelegram:
+class ScanTelegram(WireSized):
     """A scan telegram: raw 16-bit range words, as the sensor sent them.
 
     ``reply`` is B0 (every value), B6 (mean of ``sample_size`` scans), B7 (the values of
@@ -1086,12 +1086,13 @@ class Decoder(BufferedDecoder[LmsMessage]):
 
 def _decode_frame(frame: bytes, address: int) -> Telegram | ScanTelegram | BadFrame:
     command = frame[HEADER_BYTES]
+    size = len(frame)
     if not address & 0x80:
-        return Telegram(address, command, frame[HEADER_BYTES + 1 : -CRC_BYTES])
+        return Telegram(address, command, frame[HEADER_BYTES + 1 : -CRC_BYTES], wire_size=size)
     status = frame[-CRC_BYTES - 1]
     data = frame[HEADER_BYTES + 1 : -CRC_BYTES - 1]
     if command not in _SCAN_HEADERS:
-        return Telegram(address, command, data, status)
+        return Telegram(address, command, data, status, wire_size=size)
     return _decode_scan(frame, command, data, status)
 
 
@@ -1122,4 +1123,5 @@ def _decode_scan(frame: bytes, reply: int, data: bytes, status: int) -> ScanTele
         reply=reply,
         sample_size=sample_size,
         subrange=subrange,
+        wire_size=len(frame),
     )

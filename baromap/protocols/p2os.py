@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import Any, Final, Literal
 
 from baromap.errors import ConfigError, EncodeError
-from baromap.protocols.framing import BadFrame, BufferedDecoder
+from baromap.protocols.framing import BadFrame, BufferedDecoder, WireSized
 
 SYNC: Final = b"\xfa\xfb"
 HEADER_BYTES: Final = 3
@@ -106,7 +106,7 @@ INT_ARG_MAX: Final = 0x7FFF
 
 
 @dataclass(frozen=True, slots=True)
-class CommandPacket:
+class CommandPacket(WireSized):
     """A command as the robot receives it: no argument, an integer, or a string."""
 
     command: int
@@ -199,7 +199,7 @@ def config_request() -> bytes:
 
 
 @dataclass(frozen=True, slots=True)
-class SyncEcho:
+class SyncEcho(WireSized):
     """The robot echoed SYNC0 or SYNC1 (step 0 or 1; 2 only if it sent no strings)."""
 
     step: int
@@ -211,7 +211,7 @@ class SyncEcho:
 
 
 @dataclass(frozen=True, slots=True)
-class Sync2Info:
+class Sync2Info(WireSized):
     """The SYNC2 echo: robot name, class and subclass (NUL-terminated on the wire)."""
 
     name: str
@@ -258,7 +258,7 @@ SIP_TAIL: Final[tuple[tuple[tuple[str, ...], struct.Struct], ...]] = (
 
 
 @dataclass(frozen=True, slots=True)
-class StandardSip:
+class StandardSip(WireSized):
     """A standard Server Information Packet (type 0x32 stopped / 0x33 moving), raw units.
 
     ``x``/``y`` are the robot's 15-bit position counters (wrap at 0x8000), ``theta`` its
@@ -303,18 +303,6 @@ class StandardSip:
     def battery_v(self) -> float:
         return (self.battery_x10 if self.battery_x10 is not None else self.battery_dv) / 10.0
 
-    @property
-    def wire_size(self) -> int:
-        """Bytes of this SIP on the line, header and checksum included, without encoding it
-        (the daemon places every SIP's end on the line: ten times a second, and encoding one
-        costs as much as decoding it)."""
-        size = HEADER_BYTES + _SIP_HEAD.size + len(self.sonars) * _SONAR.size + CHECKSUM_BYTES
-        for names, layout in SIP_TAIL:  # the fields present are a prefix of the tail
-            if getattr(self, names[0]) is None:
-                break
-            size += layout.size
-        return size + len(self.extra)
-
     def encode(self) -> bytes:
         if not (0 <= self.x <= POSITION_MASK and 0 <= self.y <= POSITION_MASK):
             raise EncodeError("SIP positions are 15-bit counters (0..0x7FFF)")
@@ -346,7 +334,7 @@ class StandardSip:
         return out
 
 
-def _decode_sip(data: bytes) -> StandardSip | None:
+def _decode_sip(data: bytes, wire_size: int) -> StandardSip | None:
     if len(data) < _SIP_HEAD.size:
         return None
     head = _SIP_HEAD.unpack_from(data)
@@ -371,6 +359,7 @@ def _decode_sip(data: bytes) -> StandardSip | None:
         extra=data[pos:],
         **fields,
         **tail,
+        wire_size=wire_size,
     )
 
 
@@ -451,7 +440,7 @@ ConfigValue = int | str
 
 
 @dataclass(frozen=True, slots=True)
-class ConfigPacket:
+class ConfigPacket(WireSized):
     """A CONFIG packet (type 0x20): the fields present, in wire order.
 
     Older firmware sends fewer fields; a field is present only if all its bytes arrived.
@@ -515,7 +504,7 @@ def _encode_config_value(name: str, kind: str, value: ConfigValue) -> bytes:
         raise EncodeError(f"CONFIG {name}={value} out of range") from exc
 
 
-def _decode_config(data: bytes) -> ConfigPacket:
+def _decode_config(data: bytes, wire_size: int) -> ConfigPacket:
     fields: list[tuple[str, ConfigValue]] = []
     pos = 1
     for name, kind in CONFIG_FIELDS:
@@ -531,11 +520,11 @@ def _decode_config(data: bytes) -> ConfigPacket:
             break
         fields.append((name, layout.unpack_from(data, pos)[0]))
         pos += layout.size
-    return ConfigPacket(tuple(fields), data[pos:])
+    return ConfigPacket(tuple(fields), data[pos:], wire_size=wire_size)
 
 
 @dataclass(frozen=True, slots=True)
-class RobotPacket:
+class RobotPacket(WireSized):
     """Any other robot packet (encoder, IO, serial-aux, ...), kept raw."""
 
     packet_type: int
@@ -553,32 +542,33 @@ def encode_sync_echo(step: int) -> bytes:
     return SyncEcho(step).encode()
 
 
-def _decode_robot_packet(data: bytes) -> RobotMessage | None:
+def _decode_robot_packet(data: bytes, wire_size: int) -> RobotMessage | None:
     kind = data[0]
     if kind <= PacketType.SYNC2:
         if len(data) == 1:
-            return SyncEcho(kind)
+            return SyncEcho(kind, wire_size=wire_size)
         if kind != PacketType.SYNC2:
             return None
         parts = data[1:].decode("latin-1").split("\x00")
         parts += [""] * (3 - len(parts))
-        return Sync2Info(parts[0], parts[1], parts[2])
+        return Sync2Info(parts[0], parts[1], parts[2], wire_size=wire_size)
     if kind in (PacketType.SIP_STOPPED, PacketType.SIP_MOVING):
-        return _decode_sip(data)
+        return _decode_sip(data, wire_size)
     if kind == PacketType.CONFIG:
-        return _decode_config(data)
-    return RobotPacket(kind, data[1:])
+        return _decode_config(data, wire_size)
+    return RobotPacket(kind, data[1:], wire_size=wire_size)
 
 
-def _decode_command(data: bytes) -> CommandPacket | None:
+def _decode_command(data: bytes, wire_size: int) -> CommandPacket | None:
     if len(data) == 1:
-        return CommandPacket(data[0])
+        return CommandPacket(data[0], wire_size=wire_size)
     kind = data[1]
     if kind in (ArgType.INT, ArgType.NEG_INT) and len(data) == 4:
         (magnitude,) = _U16.unpack_from(data, 2)
-        return CommandPacket(data[0], -magnitude if kind == ArgType.NEG_INT else magnitude)
+        argument = -magnitude if kind == ArgType.NEG_INT else magnitude
+        return CommandPacket(data[0], argument, wire_size=wire_size)
     if kind == ArgType.STRING and len(data) >= 3 and data[2] == len(data) - 3:
-        return CommandPacket(data[0], data[3:])
+        return CommandPacket(data[0], data[3:], wire_size=wire_size)
     return None
 
 
@@ -637,7 +627,7 @@ class Decoder(BufferedDecoder[P2osMessage]):
                 pos = self._run.reject("checksum", buf, pos, out)
                 continue
             self._run.end(out)
-            message = self._decode(body)
+            message = self._decode(body, stop - pos)
             if message is None:
                 out.append(self.stats.count_bad(BadFrame.of("format", buf[pos:stop])))
             else:
@@ -647,7 +637,7 @@ class Decoder(BufferedDecoder[P2osMessage]):
         del buf[:pos]
         return out
 
-    def _decode(self, body: bytes) -> RobotMessage | CommandPacket | None:
+    def _decode(self, body: bytes, wire_size: int) -> RobotMessage | CommandPacket | None:
         if self.source == "host":
-            return _decode_command(body)
-        return _decode_robot_packet(body)
+            return _decode_command(body, wire_size)
+        return _decode_robot_packet(body, wire_size)

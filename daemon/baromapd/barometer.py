@@ -27,14 +27,6 @@ log = structlog.get_logger(__name__)
 HELLO_ATTEMPTS: Final = 10
 HELLO_WAIT_S: Final = 0.5
 ACK_WAIT_S: Final = 0.5
-#: COBS adds one code byte to frames under 254 bytes, then the 0x00 delimiter.
-COBS_OVERHEAD: Final = 2
-
-
-def wire_size(frame: baro.DecodedItem) -> int:
-    if isinstance(frame, BadFrame):
-        return frame.size
-    return baro.HEADER.size + frame.PAYLOAD.size + baro.CRC.size + COBS_OVERHEAD
 
 
 class BarometerSession(DeviceSession):
@@ -129,7 +121,7 @@ class BarometerSession(DeviceSession):
     def handle(self, data: bytes, read_ns: int) -> None:
         self.line.chunk(len(data), read_ns)
         for frame in self.decoder.feed(data):
-            size = wire_size(frame)
+            size = frame.wire_size
             if isinstance(frame, BadFrame):
                 self.line.skip(size)
                 self.bad_frame(frame)

@@ -41,21 +41,9 @@ REPLY_WAIT_S: Final = 0.3
 BAUD_SETTLE_S: Final = 0.25
 #: Re-initialisations in place after scans stopped, before the port is closed and retried.
 MAX_IN_PLACE: Final = 2
-HEADER_AND_CRC: Final = lms200.HEADER_BYTES + lms200.CRC_BYTES
 #: Most of a tap's records decoded in one call: a scan is a few packets (eight from a USB
 #: adapter), and ``LinePosition`` keeps the last 64 reads for a frame in progress.
 READS_PER_FEED: Final = LinePosition.READS_KEPT // 2
-
-
-def wire_size(message: lms200.LmsMessage) -> int:
-    """Bytes a decoded item occupied on the line."""
-    if isinstance(message, lms200.ScanTelegram):
-        return HEADER_AND_CRC + 1 + 2 + 2 * message.beam_count + len(message.extra) + 1
-    if isinstance(message, lms200.Telegram):
-        return HEADER_AND_CRC + 1 + len(message.data) + (message.status is not None)
-    if isinstance(message, BadFrame):
-        return message.size
-    return 1  # ACK / NAK
 
 
 class Lms200Session(DeviceSession):
@@ -192,7 +180,7 @@ class Lms200Session(DeviceSession):
             if isinstance(message, lms200.ScanTelegram) and self.streaming:
                 self._scan(message, read_ns)
                 continue
-            self.line.skip(wire_size(message))
+            self.line.skip(message.wire_size)
             if found is not None:
                 continue
             if isinstance(message, lms200.Nak):
@@ -233,7 +221,7 @@ class Lms200Session(DeviceSession):
             if isinstance(message, lms200.ScanTelegram):
                 self._scan(message, read_ns)
                 continue
-            self.line.skip(wire_size(message))
+            self.line.skip(message.wire_size)
             if isinstance(message, lms200.Telegram) and message.command == POWER_ON:
                 log.warning("laser power-on telegram: it was power-cycled", port=self.path)
                 raise DeviceRestarted("the sensor sent its power-on telegram (power cycle)")
@@ -245,7 +233,7 @@ class Lms200Session(DeviceSession):
     def _scan(self, message: lms200.ScanTelegram, read_ns: int) -> None:
         self.good_frame()
         self._in_place = 0
-        size = self._scan_bytes = wire_size(message)
+        size = self._scan_bytes = message.wire_size
         start_ns = self.line.end_ns(size, self.baud) - transmission_ns(size, self.baud)
         self.publish(message.to_laser_scan(self.clock.unix_ns(start_ns)), read_ns)
         # The status byte hardly ever changes: decode each value once, not 75 times a second.

@@ -37,7 +37,6 @@ SYNC_ATTEMPTS: Final = 4
 #: Drivers give the robot this long to answer CONFIG; older firmware may not.
 CONFIG_WAIT_S: Final = 1.0
 FIRST_SIP_WAIT_S: Final = 1.5
-P2OS_OVERHEAD: Final = p2os.HEADER_BYTES + p2os.CHECKSUM_BYTES
 
 
 def choose_model(subclass: str, configured: str, allow_mismatch: bool) -> tuple[RobotModel, str]:
@@ -189,11 +188,11 @@ class PioneerSession(DeviceSession):
         self.line.chunk(len(data), read_ns)
         out = []
         for message in self.decoder.feed(data):
+            size = message.wire_size
             if isinstance(message, BadFrame):
-                self.line.skip(message.size)
+                self.line.skip(size)
                 self.bad_frame(message)
                 continue
-            size = _wire_size(message)
             self.good_frame()
             out.append(message)
             if not isinstance(message, p2os.StandardSip):
@@ -238,14 +237,3 @@ class PioneerSession(DeviceSession):
                 self.write(p2os.stop())
             self.write(p2os.close_controller())
         self._session_open = False
-
-
-def _wire_size(message: Any) -> int:
-    """Bytes a decoded robot packet took on the line (for the byte position of its end): a SIP
-    says so itself; the handshake's few other packets are encoded again to know."""
-    if isinstance(message, p2os.StandardSip):
-        return message.wire_size
-    try:
-        return len(message.encode())
-    except Exception:
-        return P2OS_OVERHEAD
