@@ -20,7 +20,7 @@ from baromap.protocols import baro
 from baromap.protocols.framing import BadFrame
 from baromapd.clock import DeviceClockFit, LinePosition, transmission_ns
 from baromapd.config import BarometerConfig
-from baromapd.session import DeviceRestarted, DeviceSession, wait_for
+from baromapd.session import DeviceRestarted, DeviceSession
 
 log = structlog.get_logger(__name__)
 
@@ -52,10 +52,10 @@ class BarometerSession(DeviceSession):
         hello = None
         for _ in range(HELLO_ATTEMPTS):
             self.write(baro.identify(self._next_seq()))
-            hello = wait_for(self, self._find(baro.HelloFrame), HELLO_WAIT_S)
+            hello = self.wait_for(self._decode, baro.HelloFrame, HELLO_WAIT_S)
             if hello is not None:
                 break
-        if not isinstance(hello, baro.HelloFrame):
+        if hello is None:
             raise DeviceError(f"no HELLO from the barometer board at {self.baud} baud")
         if hello.sensor == baro.SensorModel.NONE:
             log.warning("barometer board has no sensor yet", port=self.path)
@@ -97,25 +97,17 @@ class BarometerSession(DeviceSession):
     def _command(self, build: Callable[[int], bytes], frame_type: baro.FrameType) -> None:
         seq = self._next_seq()
         self.write(build(seq))
-        ack = wait_for(self, self._find(baro.AckFrame, command_seq=seq), ACK_WAIT_S)
-        if not isinstance(ack, baro.AckFrame):
+        ack = self.wait_for(
+            self._decode, baro.AckFrame, ACK_WAIT_S, lambda ack: ack.command_seq == seq
+        )
+        if ack is None:
             raise DeviceError(f"no ACK for {frame_type.name}")
         if ack.result != baro.AckResult.OK:
             raise DeviceError(f"{frame_type.name} refused: {baro.AckResult(ack.result).name}")
 
-    def _find(self, kind: type, command_seq: int | None = None) -> Any:
-        def feed(data: bytes, read_ns: int) -> Any:
-            found = None
-            for frame in self.decoder.feed(data):
-                if (
-                    found is None
-                    and isinstance(frame, kind)
-                    and (command_seq is None or getattr(frame, "command_seq", None) == command_seq)
-                ):
-                    found = frame
-            return found
-
-        return feed
+    def _decode(self, data: bytes, read_ns: int) -> list[baro.DecodedItem]:
+        """The handshake's frames (its samples are not recorded: the board is not set up)."""
+        return self.decoder.feed(data)
 
     # ---- streaming ----------------------------------------------------------------------------
     def handle(self, data: bytes, read_ns: int) -> None:

@@ -25,7 +25,7 @@ from baromap.protocols import lms200
 from baromap.protocols.framing import BadFrame
 from baromapd.clock import LinePosition, transmission_ns
 from baromapd.config import LaserConfig
-from baromapd.session import DeviceRestarted, DeviceSession, wait_for
+from baromapd.session import DeviceRestarted, DeviceSession
 
 log = structlog.get_logger(__name__)
 
@@ -112,16 +112,16 @@ class Lms200Session(DeviceSession):
             self._fresh_decoder()
             self.write(lms200.status_request())
             wait = REPLY_WAIT_S + 2 * transmission_ns(LONGEST_REPLY, baud) / 1e9
-            if wait_for(self, self._any_telegram, wait) is not None:
+            # any telegram with a good CRC proves the speed, a scan of a streaming sensor too
+            telegram = (lms200.Telegram, lms200.ScanTelegram)
+            if self.wait_for(self._decode_raw, telegram, wait) is not None:
                 log.info("laser found", baud=baud, port=self.path)
                 return baud
         raise DeviceError(f"no LMS200 answers at {', '.join(map(str, order))} baud")
 
-    def _any_telegram(self, data: bytes, read_ns: int) -> bool | None:
-        for message in self.decoder.feed(data):
-            if isinstance(message, lms200.Telegram | lms200.ScanTelegram):
-                return True
-        return None
+    def _decode_raw(self, data: bytes, read_ns: int) -> list[lms200.LmsMessage]:
+        """The baud search's telegrams (nothing is set up yet: nothing is recorded)."""
+        return self.decoder.feed(data)
 
     def _switch_baud(self, baud: int) -> None:
         self._mode(lms200.BAUD_MODES[baud], f"switch to {baud} baud")
@@ -161,37 +161,39 @@ class Lms200Session(DeviceSession):
         expected = telegram[lms200.HEADER_BYTES] | 0x80
         wait = REPLY_WAIT_S + 2 * transmission_ns(LONGEST_REPLY, self.baud) / 1e9
 
-        def feed(data: bytes, read_ns: int) -> lms200.Telegram | bool | None:
-            return self._reply(data, read_ns, expected, then_streaming)
+        def decode(data: bytes, read_ns: int) -> list[lms200.LmsMessage]:
+            return self._decode_reply(data, read_ns, expected, then_streaming)
+
+        def answers(message: object) -> bool:
+            return _answers(message, expected)
 
         for _ in range(attempts):
             self.write(telegram)
-            reply = wait_for(self, feed, wait)
-            if isinstance(reply, lms200.Telegram):
+            reply = self.wait_for(decode, (lms200.Telegram, lms200.Nak), wait, answers)
+            if isinstance(reply, lms200.Telegram):  # else a NAK: the command again
+                if reply.command != expected:
+                    raise DeviceError(f"the sensor rejected command 0x{expected & 0x7F:02x}")
                 return reply
         raise DeviceError(f"{what}: no reply at {self.baud} baud")
 
-    def _reply(
+    def _decode_reply(
         self, data: bytes, read_ns: int, expected: int, then_streaming: bool
-    ) -> lms200.Telegram | bool | None:
+    ) -> list[lms200.LmsMessage]:
+        """A command's wait: every telegram placed on the line, and scans recorded while the
+        sensor streams (from the reply on, when the command starts streaming)."""
         self.line.chunk(len(data), read_ns)
-        found: lms200.Telegram | bool | None = None
-        for message in self.decoder.feed(data):
+        messages = self.decoder.feed(data)
+        answered = False
+        for message in messages:
             if isinstance(message, lms200.ScanTelegram) and self.streaming:
                 self._scan(message, read_ns)
                 continue
             self.line.skip(message.wire_size)
-            if found is not None:
-                continue
-            if isinstance(message, lms200.Nak):
-                found = False  # resend
-            elif isinstance(message, lms200.Telegram) and message.from_sensor:
-                if message.command == expected:
-                    found = message
-                    self.streaming = self.streaming or then_streaming
-                elif message.command == lms200.Reply.INVALID_COMMAND:
-                    raise DeviceError(f"the sensor rejected command 0x{expected & 0x7F:02x}")
-        return found
+            if not answered and _answers(message, expected):
+                answered = True  # the first answer of a read is the one the wait takes
+                replied = isinstance(message, lms200.Telegram) and message.command == expected
+                self.streaming = self.streaming or (then_streaming and replied)
+        return messages
 
     # ---- streaming ----------------------------------------------------------------------------
     def handle(self, data: bytes, read_ns: int) -> None:
@@ -271,3 +273,14 @@ class Lms200Session(DeviceSession):
             self._mode(lms200.Mode.BAUD_9600, "switch to 9600 baud")
             self.set_baud(9600)
         self.streaming = False
+
+
+def _answers(message: object, expected: int) -> bool:
+    """Whether ``message`` answers a command whose reply is ``expected``: the reply, the
+    sensor's "invalid command", or a NAK (the command was garbled on its way)."""
+    if isinstance(message, lms200.Telegram):
+        return message.from_sensor and message.command in (
+            expected,
+            lms200.Reply.INVALID_COMMAND,
+        )
+    return isinstance(message, lms200.Nak)

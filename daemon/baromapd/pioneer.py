@@ -15,6 +15,7 @@ inside the robot's 2 s watchdog; CLOSE on stop.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, Final
 
 import structlog
@@ -27,7 +28,7 @@ from baromap.protocols.framing import BadFrame
 from baromap.protocols.robot_models import RobotModel, find_model, select_model
 from baromapd.clock import LinePosition, transmission_ns
 from baromapd.config import BaseConfig
-from baromapd.session import DeviceRefused, DeviceSession, wait_for
+from baromapd.session import DeviceRefused, DeviceSession
 
 log = structlog.get_logger(__name__)
 
@@ -110,12 +111,12 @@ class PioneerSession(DeviceSession):
         self._session_open = True
         self.write(p2os.pulse())
         self.write(p2os.config_request())
-        config = wait_for(self, self._find(p2os.ConfigPacket), CONFIG_WAIT_S)
+        config = self.wait_for(self._packets, p2os.ConfigPacket, CONFIG_WAIT_S)
         if self.config.enable_motors:
             self.write(p2os.enable_motors(True))
         if (
             not self._sips_seen
-            and wait_for(self, self._find(p2os.StandardSip), FIRST_SIP_WAIT_S) is None
+            and self.wait_for(self._packets, p2os.StandardSip, FIRST_SIP_WAIT_S) is None
         ):
             raise DeviceError("no SIP after OPEN")
         self.identity = {
@@ -129,7 +130,7 @@ class PioneerSession(DeviceSession):
             "motors_enabled": str(self.config.enable_motors).lower(),
             "port": self.path,
         }
-        if isinstance(config, p2os.ConfigPacket):
+        if config is not None:
             for key in ("serial_number", "firmware_version", "watchdog_ms", "sip_cycle_ms"):
                 value = config.get(key)
                 if value is not None:
@@ -139,7 +140,10 @@ class PioneerSession(DeviceSession):
     def _sync(self) -> p2os.Sync2Info:
         for _ in range(SYNC_ATTEMPTS):
             self.write(p2os.sync(0))
-            answer = wait_for(self, self._sync_answer(0), ECHO_WAIT_S)
+            # an open robot streams SIPs instead of echoing
+            answer = self.wait_for(
+                self._decode, (p2os.SyncEcho, p2os.StandardSip), ECHO_WAIT_S, _echo_of(0)
+            )
             if isinstance(answer, p2os.StandardSip):
                 log.info("robot still open from an earlier client: closing it", port=self.path)
                 self.write(p2os.close_controller())
@@ -150,43 +154,25 @@ class PioneerSession(DeviceSession):
             if answer is None:
                 continue
             self.write(p2os.sync(1))
-            if not isinstance(wait_for(self, self._sync_answer(1), ECHO_WAIT_S), p2os.SyncEcho):
+            if self.wait_for(self._decode, p2os.SyncEcho, ECHO_WAIT_S, _echo_of(1)) is None:
                 continue
             self.write(p2os.sync(2))
-            info = wait_for(self, self._sync_answer(2), ECHO_WAIT_S)
+            # a robot with strings answers SYNC2 with them, one without echoes it
+            info = self.wait_for(
+                self._decode, (p2os.Sync2Info, p2os.SyncEcho), ECHO_WAIT_S, _echo_of(2)
+            )
             if isinstance(info, p2os.Sync2Info):
                 return info
         raise DeviceError(f"no SYNC handshake at {self.baud} baud")
 
-    def _sync_answer(self, step: int) -> Any:
-        def feed(data: bytes, read_ns: int) -> Any:
-            for message in self.decoder.feed(data):
-                if isinstance(message, p2os.StandardSip) and step == 0:
-                    return message
-                if step == 2 and isinstance(message, p2os.Sync2Info):
-                    return message
-                if isinstance(message, p2os.SyncEcho) and message.step == step:
-                    return message
-            return None
+    def _decode(self, data: bytes, read_ns: int) -> list[p2os.P2osMessage]:
+        """The SYNC handshake's packets (a SIP there is not odometry: no session is open)."""
+        return self.decoder.feed(data)
 
-        return feed
-
-    def _find(self, kind: type) -> Any:
-        """Feed that looks for a ``kind`` packet; SIPs on the way are odometry already."""
-
-        def feed(data: bytes, read_ns: int) -> Any:
-            found = None
-            for message in self._packets(data, read_ns):
-                if isinstance(message, kind) and found is None:
-                    found = message
-            return found
-
-        return feed
-
-    def _packets(self, data: bytes, read_ns: int) -> list[Any]:
+    def _packets(self, data: bytes, read_ns: int) -> list[p2os.P2osMessage]:
         """Decode, count, and publish the SIPs as odometry stamped when they were sent."""
         self.line.chunk(len(data), read_ns)
-        out = []
+        out: list[p2os.P2osMessage] = []
         for message in self.decoder.feed(data):
             size = message.wire_size
             if isinstance(message, BadFrame):
@@ -237,3 +223,8 @@ class PioneerSession(DeviceSession):
                 self.write(p2os.stop())
             self.write(p2os.close_controller())
         self._session_open = False
+
+
+def _echo_of(step: int) -> Callable[[object], bool]:
+    """Accepts the echo of SYNC``step`` and any packet that is not an echo."""
+    return lambda packet: not isinstance(packet, p2os.SyncEcho) or packet.step == step

@@ -28,8 +28,8 @@ import select
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Mapping
-from typing import Any, Final
+from collections.abc import Callable, Iterable, Mapping
+from typing import Final, TypeVar
 
 import serial
 import structlog
@@ -68,8 +68,11 @@ READ_CHUNK: Final = 65536
 #: A bad frame this recent makes an UP device DEGRADED.
 DEGRADED_HOLD_NS: Final = 5_000_000_000
 
+T = TypeVar("T")
 Publish = Callable[[Message, int], None]
 """(message, host monotonic ns at which its last byte was read)."""
+Decode = Callable[[bytes, int], Iterable[object]]
+"""(bytes, host monotonic ns of the read) -> the items they decode to, each already handled."""
 Identify = Callable[[str, Mapping[str, str]], None]
 """(metadata record name, its string fields): a device's identity, ``baromap.device.<name>``,
 and any record its messages need to be read (``baromap.robot``)."""
@@ -289,6 +292,34 @@ class DeviceSession(abc.ABC):
     def since_write_s(self) -> float:
         return (time.monotonic_ns() - self._last_write_ns) / 1e9
 
+    def wait_for(
+        self,
+        decode: Decode,
+        kind: type[T] | tuple[type[T], ...],
+        timeout_s: float,
+        match: Callable[[T], bool] | None = None,
+    ) -> T | None:
+        """A handshake's wait: read and ``decode`` until an item is a ``kind`` that ``match``
+        accepts (the first such item of a read), or None after ``timeout_s``.
+
+        ``decode`` does with every item what the driver does with it (a SIP on the way is
+        odometry, a frame is placed on the line); the wait only picks its answer out.
+        """
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.stopping:
+                raise _Stopping
+            data, read_ns = self.read()
+            if not data:
+                continue
+            found: T | None = None
+            for item in decode(data, read_ns):
+                if found is None and isinstance(item, kind) and (match is None or match(item)):
+                    found = item
+            if found is not None:
+                return found
+        return None
+
     # ---- what a driver implements ------------------------------------------------------------
     @abc.abstractmethod
     def handshake(self) -> None:
@@ -497,21 +528,3 @@ class DeviceSession(abc.ABC):
 
 class _Stopping(Exception):
     """Raised out of a handshake pause when the daemon stops."""
-
-
-def wait_for(
-    session: DeviceSession,
-    feed: Callable[[bytes, int], Any],
-    timeout_s: float,
-) -> Any:
-    """Read and ``feed`` until it returns something other than None, or time out (None)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if session.stopping:
-            raise _Stopping
-        data, read_ns = session.read()
-        if data:
-            found = feed(data, read_ns)
-            if found is not None:
-                return found
-    return None
