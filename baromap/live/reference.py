@@ -35,7 +35,7 @@ class ReferenceListener:
         self._callback = callback
         self.received = 0
         self.bad = 0
-        self.last_t_ns = -1
+        self.last_t_ns: int | None = None  # the last sample's time (None: none yet)
 
     def on_payload(self, payload: bytes) -> None:
         try:

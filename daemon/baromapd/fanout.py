@@ -120,7 +120,7 @@ class QueueWorker:
     def offer_received(self, message: Message, received_ns: int) -> None:
         self._put((message, received_ns))
 
-    def _put(self, item: tuple[Message, int | None]) -> None:
+    def _put(self, item: tuple[Message, int | None] | tuple[Message, int | None, str]) -> None:
         # Readers of several devices may pass the size check at once: the bound can be
         # overshot by a message per reader, which is all it needs to be (bounded, never wait).
         if self._queue.qsize() >= self._maxsize:

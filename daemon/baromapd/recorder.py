@@ -38,8 +38,6 @@ log = structlog.get_logger(__name__)
 
 MB: Final = 1_000_000
 RESUME_HEADROOM: Final = 1.2
-#: Marks a queued sample as a reference station's (no real receive time is negative).
-_REFERENCE: Final = -1
 #: How often (at most) the current file's size is checked for rotation.
 SIZE_CHECK_NS: Final = 250_000_000
 #: How often (at most) the idle work runs while messages flow: the fsync request, the disk
@@ -129,7 +127,7 @@ class Recorder(QueueWorker):
     def offer_reference(self, sample: messages.PressureSample) -> None:
         """A reference station's sample (from a Zenoh thread), recorded on
         ``/reference/pressure`` so post-run detection can correct with the station too."""
-        self._put((sample, _REFERENCE))
+        self._put((sample, None, topics.REFERENCE_PRESSURE))
 
     def health(self, t_ns: int) -> messages.DeviceHealth:
         counters: dict[str, int] = {
@@ -160,11 +158,12 @@ class Recorder(QueueWorker):
         self._syncer = Syncer()
         self._open()
 
-    def handle(self, message: messages.Message, received_ns: int | None) -> None:
+    def handle(
+        self, message: messages.Message, received_ns: int | None, topic: str | None = None
+    ) -> None:
+        """Write ``message`` on ``topic`` (its type's usual one when None)."""
         now = time.monotonic_ns()
-        if received_ns == _REFERENCE:
-            topic, received_ns = topics.REFERENCE_PRESSURE, None
-        else:
+        if topic is None:
             topic = DEFAULT_TOPICS.get(type(message)) or type(message).__name__
         if received_ns is not None:
             hist = self.latency.get(topic)
