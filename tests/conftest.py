@@ -1,4 +1,7 @@
-"""Suite-wide fixtures: hardware opt-in options and a guard against leaked threads and fds."""
+"""Suite-wide fixtures: hardware ports and a guard against leaked threads and fds.
+
+The hardware options themselves are declared by the ``pytest_baromap`` plugin (repository root).
+"""
 
 from __future__ import annotations
 
@@ -42,18 +45,6 @@ def find_shared_data() -> Path | None:
 
 
 SHARED_DATA = find_shared_data()
-
-HARDWARE_OPTIONS = {
-    "--baro-port": "serial port (or URL) of a real barometer board",
-    "--lms-port": "serial port of a real SICK LMS200",
-    "--p2os-port": "serial port of a real Pioneer base",
-}
-
-
-def pytest_addoption(parser: pytest.Parser) -> None:
-    group = parser.getgroup("baromap hardware", "opt-in tests against real devices")
-    for option, help_text in HARDWARE_OPTIONS.items():
-        group.addoption(option, default=None, help=help_text)
 
 
 def hardware_port(config: pytest.Config, option: str) -> str:

@@ -10,7 +10,13 @@ configuration that differs from what the robot reports is refused naming both, u
 Motors are never enabled unless configured: the daemon records, the operator drives. A robot
 still open from a client that died answers SYNC0 with SIPs; the session then sends CLOSE and
 syncs again (p2os_driver's way). PULSE goes out after 500 ms without another command, well
-inside the robot's 2 s watchdog; CLOSE on stop.
+inside the robot's 2 s watchdog.
+
+However a connection ends (a stop, SIGTERM, a failure, an exception in the session), a session
+that enabled the motors sends STOP and ENABLE 0, waits briefly for a SIP that says the motors
+are off, then CLOSE: disabling the motors is the last command before the session closes. A
+port that is gone takes no command; that is counted (``motors_off_failed``) and logged, and
+the robot's own watchdog (``watchdog_ms`` of its CONFIG) stops it.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Final
 
+import serial
 import structlog
 
 from baromap.errors import ConfigError, DeviceError
@@ -38,6 +45,8 @@ SYNC_ATTEMPTS: Final = 4
 #: Drivers give the robot this long to answer CONFIG; older firmware may not.
 CONFIG_WAIT_S: Final = 1.0
 FIRST_SIP_WAIT_S: Final = 1.5
+#: After ENABLE 0, how long to wait for a SIP that says the motors are off (two SIP cycles).
+MOTORS_OFF_WAIT_S: Final = 0.3
 
 
 def choose_model(subclass: str, configured: str, allow_mismatch: bool) -> tuple[RobotModel, str]:
@@ -72,6 +81,8 @@ def model_source(model: RobotModel, subclass: str, configured: str) -> str:
 
 
 class PioneerSession(DeviceSession):
+    shutdown_on_every_end = True  # the motors are disabled however the connection ends
+
     def __init__(self, config: BaseConfig, **kwargs: Any) -> None:
         super().__init__("base", port=config.port, baud=config.baud, retry=config.retry, **kwargs)
         self.config = config
@@ -218,11 +229,36 @@ class PioneerSession(DeviceSession):
             self.write(p2os.pulse())
 
     def shutdown(self) -> None:
-        if self._session_open:
+        """STOP, ENABLE 0 and a SIP that confirms it (motors enabled by this session), CLOSE."""
+        if not self._session_open:
+            return
+        self._session_open = False
+        try:
             if self.config.enable_motors:
                 self.write(p2os.stop())
+                self.write(p2os.enable_motors(False))
+                off = self.wait_for(self._packets, p2os.StandardSip, MOTORS_OFF_WAIT_S, _motors_off)
+                confirmed = off is not None
+                self.count("motors_off")
+                if confirmed:
+                    self.count("motors_off_confirmed")
+                log.info("motors disabled", device=self.name, confirmed_by_robot=confirmed)
             self.write(p2os.close_controller())
-        self._session_open = False
+        except (serial.SerialException, OSError, DeviceError) as exc:
+            if self.config.enable_motors:
+                self.count("motors_off_failed")
+                log.warning(
+                    "cannot disable the motors: the port is gone; the robot's watchdog stops it",
+                    device=self.name,
+                    error=str(exc),
+                    watchdog_ms=self.identity.get("watchdog_ms", "?"),
+                )
+            else:
+                log.debug("cannot close the robot's session", device=self.name, error=str(exc))
+
+
+def _motors_off(sip: p2os.StandardSip) -> bool:
+    return not sip.motors_enabled
 
 
 def _echo_of(step: int) -> Callable[[object], bool]:

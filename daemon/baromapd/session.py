@@ -89,6 +89,9 @@ class DeviceRefused(DeviceError):
 class DeviceSession(abc.ABC):
     """A device on a serial port, served by its own reader thread."""
 
+    #: Run :meth:`shutdown` whenever a connection ends (a failure, a lost port, a stop), not
+    #: only on a stop after streaming: for a device that must be left safe (the base's motors).
+    shutdown_on_every_end: bool = False
     #: Read the port through a tap process (``baromapd.tap``) that stamps every read without
     #: waiting for the GIL: for a device whose frames are stamped with the host's clock alone
     #: (the laser). A port without a file descriptor (``loop://``) is read directly.
@@ -465,8 +468,12 @@ class DeviceSession(abc.ABC):
             return f"port failed (unplugged?): {exc}", up
         except BaromapError as exc:
             return str(exc), up
+        except Exception as exc:  # a fault in a driver: this device goes down, not the daemon
+            log.exception("device session failed", device=self.name)
+            return f"internal error: {type(exc).__name__}: {exc}", up
         finally:
-            if self._stop.is_set() and self._serial is not None and up:
+            ending = self._stop.is_set() and up
+            if self._serial is not None and (ending or self.shutdown_on_every_end):
                 self._in_shutdown = True
                 try:
                     self.shutdown()

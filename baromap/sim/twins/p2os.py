@@ -14,6 +14,12 @@ stop (route time stands still for every twin, SIPs say "stopped") until the host
 again. The 2 s are wall seconds whatever the clock's speed: they judge the host, whose
 keepalives come in wall time.
 
+A host that enables the motors and sets a velocity (VEL, RVEL) takes the robot over, as a
+hardware-in-the-loop test does on a desk: from then until ENABLE 0 or CLOSE the route stands
+still and the odometry counts the commanded motion only (through the odometry error model, at
+the model's DistConvFactor); STOP and the watchdog set the velocities to zero. Only the
+odometry sees that motion; the laser and the barometer stay where the route left the robot.
+
 One modelling choice: the route stands for a client driving the robot, so when bare SYNC0s
 come faster than any keepalive needs (three, each within :data:`RESYNC_GAP_S` of the last), a
 new client is
@@ -25,6 +31,7 @@ old session only on a "stopped" SIP, reconnects within a second instead of never
 from __future__ import annotations
 
 import enum
+import math
 import time
 
 import numpy as np
@@ -45,6 +52,9 @@ WATCHDOG_S = 2.0
 #: Three bare SYNC0s, each closer than this to the last, on an open session: a client is
 #: re-synchronising (ARIA retries every 0.1-0.2 s; a keepalive needs one PULSE per 2 s).
 RESYNC_GAP_S = 0.2
+#: Largest setpoints the twin obeys (a P3-AT's MaxVelocity and MaxRVelocity).
+MAX_HOST_MMPS = 1200
+MAX_HOST_DEGPS = 300
 
 
 class Session(enum.Enum):
@@ -80,6 +90,14 @@ class P2osTwin(Twin):
         self._last_bare_sync: float | None = None
         self._quick_syncs = 0
         self.stopped_for_resync = False
+        #: The host's velocity setpoints (mm/s, deg/s), obeyed while the motors are enabled.
+        self.commanded_mmps = 0
+        self.commanded_degps = 0
+        self._host_control = False  # a velocity was set with the motors enabled
+        self._host_halted = False  # the route stands still because the host drives
+        #: Commanded motion (m, rad) not yet in a SIP, and the simulated instant it runs to.
+        self._driven = (0.0, 0.0)
+        self._driven_to_s = self.clock.now()
         self.clock.resume()
 
     @property
@@ -113,11 +131,22 @@ class P2osTwin(Twin):
             elif not bare_sync:
                 self._last_bare_sync = None
                 self._quick_syncs = 0
-            if self.clock.halted and not self.stopped_for_resync:
+            if self.clock.halted and not self.stopped_for_resync and not self.host_driving:
                 self.clock.resume()  # ARCOS revives on the next packet after a watchdog stop
             self._command(msg)
+            self._follow_host()
+
+    def _drive_until_now(self) -> tuple[float, float]:
+        """The commanded motion since the last call (m, rad), at the setpoints in force."""
+        now_s = self.clock.now()
+        dt_s, self._driven_to_s = now_s - self._driven_to_s, now_s
+        if not self.host_driving:
+            return 0.0, 0.0
+        return self.commanded_mmps / 1000.0 * dt_s, math.radians(self.commanded_degps) * dt_s
 
     def _command(self, c: p2os.CommandPacket) -> None:
+        ds, dth = self._drive_until_now()  # the old setpoints held until this command
+        self._driven = (self._driven[0] + ds, self._driven[1] + dth)
         cmd = c.command
         if self.session in (Session.CLOSED, Session.SYNCING) and c.argument is None and cmd <= 2:
             if cmd == self.sync_step:
@@ -143,12 +172,40 @@ class P2osTwin(Twin):
             self.session = Session.CLOSED
             self.motors = False
             self.sync_step = 0
+            self.commanded_mmps = self.commanded_degps = 0
+            self._host_control = False
         elif cmd == p2os.Command.ENABLE:
             self.motors = bool(c.argument)
+            if not self.motors:
+                self.commanded_mmps = self.commanded_degps = 0
+                self._host_control = False
+        elif cmd == p2os.Command.VEL and isinstance(c.argument, int):
+            self.commanded_mmps = max(-MAX_HOST_MMPS, min(MAX_HOST_MMPS, c.argument))
+            self._host_control = self.motors
+        elif cmd == p2os.Command.RVEL and isinstance(c.argument, int):
+            self.commanded_degps = max(-MAX_HOST_DEGPS, min(MAX_HOST_DEGPS, c.argument))
+            self._host_control = self.motors
+        elif cmd == p2os.Command.STOP:
+            self.commanded_mmps = self.commanded_degps = 0
         elif cmd == p2os.Command.SETO:
             self.odometry.x_m = self.odometry.y_m = self.odometry.theta = 0.0
         elif cmd == p2os.Command.CONFIG and self.session == Session.OPEN:
             self.port.send(self.config_packet())
+
+    @property
+    def host_driving(self) -> bool:
+        """The host has the robot: it set a velocity with the motors enabled (open session)."""
+        return self.session == Session.OPEN and self.motors and self._host_control
+
+    def _follow_host(self) -> None:
+        """Stop the route while the host drives; let it go on when the host stops."""
+        if self.host_driving and not self._host_halted:
+            self._host_halted = True
+            self.clock.halt()
+        elif not self.host_driving and self._host_halted:
+            self._host_halted = False
+            if not self.stopped_for_resync:
+                self.clock.resume()
 
     def config_packet(self) -> bytes:
         """The whole CONFIG packet, every field ARCOS sends (ARIA reads them all)."""
@@ -198,9 +255,14 @@ class P2osTwin(Twin):
         now = time.monotonic()
         if self.session != Session.OPEN:
             return
-        if now - self._last_heard > WATCHDOG_S and not self.clock.halted:
-            self.watchdog_trips += 1
-            self.clock.halt()
+        if now - self._last_heard > WATCHDOG_S:
+            if self.host_driving:  # the robot stops where the host left it
+                if self.commanded_mmps or self.commanded_degps:
+                    self.watchdog_trips += 1
+                self.commanded_mmps = self.commanded_degps = 0
+            elif not self.clock.halted:
+                self.watchdog_trips += 1
+                self.clock.halt()
         if now < self._next_sip:
             return
         self._next_sip += self.clock.real_delay(SIP_PERIOD_S)
@@ -216,12 +278,21 @@ class P2osTwin(Twin):
         truth = self.clock.scenario.truth(np.array([self.clock.robot_time()]))
         ds, dth = true_increments(truth.x, truth.y, truth.theta, self._prev)
         self._prev = (float(truth.x[0]), float(truth.y[0]), float(truth.theta[0]))
+        driving = self.host_driving
+        step, turn = self._drive_until_now()
+        step, turn = step + self._driven[0], turn + self._driven[1]
+        self._driven = (0.0, 0.0)
+        if step or turn:
+            ds, dth = ds + step, dth + turn
         x, y, th = self.odometry.step(ds, dth)
         cx, cy, cth = counters(self.model, x, y, th)
         v = float(truth.v[0]) * (1.0 + self.errors.scale)
         w = float(truth.omega[0]) * (1.0 + self.errors.rotation_scale)
         if self.clock.halted:
             v = w = 0.0
+        if driving:
+            v = self.commanded_mmps / 1000.0 * (1.0 + self.errors.scale)
+            w = math.radians(self.commanded_degps) * (1.0 + self.errors.rotation_scale)
         packet = sip(
             self.model,
             x=int(cx[0]),
