@@ -131,7 +131,7 @@ def test_each_mode_streams_its_beams_at_its_rate(
     capture = Capture()
     session = _session(
         lms_port, baud, capture, host_clock,
-        angle_deg=angle_deg, resolution_cdeg=resolution_cdeg, units=units,
+        angle_deg=angle_deg, resolution_deg=resolution_cdeg / 100, units=units,
     )  # fmt: skip
     rate = expected_hz(baud, angle_deg, resolution_cdeg)
     with running(session):
