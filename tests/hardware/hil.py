@@ -3,7 +3,8 @@
 The tests drive the daemon's own sessions (``baromapd.lms200``, ``.pioneer``, ``.barometer``)
 against the port given on the command line: the code that records a run is the code under
 test. A session's messages come with the instant their last byte was read; from those the
-figures are taken over a window that starts once the device is up:
+figures are taken over a window that starts once the device is up (computed by
+``baromapd.bench``, as for the bench command):
 
 - rate and gaps: messages per second, the longest silence and how many intervals exceed 1.5
   times the expected period;
@@ -22,10 +23,10 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 import pytest
 
 from baromap.messages import DeviceHealth, DeviceState, Message
+from baromapd.bench import StreamFigures, stream_figures
 from baromapd.clock import HostClock
 from baromapd.config import Retry
 from baromapd.session import DeviceSession
@@ -97,56 +98,6 @@ def bad_frames(health: DeviceHealth) -> dict[str, int]:
     return {k: v for k, v in health.counters.items() if k.startswith("bad_") and v}
 
 
-@dataclass(frozen=True, slots=True)
-class StreamFigures:
-    """One stream over a window (see the module's doc)."""
-
-    messages: int
-    seconds: float
-    rate_hz: float
-    expected_hz: float
-    longest_gap_s: float
-    late_intervals: int
-    offset_ms: float
-    jitter_ms: float
-
-    def line(self) -> str:
-        return (
-            f"{self.messages} messages in {self.seconds:.1f} s: {self.rate_hz:.2f} Hz "
-            f"(expected {self.expected_hz:.2f}), longest gap {self.longest_gap_s * 1000:.0f} ms, "
-            f"{self.late_intervals} intervals > 1.5 periods; stamp - read "
-            f"{self.offset_ms:+.2f} ms, spread (p95-p5) {self.jitter_ms:.2f} ms"
-        )
-
-
-def stream_figures(
-    received: list[Received], clock: HostClock, window: tuple[int, int], expected_hz: float
-) -> StreamFigures:
-    """Figures of the messages read within ``window`` (monotonic ns, start and end)."""
-    start, end = window
-    inside = [r for r in received if start <= r.read_ns <= end]
-    seconds = (end - start) / 1e9
-    if len(inside) < 2:
-        return StreamFigures(len(inside), seconds, len(inside) / seconds, expected_hz, seconds,
-                             0, float("nan"), float("nan"))  # fmt: skip
-    reads = np.array([r.read_ns for r in inside], dtype=np.int64)
-    stamps = np.array([getattr(r.message, "t_ns", 0) for r in inside], dtype=np.int64)
-    intervals = np.diff(reads) / 1e9
-    edges = np.array([(reads[0] - start) / 1e9, (end - reads[-1]) / 1e9])
-    offset = (stamps - np.array([clock.unix_ns(int(r)) for r in reads])) / 1e6
-    p5, p50, p95 = np.percentile(offset, [5, 50, 95])
-    return StreamFigures(
-        messages=len(inside),
-        seconds=seconds,
-        rate_hz=(len(inside) - 1) / ((reads[-1] - reads[0]) / 1e9),
-        expected_hz=expected_hz,
-        longest_gap_s=float(max(intervals.max(), edges.max())),
-        late_intervals=int(np.count_nonzero(intervals > 1.5 / expected_hz)),
-        offset_ms=float(p50),
-        jitter_ms=float(p95 - p5),
-    )
-
-
 def stream_for(
     session: DeviceSession, capture: Capture, kind: type, seconds: float, expected_hz: float
 ) -> tuple[StreamFigures, DeviceHealth, DeviceHealth]:
@@ -158,7 +109,10 @@ def stream_for(
     time.sleep(seconds)
     end = time.monotonic_ns()
     after = session.health(0)
-    figures = stream_figures(capture.of(kind), session.clock, (start, end), expected_hz)
+    received = capture.of(kind)
+    stamps = [getattr(r.message, "t_ns", 0) for r in received]
+    reads = [r.read_ns for r in received]
+    figures = stream_figures(stamps, reads, session.clock, (start, end), expected_hz)
     return figures, before, after
 
 

@@ -18,6 +18,7 @@ from hil import QUICK_RETRY, Capture, assert_stream, running, session_kwargs, st
 
 from baromap.messages import LaserScan
 from baromap.protocols import lms200
+from baromapd.bench import laser_hz
 from baromapd.clock import HostClock
 from baromapd.config import LaserConfig
 from baromapd.lms200 import SEARCH_BAUDS, Lms200Session
@@ -26,16 +27,6 @@ pytestmark = pytest.mark.hardware
 
 #: Drivers wait up to a minute for the power-on telegram after a reset.
 BOOT_WAIT_S = 60.0
-MIRROR_HZ = 75.0
-INTERLACE = {100: 1, 50: 2, 25: 4}
-
-
-def expected_hz(baud: int, angle_deg: int, resolution_cdeg: int) -> float:
-    """Scans per second: one telegram per full scan, as fast as both the line (10 bits a
-    byte) and the mirror (75 turns a second, 2 or 4 interlaced at 0.5 and 0.25 deg) allow."""
-    beams = angle_deg * 100 // resolution_cdeg + 1
-    telegram = 1 + 4 + 1 + 2 + 2 * beams + 1 + 2  # ACK-less: STX..status, CRC
-    return min(baud / 10 / telegram, MIRROR_HZ / INTERLACE[resolution_cdeg])
 
 
 def _session(
@@ -102,7 +93,7 @@ def test_reset_waits_for_the_power_on_telegram_then_the_session_starts_from_powe
     session = _session(lms_port, baud, capture, host_clock)
     with running(session):
         figures, before, after = stream_for(
-            session, capture, LaserScan, hil_seconds, expected_hz(baud, 180, 100)
+            session, capture, LaserScan, hil_seconds, laser_hz(baud, 180, 100)
         )
     status = after.counters.get("status_not_ok", 0) - before.counters.get("status_not_ok", 0)
     report("laser", f"{session.identity}")
@@ -133,7 +124,7 @@ def test_each_mode_streams_its_beams_at_its_rate(
         lms_port, baud, capture, host_clock,
         angle_deg=angle_deg, resolution_deg=resolution_cdeg / 100, units=units,
     )  # fmt: skip
-    rate = expected_hz(baud, angle_deg, resolution_cdeg)
+    rate = laser_hz(baud, angle_deg, resolution_cdeg)
     with running(session):
         figures, before, after = stream_for(
             session, capture, LaserScan, max(hil_seconds / 2, 12 / rate), rate
@@ -171,7 +162,7 @@ def test_baud_search_finds_a_sensor_left_streaming_by_a_client_that_died(
     session = _session(lms_port, baud, capture, host_clock)
     with running(session):
         figures, before, after = stream_for(
-            session, capture, LaserScan, hil_seconds / 2, expected_hz(baud, 180, 100)
+            session, capture, LaserScan, hil_seconds / 2, laser_hz(baud, 180, 100)
         )
     report("laser", f"left streaming at {left_at}, found and set to {baud}: {figures.line()}")
     assert after.counters.get("baud") == baud
