@@ -7,13 +7,21 @@ USB device. pyserial's port list reads them from sysfs (``idVendor``, ``idProduc
 ``serial``) without opening any device, which also works inside the daemon's hardened unit
 (``DevicePolicy=closed`` allows the tty classes, not ``/dev/bus/usb``), where libusb could not
 open the raw USB devices.
+
+The one thing that needs the raw USB device is a reset: a USB serial adapter that stops
+answering after its port was closed and opened again (a wedged FTDI or CH340) comes back as
+if replugged after a USB port reset, which pyusb (libusb) asks of the kernel. It needs write
+access to ``/dev/bus/usb/...``, which the rules ``baromap devices --udev-rules`` prints give.
 """
 
 from __future__ import annotations
 
+import errno
+import os
 import re
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Final
+from typing import Any, Final
 
 from serial.tools import list_ports
 
@@ -116,6 +124,86 @@ def resolve_port(spec: str, devices: list[SerialDevice] | None = None) -> str:
     return found[0].path
 
 
+#: What to do about a permission error on a device (its tty or its USB device node).
+UDEV_HINT: Final = (
+    "install baromap's udev rules: `baromap devices --udev-rules --name ROLE=PORT > "
+    "/etc/udev/rules.d/99-baromap.rules`, then `udevadm control --reload && udevadm trigger`, "
+    "and be in the group dialout"
+)
+
+
+def permission_hint(error: BaseException) -> str:
+    """The udev advice when ``error`` is a permission error (EACCES/EPERM), else ''."""
+    code = getattr(error, "errno", None)
+    if code in (errno.EACCES, errno.EPERM) or "Permission denied" in str(error):
+        return f"permission denied: {UDEV_HINT}"
+    return ""
+
+
+def serial_device_at(
+    path: str, devices: Iterable[SerialDevice] | None = None
+) -> SerialDevice | None:
+    """The attached serial device whose port is ``path`` (a udev symlink is followed)."""
+    real = os.path.realpath(path)
+    found = list_serial_devices() if devices is None else devices
+    return next((d for d in found if os.path.realpath(d.path) == real), None)
+
+
+def _bus_and_ports(location: str | None) -> tuple[int, tuple[int, ...]] | None:
+    """sysfs' USB location ``1-1.2`` (or ``1-1.2:1.0``) as (bus 1, port path (1, 2))."""
+    if not location:
+        return None
+    match = re.fullmatch(r"(\d+)-([\d.]+)(?::[\d.]+)?", location)
+    if match is None:
+        return None
+    return int(match[1]), tuple(int(p) for p in match[2].split("."))
+
+
+def reset_usb_adapter(
+    path: str,
+    devices: Iterable[SerialDevice] | None = None,
+    find: Callable[..., Any] | None = None,
+) -> SerialDevice:
+    """Reset the USB device behind the serial port ``path``, as if it had been replugged.
+
+    The device is the one at the port's USB location (bus and port path) when sysfs gives
+    it, else the only one with the port's vendor, product and serial number. Raises
+    :class:`DeviceError` when ``path`` is no USB device, none or several match, or the reset
+    fails (a permission error names the udev rules to install). ``find`` is pyusb's
+    ``usb.core.find`` unless given (tests).
+    """
+    device = serial_device_at(path, devices)
+    if device is None or device.usb is None:
+        raise DeviceError(f"{path} is not a USB serial adapter: there is nothing to reset")
+    identity = device.usb
+    if find is None:
+        import usb.core
+
+        find = usb.core.find
+    place = _bus_and_ports(device.location)
+    try:
+        candidates = list(find(find_all=True, idVendor=identity.vid, idProduct=identity.pid))
+        if place is not None:
+            candidates = [c for c in candidates if (c.bus, tuple(c.port_numbers or ())) == place]
+        elif identity.serial is not None:
+            candidates = [c for c in candidates if c.serial_number == identity.serial]
+        if len(candidates) != 1:
+            raise DeviceError(
+                f"{len(candidates)} USB devices match {identity} at {device.location or '?'}: "
+                "not resetting"
+            )
+        candidates[0].reset()
+    except DeviceError:
+        raise
+    except Exception as exc:  # pyusb's USBError, NoBackendError, or sysfs going away meanwhile
+        hint = permission_hint(exc)
+        if not hint and type(exc).__name__ == "NoBackendError":
+            hint = "pyusb finds no libusb: install libusb-1.0-0"
+        detail = f"; {hint}" if hint else ""
+        raise DeviceError(f"cannot reset {identity} ({path}): {exc}{detail}") from exc
+    return device
+
+
 def udev_rule(device: SerialDevice, name: str) -> str:
     """One udev rule giving ``device`` the stable name ``/dev/<name>`` (group dialout)."""
     if device.usb is None:
@@ -126,3 +214,13 @@ def udev_rule(device: SerialDevice, name: str) -> str:
     if device.usb.serial:
         match += f', ATTRS{{serial}}=="{device.usb.serial}"'
     return f'SUBSYSTEM=="tty", {match}, SYMLINK+="{name}", GROUP="dialout", MODE="0660"'
+
+
+def usb_reset_rule(device: SerialDevice) -> str:
+    """The udev rule that lets group dialout reset ``device`` (its ``/dev/bus/usb`` node)."""
+    if device.usb is None:
+        raise DeviceError(f"{device.path} is not a USB device")
+    match = f'ATTR{{idVendor}}=="{device.usb.vid:04x}", ATTR{{idProduct}}=="{device.usb.pid:04x}"'
+    if device.usb.serial:
+        match += f', ATTR{{serial}}=="{device.usb.serial}"'
+    return f'SUBSYSTEM=="usb", ENV{{DEVTYPE}}=="usb_device", {match}, GROUP="dialout", MODE="0660"'

@@ -1,13 +1,16 @@
 #!/usr/bin/env bash
-# Debian packages baromap's firmware build, firmware-in-the-loop tests and C port tap need.
+# Debian packages baromap's firmware build and flashing, firmware-in-the-loop tests, C port tap
+# and USB adapter reset need.
 # As root: installs what is missing. Otherwise: says what is missing and how to get it;
 # the tests that need them are then skipped with that reason, the rest still run.
 set -euo pipefail
 
 # gcc and libc6-dev build the daemon's port tap (daemon/tap.c); g++ pulls them in too, but the
 # tap should not depend on the firmware harness's compiler staying in this list.
+# avrdude: `make -C firmware flash` and its test against a stand-in bootloader; libusb-1.0-0:
+# pyusb's backend, for the daemon's reset of a wedged USB adapter.
 packages=(python3-venv gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev libelf-dev
-          pkg-config gcc libc6-dev g++ make)
+          pkg-config gcc libc6-dev g++ make avrdude libusb-1.0-0)
 
 missing=()
 for p in "${packages[@]}"; do

@@ -4,7 +4,8 @@ The listing shows each port with its USB identity ``vid:pid:serial``, which the 
 configuration accepts in place of a path. ``--udev-rules`` prints rules giving devices stable
 names: ``--name laser=/dev/ttyUSB0`` says which attached device plays which role (laser, base,
 barometer); without names, a rule is printed for each USB serial device with a name made of
-its identity, to be renamed by hand.
+its identity, to be renamed by hand. Each tty rule comes with one for the USB device itself,
+which lets the daemon reset a wedged adapter (``usb_reset = true`` in a device's table).
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ def _assignments(pairs: list[str]) -> dict[str, str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from baromap.discovery import STABLE_NAMES, list_serial_devices, udev_rule
+    from baromap.discovery import STABLE_NAMES, list_serial_devices, udev_rule, usb_reset_rule
     from baromap.errors import ConfigError
 
     devices = list_serial_devices()
@@ -78,4 +79,5 @@ def run(args: argparse.Namespace) -> int:
             name += f"-{device.usb.serial}"
         print(f"# {device.path}: {role or 'unassigned (rename, or pass --name ROLE=PATH)'}")
         print(udev_rule(device, name))
+        print(usb_reset_rule(device))  # the daemon's usb_reset (a wedged adapter)
     return 0

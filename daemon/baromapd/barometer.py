@@ -32,7 +32,12 @@ ACK_WAIT_S: Final = 0.5
 class BarometerSession(DeviceSession):
     def __init__(self, config: BarometerConfig, **kwargs: Any) -> None:
         super().__init__(
-            "barometer", port=config.port, baud=config.baud, retry=config.retry, **kwargs
+            "barometer",
+            port=config.port,
+            baud=config.baud,
+            retry=config.retry,
+            usb_reset=config.usb_reset,
+            **kwargs,
         )
         self.config = config
         self.decoder = baro.Decoder()

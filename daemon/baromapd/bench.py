@@ -38,7 +38,6 @@ import numpy as np
 
 from baromap import logs
 from baromap.messages import DeviceHealth, LaserScan, Message, Odometry, PressureSample
-from baromapd.app import Daemon
 from baromapd.barometer import BarometerSession
 from baromapd.clock import HostClock
 from baromapd.config import DaemonConfig, LaserConfig, parse_config
@@ -246,6 +245,8 @@ def _report(
 
 def run_bench(args: argparse.Namespace, directory: Path) -> BenchReport:
     """The daemon on the given ports for ``args.seconds``; the report of each device."""
+    from baromapd.app import Daemon  # the whole daemon; the figures above need none of it
+
     daemon = Daemon(_config(args, directory), live=False)
     log = StreamLog()
     daemon.fanout.subscribe(log)

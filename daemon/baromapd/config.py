@@ -155,6 +155,9 @@ class _Device(Table, frozen=True):
     """What every device table has: where it is and how it is retried."""
 
     port: Annotated[str, doc(PORT_HINT)]
+    usb_reset: Annotated[
+        bool, doc("reset its USB adapter (pyusb) when it stops answering after a reconnect")
+    ] = False
 
     def problems(self) -> Iterator[Problem]:
         message = port_problem(self.port)

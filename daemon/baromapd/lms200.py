@@ -52,7 +52,14 @@ class Lms200Session(DeviceSession):
     tapped = True
 
     def __init__(self, config: LaserConfig, **kwargs: Any) -> None:
-        super().__init__("laser", port=config.port, baud=config.baud, retry=config.retry, **kwargs)
+        super().__init__(
+            "laser",
+            port=config.port,
+            baud=config.baud,
+            retry=config.retry,
+            usb_reset=config.usb_reset,
+            **kwargs,
+        )
         self.config = config
         self.decoder = lms200.Decoder(at_boundary=False)
         self.line = LinePosition()

@@ -84,7 +84,14 @@ class PioneerSession(DeviceSession):
     shutdown_on_every_end = True  # the motors are disabled however the connection ends
 
     def __init__(self, config: BaseConfig, **kwargs: Any) -> None:
-        super().__init__("base", port=config.port, baud=config.baud, retry=config.retry, **kwargs)
+        super().__init__(
+            "base",
+            port=config.port,
+            baud=config.baud,
+            retry=config.retry,
+            usb_reset=config.usb_reset,
+            **kwargs,
+        )
         self.config = config
         self.decoder = p2os.Decoder()
         self.integrator: OdometryIntegrator | None = None

@@ -34,7 +34,7 @@ from typing import Final, TypeVar
 import serial
 import structlog
 
-from baromap.discovery import resolve_port
+from baromap.discovery import permission_hint, reset_usb_adapter, resolve_port
 from baromap.errors import BaromapError, DeviceError
 from baromap.messages import DeviceHealth, DeviceState, Message
 from baromap.protocols.framing import BadFrame
@@ -108,8 +108,13 @@ class DeviceSession(abc.ABC):
         publish: Publish,
         identify: Identify | None = None,
         resolve: Callable[[str], str] = resolve_port,
+        usb_reset: bool = False,
+        reset_adapter: Callable[[str], object] = reset_usb_adapter,
     ) -> None:
         self.name = name
+        #: Reset the port's USB adapter when it stops answering after a reconnect.
+        self.usb_reset = usb_reset
+        self._reset_adapter = reset_adapter
         self.port_spec = port
         self.baud = baud
         self.retry = retry
@@ -149,6 +154,7 @@ class DeviceSession(abc.ABC):
         self._bytes_since_good = 0
         self._last_write_ns = 0
         self._in_shutdown = False
+        self._opened = False  # the current connection attempt opened the port
 
     # ---- lifetime ---------------------------------------------------------------------------
     def start(self) -> None:
@@ -388,7 +394,10 @@ class DeviceSession(abc.ABC):
                 exclusive=True,
             )
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise DeviceError(f"cannot open {self.path}: {exc}") from exc
+            hint = permission_hint(exc)
+            detail = f"; {hint}" if hint else ""
+            raise DeviceError(f"cannot open {self.path}: {exc}{detail}") from exc
+        self._opened = True
         self._poll = None
         try:
             self._fd = self._serial.fileno()
@@ -423,6 +432,7 @@ class DeviceSession(abc.ABC):
         log.info("device session started", device=self.name, port=self.port_spec)
         try:
             while not self._stop.is_set():
+                self._opened = False
                 reason, was_up = self._connect_and_stream()
                 if reason is None:
                     break
@@ -430,6 +440,8 @@ class DeviceSession(abc.ABC):
                     delay = self.retry.initial_s
                 self.count("failures")
                 self._set_state(DeviceState.DOWN, reason)
+                if self._opened and not was_up and self.counters["connects"]:
+                    self._wedged(reason)
                 wait = self.retry.max_s if reason.startswith("refused") else delay
                 deadline = time.monotonic() + wait
                 while not self._stop.is_set() and time.monotonic() < deadline:
@@ -439,6 +451,22 @@ class DeviceSession(abc.ABC):
         finally:
             self._close()
             self._set_state(DeviceState.DOWN, "stopped")
+
+    def _wedged(self, reason: str) -> None:
+        """The port opened but the device, which answered before, did not: a wedged USB
+        adapter comes back after a reset (``usb_reset``); else the next attempt only reopens."""
+        if not self.usb_reset:
+            return
+        try:
+            self._reset_adapter(self.path)
+        except (BaromapError, OSError) as exc:
+            self.count("usb_reset_failed")
+            log.warning(
+                "USB adapter reset failed", device=self.name, port=self.path, error=str(exc)
+            )
+            return
+        self.count("usb_resets")
+        log.warning("USB adapter reset", device=self.name, port=self.path, after=reason)
 
     def _connect_and_stream(self) -> tuple[str | None, bool]:
         """One connection: (None when asked to stop, else why it ended; whether it was up)."""

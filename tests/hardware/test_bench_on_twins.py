@@ -30,12 +30,12 @@ def test_bench_reports_each_device_and_records_the_run(
 ) -> None:
     paths = twins.paths()
     status = bench.main(
-        ["--laser", paths["lms200"], "--laser-baud", "500000", "--base", paths["p3at"],
-         "--barometer", paths["baro"], "--seconds", "3", "-o", str(tmp_path / "rec")]
+        ["--laser", paths["lms200"], "--base", paths["p3at"],
+         "--barometer", paths["baro"], "--seconds", "4", "-o", str(tmp_path / "rec")]
     )  # fmt: skip
     out = capsys.readouterr().out
     assert status == 0, out
-    for device, expected in (("laser", 75.0), ("base", 10.0), ("barometer", 50.0)):
+    for device, expected in (("laser", 10.29), ("base", 10.0), ("barometer", 50.0)):
         block = out.split(f"{device} on ")[1].split("\n  reconnects")[0]
         rate = re.search(r"([\d.]+) Hz \(expected ([\d.]+)\)", block)
         assert rate is not None, block
@@ -47,7 +47,7 @@ def test_bench_reports_each_device_and_records_the_run(
     recordings = list((tmp_path / "rec").glob("*.mcap"))
     assert [str(p) in out for p in recordings] == [True]
     topics = Counter(record.topic for record in read_messages(recordings[0]))
-    assert topics["/scan"] > 100 and topics["/odom"] > 15 and topics["/baro"] > 80, topics
+    assert topics["/scan"] > 5 and topics["/odom"] > 15 and topics["/baro"] > 80, topics
 
 
 def test_bench_takes_any_subset_of_ports(
