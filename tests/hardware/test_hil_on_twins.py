@@ -4,7 +4,9 @@
 ``DIR/p3at``, ``DIR/baro``); for each device alone, ``pytest -m hardware --allow-motion
 --<device>-port DIR/<link>`` runs in a subprocess, so the real-port path (the options plugin,
 a port path outside the checkout, the daemon's sessions on a serial line) is the one tested.
-Each device must run at least three tests, skip none and pass all.
+Each device must run at least three tests, skip none and pass all. A device whose only
+failures are timing (its rate, a pause) runs once more, alone: on a loaded machine the twins'
+threads starve as a real device would not.
 
 Then the same against twins with faults scheduled throughout the run (a killed link, a stall,
 garbage on the line): the test that should catch each fault must fail, saying why.
@@ -130,6 +132,17 @@ def _outcomes(xml: Path) -> list[Outcome]:
     return out
 
 
+#: What a streaming test says when only timing failed: on a loaded machine (the twins, the
+#: daemon's readers and two other test processes share two cores) that device runs again,
+#: alone, once.
+TIMING = ("rate off", "stream paused")
+
+
+def _timing_only(outcomes: list[Outcome]) -> bool:
+    failed = [o for o in outcomes if o.result in ("failed", "error")]
+    return bool(failed) and all(any(t in o.message for t in TIMING) for o in failed)
+
+
 @pytest.fixture(scope="module")
 def clean_runs(
     tmp_path_factory: pytest.TempPathFactory,
@@ -138,7 +151,12 @@ def clean_runs(
     twins = Twins(base / "links", base / "sim.log")
     try:
         twins.wait_ready()
-        yield _run_devices(base / "links", base, {device: [] for device in DEVICES})
+        results = _run_devices(base / "links", base, {device: [] for device in DEVICES})
+        for device, (outcomes, output) in list(results.items()):
+            if _timing_only(outcomes):
+                again, rerun = _run_devices(base / "links", base, {device: []})[device]
+                results[device] = (again, f"{output}\n== again, alone (timing failed):\n{rerun}")
+        yield results
     finally:
         twins.close()
 
