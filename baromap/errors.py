@@ -27,5 +27,17 @@ class RecordingError(BaromapError):
     """An MCAP recording cannot be written or read."""
 
 
+class RecordingWriteError(RecordingError):
+    """Writing, flushing or closing a recording failed: the file is left as far as it got.
+
+    ``os_error`` is what the operating system refused (``ENOSPC`` for a full disk, ``EIO``),
+    when the failure came from it; the MCAP library's own error only says "I/O error".
+    """
+
+    def __init__(self, message: str, os_error: OSError | None = None) -> None:
+        super().__init__(message)
+        self.os_error = os_error
+
+
 class DeviceError(BaromapError):
     """A device could not be opened or did not complete its handshake."""

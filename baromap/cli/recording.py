@@ -1,4 +1,5 @@
-"""``baromap import ...`` (outside data into recordings) and ``baromap info`` (what a run holds)."""
+"""``baromap import ...`` (outside data into recordings), ``baromap info`` (what a run holds) and
+``baromap recover`` (a cut file made whole)."""
 
 from __future__ import annotations
 
@@ -20,6 +21,17 @@ def register(subparsers: Any) -> None:
     )
     info.add_argument("recording", help="MCAP file")
     info.set_defaults(run=run_info)
+
+    recover = subparsers.add_parser(
+        "recover",
+        help="rewrite a recording cut by SIGKILL or a power cut so every MCAP reader opens it",
+        description="Copy every whole record of a cut recording (messages, metadata, "
+        "attachments) into a new file with a summary, and say how many messages were kept "
+        "and where the cut was. The cut file is left as it is.",
+    )
+    recover.add_argument("recording", help="the cut MCAP file")
+    recover.add_argument("-o", "--output", required=True, help="the recovered file to write")
+    recover.set_defaults(run=run_recover)
 
     importer = subparsers.add_parser("import", help="bring outside data into a recording")
     kinds = importer.add_subparsers(dest="format", metavar="FORMAT", required=True)
@@ -102,3 +114,27 @@ def run_info(args: argparse.Namespace) -> int:
             shown = value if len(value) <= 72 else value[:69] + "..."
             print(f"    {key} = {shown}")
     return 0 if summary.complete else EXIT_INCOMPLETE
+
+
+def run_recover(args: argparse.Namespace) -> int:
+    import datetime as dt
+
+    from baromap.recording.recover import recover
+
+    result = recover(args.recording, args.output)
+    topics = ", ".join(f"{topic} {n}" for topic, n in sorted(result.topics.items()))
+    print(
+        f"wrote {result.target}: kept {result.messages} messages ({topics or 'none'}), "
+        f"{result.metadata} metadata records, {result.attachments} attachments"
+    )
+    if result.cut_at is None:
+        print(f"{result.source} was not cut (it was closed cleanly): copied whole")
+    else:
+        print(
+            f"{result.source} was cut at byte {result.cut_at} of {result.size} "
+            f"({result.size - result.cut_at} bytes dropped): {result.reason}"
+        )
+    if result.last_log_time is not None:
+        last = dt.datetime.fromtimestamp(result.last_log_time / 1e9, tz=dt.UTC)
+        print(f"last message kept: {last:%Y-%m-%dT%H:%M:%S.%f}Z")
+    return 0

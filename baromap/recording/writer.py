@@ -46,7 +46,7 @@ from foxglove.messages import (
 )
 
 from baromap import __version__, jsonmsg, messages
-from baromap.errors import BaromapError, RecordingError
+from baromap.errors import BaromapError, RecordingError, RecordingWriteError
 from baromap.recording import foxglove_wire, topics
 from baromap.recording.frames import LASER_MOUNT_KEY, LaserMount, yaw_to_quaternion
 
@@ -79,6 +79,23 @@ STATIC_PERIOD_NS = 1_000_000_000
 
 #: Foxglove time stamps hold unsigned 32-bit seconds: the Unix epoch to early 2106.
 MAX_T_NS = 2**32 * 1_000_000_000 - 1
+
+
+class _File(io.FileIO):
+    """The file the MCAP library writes through, keeping what the OS last refused.
+
+    The library reports every failed write as "I/O error"; a recorder must tell a full disk
+    (wait for space) from a failing one, so the ``OSError`` itself is kept here.
+    """
+
+    error: OSError | None = None
+
+    def write(self, data: bytes, /) -> int:  # type: ignore[override]
+        try:
+            return super().write(data)
+        except OSError as exc:
+            self.error = exc
+            raise
 
 
 def stamp(t_ns: int) -> Timestamp:
@@ -201,7 +218,7 @@ class RecordingWriter:
         self._last_static_ns = -1
         self._closed = True
         self.counts: dict[str, int] = {}
-        self._file: io.FileIO | None = None
+        self._file: _File | None = None
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             # The SDK writes through this file object, so each write to the disk is a
@@ -209,7 +226,7 @@ class RecordingWriter:
             # path, the SDK writes from Rust with the GIL held: a disk busy with other work
             # (a flush blocked for 0.3 s, measured) then stopped every thread of the process,
             # the device readers too, and a 500 kbaud line overflowed its pty.
-            self._file = io.FileIO(self.path, "w" if allow_overwrite else "x")
+            self._file = _File(self.path, "w" if allow_overwrite else "x")
             self._writer = foxglove.open_mcap(
                 self._file,
                 context=self.context,
@@ -295,7 +312,10 @@ class RecordingWriter:
         bad = {k: v for k, v in data.items() if not isinstance(v, str)}
         if bad:
             raise RecordingError(f"metadata {name!r} values must be strings: {sorted(bad)}")
-        self._writer.write_metadata(name, dict(data))
+        try:
+            self._writer.write_metadata(name, dict(data))
+        except RuntimeError as exc:
+            raise self._failed("write metadata to", exc) from exc
 
     def write(self, message: messages.Message, topic: str | None = None) -> None:
         """Record one message at its own time stamp, on its default topic unless given."""
@@ -306,20 +326,23 @@ class RecordingWriter:
         if not 0 <= t_ns <= MAX_T_NS:
             raise RecordingError(f"{cls.__name__} time {t_ns} ns is outside 1970..2106")
         topic = topic or DEFAULT_TOPICS[cls]
-        if self._laser_mount is not None and (
-            self._static_due or not 0 <= t_ns - self._last_static_ns < STATIC_PERIOD_NS
-        ):
-            self._write_static(t_ns)
-        if isinstance(message, messages.LaserScan):
-            self._write_scan(topic, message)
-        elif isinstance(message, messages.Odometry):
-            self._write_odometry(topic, message)
-            if topic == topics.ODOM:
-                self._write_tf(message)
-        else:
-            # the plain channel's own log: Channel.log checks the payload's type first, and
-            # every line counts on the recorder's cold caches (bench/writer.py)
-            self._json_channel(topic, cls).base.log(jsonmsg.dumps(message), t_ns, None)
+        try:
+            if self._laser_mount is not None and (
+                self._static_due or not 0 <= t_ns - self._last_static_ns < STATIC_PERIOD_NS
+            ):
+                self._write_static(t_ns)
+            if isinstance(message, messages.LaserScan):
+                self._write_scan(topic, message)
+            elif isinstance(message, messages.Odometry):
+                self._write_odometry(topic, message)
+                if topic == topics.ODOM:
+                    self._write_tf(message)
+            else:
+                # the plain channel's own log: Channel.log checks the payload's type first, and
+                # every line counts on the recorder's cold caches (bench/writer.py)
+                self._json_channel(topic, cls).base.log(jsonmsg.dumps(message), t_ns, None)
+        except RuntimeError as exc:  # the MCAP library's errors (FoxgloveError)
+            raise self._failed("write to", exc) from exc
         self.counts[topic] = self.counts.get(topic, 0) + 1
         self._dirty = True
         self.flush_if_due()
@@ -338,12 +361,12 @@ class RecordingWriter:
         """
         if self._closed:
             return
-        self._writer.flush()
-        if self._sync_fd >= 0:
-            try:
+        try:
+            self._writer.flush()
+            if self._sync_fd >= 0:
                 os.fsync(self._sync_fd)
-            except OSError as exc:
-                raise RecordingError(f"cannot sync recording {self.path}: {exc}") from exc
+        except (RuntimeError, OSError) as exc:
+            raise self._failed("flush", exc) from exc
         self._last_flush = time.monotonic()
         self._dirty = False
         # the next chunk starts with the static transform again
@@ -357,6 +380,8 @@ class RecordingWriter:
             self._writer.close()
             if self._sync_fd >= 0:
                 os.fsync(self._sync_fd)
+        except (RuntimeError, OSError) as exc:
+            raise self._failed("close", exc) from exc
         finally:
             if self._file is not None:
                 self._file.close()
@@ -365,6 +390,16 @@ class RecordingWriter:
                 self._sync_fd = -1
             self._release_channels()
         log.info("recording closed", path=str(self.path), messages=sum(self.counts.values()))
+
+    def _failed(self, action: str, exc: Exception) -> RecordingWriteError:
+        """The failure as a :class:`RecordingWriteError` naming what the OS refused, if it did."""
+        os_error = exc if isinstance(exc, OSError) else None
+        if os_error is None and self._file is not None:
+            os_error = self._file.error
+        detail = str(exc)
+        if os_error is not None and os_error is not exc:
+            detail += f" ({os_error.strerror or os_error})"
+        return RecordingWriteError(f"cannot {action} {self.path}: {detail}", os_error)
 
     def _release_channels(self) -> None:
         """Let go of this file's plain channels (JSON, and the scans' protobuf) for good.

@@ -48,6 +48,9 @@ TICK_S: Final = 1.0
 #: handshake and every 200 ms while streaming, the recorder wakes every 200 ms; a handshake
 #: write may block for its 1 s timeout).
 STUCK_NS: Final = 10 * NS_PER_S
+#: ``baromapd``'s exit status when the recorder gave up or its thread died (``baromapd.main``):
+#: not 0, so the unit's ``Restart=on-failure`` starts a new run.
+EXIT_RECORDER: Final = 3
 
 
 def run_name(robot: str, wall_ns: int) -> str:
@@ -114,6 +117,7 @@ class Daemon:
         self._status = ""
         self.watchdog_pings = 0
         self.ready = threading.Event()
+        self.exit_code = 0
 
     def _metadata(self) -> dict[str, str]:
         c = self.config
@@ -164,7 +168,7 @@ class Daemon:
                 self.tick()
         finally:
             self.shutdown()
-        return 0
+        return self.exit_code
 
     def start(self) -> None:
         # Everything imported and built so far lives as long as the daemon: out of the
@@ -206,6 +210,16 @@ class Daemon:
         if status != self._status:  # systemd keeps the last STATUS= until a new one
             self._status = status
             self.notifier.status(status)
+        recorder = self.recorder
+        if recorder.fatal is not None or not recorder.alive:
+            # Recording nothing while claiming to run helps nobody: a new run, by systemd.
+            log.error(
+                "the recorder cannot go on: stopping",
+                reason=recorder.fatal or recorder.error,
+                exit_code=EXIT_RECORDER,
+            )
+            self.exit_code = EXIT_RECORDER
+            self._stop.set()
         stuck = self.stuck_parts(now)
         if stuck:
             log.error("parts are not making progress: no watchdog ping", parts=stuck)

@@ -2,8 +2,12 @@
 
 Exit codes: 0 clean stop (SIGTERM/SIGINT finish the recording first), 1 a failure at start,
 2 a configuration problem (the unit's ``RestartPreventExitStatus=2``: restarting cannot fix a
-bad file). Logs are JSON lines under systemd (journald sets ``JOURNAL_STREAM``, and systemd
-``INVOCATION_ID``) and readable text on a terminal.
+bad file), 3 the recorder gave up (repeated writer faults other than a full disk) or its thread
+died: systemd's ``Restart=on-failure`` starts a new run, 4 a stop that left a part behind
+(a thread still blocked, say in a write to a stalled disk, after the stop's time: the process
+ends without it, so that a stop never outlasts the unit's ``TimeoutStopSec=``). Logs are JSON
+lines under systemd (journald sets ``JOURNAL_STREAM``, and systemd ``INVOCATION_ID``) and
+readable text on a terminal.
 """
 
 from __future__ import annotations
@@ -12,6 +16,7 @@ import argparse
 import os
 import signal
 import sys
+import threading
 from collections.abc import Mapping, Sequence
 from types import FrameType
 
@@ -19,12 +24,20 @@ import structlog
 
 from baromap import __version__, logs
 from baromap.errors import BaromapError
-from baromapd.app import Daemon
+from baromapd.app import EXIT_RECORDER, Daemon
 from baromapd.config import ConfigProblems, DaemonConfig, load_config
 from baromapd.notify import Notifier
 
 EXIT_FAILURE = 1
 EXIT_CONFIG = 2
+EXIT_LEFT_BEHIND = 4
+#: Every exit status but 0, by meaning (the module's docstring says when each happens).
+EXIT_CODES = {
+    EXIT_FAILURE: "failure at start",
+    EXIT_CONFIG: "configuration problem",
+    EXIT_RECORDER: "the recorder gave up",
+    EXIT_LEFT_BEHIND: "a part did not stop in time",
+}
 
 
 def log_renderer(choice: str, environ: Mapping[str, str], stderr_tty: bool) -> logs.Renderer:
@@ -104,7 +117,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, stop)
         signal.signal(signal.SIGINT, stop)
         log.info("starting", summary=summary(config), watchdog_s=notifier.watchdog_s)
-        return daemon.run()
+        code = daemon.run()
+    left = left_behind()
+    if left:
+        # Interpreter shutdown would wait for these forever: end the process without them.
+        log.error("parts did not stop: exiting without them", threads=left)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code or EXIT_LEFT_BEHIND)
+    return code
+
+
+def left_behind() -> list[str]:
+    """Threads other than this one that would hold the process open (not daemon threads)."""
+    main_thread = threading.main_thread()
+    return [
+        t.name
+        for t in threading.enumerate()
+        if t is not main_thread and t.is_alive() and not t.daemon
+    ]
 
 
 if __name__ == "__main__":

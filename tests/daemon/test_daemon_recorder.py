@@ -8,8 +8,9 @@ from pathlib import Path
 import pytest
 from mcap.records import Chunk
 from mcap.stream_reader import StreamReader
+from structlog.testing import capture_logs
 
-from baromap.errors import RecordingError
+from baromap.errors import RecordingError, RecordingWriteError
 from baromap.messages import DeviceState, PressureSample
 from baromap.recording import RecordingWriter, read_messages, read_metadata, topics
 from baromapd import recorder as recorder_module
@@ -137,3 +138,157 @@ def test_an_unknown_compression_is_refused_by_key() -> None:
         parse_config('robot = "r1"\n[recording]\ncompression = "gzip"\n[base]\nport = "loop://"\n')
     with pytest.raises(RecordingError, match="compression must be one of zstd, lz4, none"):
         RecordingWriter(Path("unused.mcap"), robot="r1", compression="brotli")
+
+
+class _FailingWrites:
+    """Makes the recorder's writer fail as the MCAP library does on a full or failing disk: a
+    ``RuntimeError`` (its FoxgloveError), not a BaromapError or an OSError."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch, error: Exception) -> None:
+        self.failing = False
+        self.error = error
+        real = RecordingWriter.write
+
+        def write(writer: RecordingWriter, message: object, topic: str | None = None) -> None:
+            if self.failing:
+                raise self.error
+            real(writer, message, topic)  # type: ignore[arg-type]
+
+        monkeypatch.setattr(RecordingWriter, "write", write)
+
+
+def _wait(predicate: object, timeout: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():  # type: ignore[operator]
+            return
+        time.sleep(0.02)
+    pytest.fail("condition not reached")
+
+
+def test_a_writer_failure_of_any_type_is_a_fault_said_once_and_a_new_file_follows(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(recorder_module, "FAULT_RETRY_NS", 200_000_000)
+    failing = _FailingWrites(monkeypatch, RuntimeError("FoxgloveError: MCAP error: I/O error"))
+    rec = _recorder(tmp_path, flush_interval_s=0.05)
+    with capture_logs() as logged:
+        _fail_and_resume(rec, failing)
+    assert rec.alive is False and rec.error is None, "the thread survived the fault"
+    faults = [e for e in logged if e["event"] == "recorder fault"]
+    assert len(faults) == 1, faults
+    assert faults[0]["log_level"] == "error" and faults[0]["reason"].startswith("writer error")
+    assert [e["event"] for e in logged].count("recording resumes") == 1
+    assert rec.fatal is None
+    assert len(rec.files) == 2
+    # the first file stopped at the fault (its first message in the fault is lost), the second
+    # took everything after the retry
+    got = [r.message.seq for path in rec.files for r in read_messages(path, [topics.BARO])]
+    assert got == list(range(10)) + list(range(20, 30))
+
+
+def _fail_and_resume(rec: Recorder, failing: _FailingWrites) -> None:
+    rec.start()
+    samples = _samples(30)
+    for sample in samples[:10]:
+        rec.offer(sample)
+    _wait(lambda: rec.written[topics.BARO] == 10)
+    failing.failing = True
+    for sample in samples[10:20]:
+        rec.offer(sample)
+    _wait(lambda: rec.fault is not None and rec.backlog == 0)
+    faulted = rec.health(0)
+    failing.failing = False
+    _wait(lambda: rec.fault is None)  # retried in a new file
+    for sample in samples[20:]:
+        rec.offer(sample)
+    rec.close()
+    assert faulted.state is DeviceState.DOWN
+    assert faulted.detail.startswith("recorder fault: writer error: RuntimeError")
+    assert faulted.counters["faults"] == 1
+
+
+def test_a_full_disk_waits_for_space_then_resumes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    full = OSError(28, "No space left on device")
+    failing = _FailingWrites(monkeypatch, RecordingWriteError("cannot write: I/O error", full))
+    free: list[float | None] = [0.5]
+    monkeypatch.setattr(Recorder, "_free_mb", lambda self: free[0])
+    rec = _recorder(tmp_path, flush_interval_s=0.05)
+    rec.start()
+    samples = _samples(20)
+    failing.failing = True
+    rec.offer(samples[0])
+    _wait(lambda: rec.fault is not None)
+    failing.failing = False
+    time.sleep(0.3)  # no room yet: no new file, however long it waits
+    assert len(rec.files) == 1 and rec.fault is not None
+    assert rec.health(0).detail.startswith("recorder fault: disk full")
+    free[0] = None  # free space unknown: not taken for room
+    time.sleep(0.2)
+    assert len(rec.files) == 1
+    free[0] = 5.0
+    _wait(lambda: len(rec.files) == 2 and rec.fault is None)
+    for sample in samples[1:]:
+        rec.offer(sample)
+    rec.close()
+    assert rec.fatal is None
+    assert [r.message.seq for r in read_messages(rec.files[1], [topics.BARO])] == list(range(1, 20))
+
+
+def test_repeated_faults_make_the_recorder_give_up(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(recorder_module, "FAULT_RETRY_NS", 50_000_000)
+    failing = _FailingWrites(monkeypatch, OSError(5, "Input/output error"))
+    failing.failing = True
+    rec = _recorder(tmp_path, flush_interval_s=0.05)
+    rec.start()
+    for sample in _samples(200):
+        rec.offer(sample)
+        time.sleep(0.005)
+        if rec.fatal:
+            break
+    rec.close()
+    assert rec.fatal is not None and "I/O error" in rec.fatal
+    assert rec.faults == recorder_module.FATAL_FAULTS
+    assert rec.health(0).detail.startswith("recorder gave up")
+
+
+def test_free_space_that_cannot_be_read_is_unknown_not_infinite(tmp_path: Path) -> None:
+    rec = _recorder(tmp_path / "gone")
+    assert rec._free_mb() is None
+    rec._guard_disk()  # no writer, no free space known: nothing opens, nothing raises
+    assert rec.files == []
+
+
+def test_cut_files_of_an_earlier_run_are_recovered_at_start(tmp_path: Path) -> None:
+    import shutil as sh
+
+    from mcap.reader import make_reader
+
+    writer = RecordingWriter(tmp_path / "r1_old_000.mcap", robot="r1", flush_interval_s=3600)
+    for sample in _samples(50):
+        writer.write(sample)
+    writer.flush()
+    for sample in _samples(5, t0=1_800_000_000_000_000_000):
+        writer.write(sample)
+    sh.copy(tmp_path / "r1_old_000.mcap", tmp_path / "r1_cut_000.mcap")
+    writer.close()
+    (tmp_path / "r1_old_000.mcap").unlink()
+    rec = _recorder(tmp_path)
+    rec.start()
+    _wait(lambda: rec.recovered)
+    rec.close()
+    (fixed,) = rec.recovered
+    assert fixed.name == "r1_cut_000.recovered.mcap"
+    assert (tmp_path / "r1_cut_000.mcap").exists(), "the original is kept"
+    with fixed.open("rb") as stream:
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        assert summary.statistics.message_count == 50
+        assert len(list(reader.iter_messages())) == 50
+    # this run's own file is not taken for a cut one, nor recovered again by the next run
+    assert recorder_module.cut_recordings(tmp_path) == []
