@@ -152,6 +152,7 @@ class DeviceSession(abc.ABC):
         self._last_good_ns = 0
         self._last_bad_ns = 0
         self._bytes_since_good = 0
+        self._last_byte_ns = 0
         self._last_write_ns = 0
         self._in_shutdown = False
         self._opened = False  # the current connection attempt opened the port
@@ -263,6 +264,8 @@ class DeviceSession(abc.ABC):
         self._reads += reads
         self._bytes_in += size
         self._bytes_since_good += size
+        if size:
+            self._last_byte_ns = now
         return now
 
     def write(self, data: bytes) -> None:
@@ -533,13 +536,16 @@ class DeviceSession(abc.ABC):
                         if pause_ns > 0:
                             time.sleep(min(pause_ns, READ_PAUSE_MAX_NS) / 1e9)
             self.keepalive()
+            # Silent is no byte at all; bytes that make no frame are garbage, however long
+            # they last (a laser's silence limit is shorter than the garbage limit).
             quiet_s = (read_ns - self._last_good_ns) / 1e9
+            silent_s = (read_ns - max(self._last_byte_ns, self._last_good_ns)) / 1e9
+            if silent_s > retry.silence_s:
+                self._stream_failed(f"silent: no data for {silent_s:.1f} s")
             if quiet_s > retry.garbage_s and self._bytes_since_good > 0:
                 self._stream_failed(
                     f"garbage: {self._bytes_since_good} bytes and no good frame for {quiet_s:.1f} s"
                 )
-            if quiet_s > retry.silence_s:
-                self._stream_failed(f"silent: no data for {quiet_s:.1f} s")
 
     def _stream_failed(self, reason: str) -> None:
         note = self.reinitialise_note(reason)

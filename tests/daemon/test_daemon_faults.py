@@ -178,3 +178,17 @@ def test_base_and_barometer_unplugged_garbage_and_a_stall_on_the_laser(
     assert all((b.seq - a.seq) % 65536 == 1 for a, b in itertools.pairwise(baro))
     laser = _health(records, "laser")
     assert any(h.state is not DeviceState.UP and h.t_ns >= t1 for h in laser)
+
+
+def test_laser_garbage_is_reported_as_garbage_not_silence(rig: Rig, twins: SimDevices) -> None:
+    """Bytes that make no frame for longer than the laser's silence limit (1 s here, garbage
+    2 s): the line is not silent, it is garbled, and health says so."""
+    config = make_config(rig)
+    with RunningDaemon(config) as run:
+        run.wait_up()
+        # 160 kB: about 3.2 s of line time at 500 kbaud, no valid telegram in it
+        twins.lms200.inject_garbage(bytes(range(1, 256)) * 640)
+        working = (DeviceState.UP, DeviceState.DEGRADED)  # degraded: bad frames counted
+        run.wait_until(lambda: run.states()["laser"] not in working, 8, "laser given up on")
+        detail = next(h.detail for h in run.daemon.health() if h.device == "laser")
+    assert "garbage" in detail and "silent" not in detail, detail
