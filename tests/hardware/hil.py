@@ -94,6 +94,11 @@ def running(session: DeviceSession, up_timeout_s: float = UP_TIMEOUT_S) -> Itera
         session.stop()
 
 
+def describe(identity: dict[str, str]) -> str:
+    """A device's identity on one report line."""
+    return ", ".join(f"{key}={value}" for key, value in identity.items())
+
+
 def bad_frames(health: DeviceHealth) -> dict[str, int]:
     return {k: v for k, v in health.counters.items() if k.startswith("bad_") and v}
 

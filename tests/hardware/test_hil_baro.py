@@ -18,6 +18,7 @@ from hil import (
     QUICK_RETRY,
     Capture,
     assert_stream,
+    describe,
     running,
     session_kwargs,
     stream_for,
@@ -58,7 +59,7 @@ def test_board_identifies_configures_and_streams_at_its_rate(
         skew_ppm = session.fit.skew_ppm
     identity = session.identity
     counters = after.counters
-    report("barometer", f"{identity}")
+    report("barometer", describe(identity))
     report("barometer", figures.line())
     report(
         "barometer",

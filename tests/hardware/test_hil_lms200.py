@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import pytest
 import serial
-from hil import QUICK_RETRY, Capture, assert_stream, running, session_kwargs, stream_for
+from hil import QUICK_RETRY, Capture, assert_stream, describe, running, session_kwargs, stream_for
 
 from baromap.messages import LaserScan
 from baromap.protocols import lms200
@@ -96,7 +96,7 @@ def test_reset_waits_for_the_power_on_telegram_then_the_session_starts_from_powe
             session, capture, LaserScan, hil_seconds, laser_hz(baud, 180, 100)
         )
     status = after.counters.get("status_not_ok", 0) - before.counters.get("status_not_ok", 0)
-    report("laser", f"{session.identity}")
+    report("laser", describe(session.identity))
     report("laser", figures.line())
     assert_stream(figures, before, after)
     assert status == 0, f"{status} scans whose status byte is not 'ok'"

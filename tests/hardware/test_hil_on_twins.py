@@ -14,7 +14,10 @@ garbage on the line): the test that should catch each fault must fail, saying wh
 
 from __future__ import annotations
 
+import fcntl
 import os
+import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -230,3 +233,56 @@ def test_a_twin_fault_fails_the_test_that_should_catch_it(tmp_path: Path) -> Non
             f"{device}: {name} {caught[0].result} despite the fault"
         )
         assert any(phrase in caught[0].message for phrase in says), caught[0].message
+
+
+def _firmware_harness() -> tuple[Path, Path]:
+    """The simavr harness and the firmware's test build (hang command), built if need be."""
+    firmware = REPO / "firmware"
+    missing = [
+        tool for tool in ("make", "avr-gcc", "pkg-config", "gcc") if shutil.which(tool) is None
+    ]
+    probe = (
+        subprocess.run(["pkg-config", "--exists", "simavr"], check=False) if not missing else None
+    )
+    if missing or probe is None or probe.returncode != 0:
+        pytest.skip(f"firmware toolchain or simavr missing ({missing or 'simavr'})")
+    build = firmware / "build"
+    build.mkdir(exist_ok=True)
+    with (build / ".build.lock").open("w") as lock:  # the firmware tests' lock: one build at a time
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        made = subprocess.run(["make", "--no-print-directory", "-C", str(firmware), "hooks", "sim"],
+                              capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
+    assert made.returncode == 0, made.stdout + made.stderr
+    return build / "baro_board", build / "hooks" / "baromap_baro.elf"
+
+
+def test_the_real_firmware_in_simavr_passes_the_barometer_watchdog_test(tmp_path: Path) -> None:
+    """The firmware's test build running in simavr at real time, on a pty like a board's
+    port: the hardware watchdog test sees its hung loop reset by the watchdog (the twin, like
+    the shipped firmware, refuses the hang command instead)."""
+    harness, elf = _firmware_harness()
+    with (tmp_path / "simavr.log").open("w") as log:
+        board = subprocess.Popen([str(harness), str(elf), "--speed", "1"], stdout=subprocess.PIPE,
+                                 stderr=log, text=True, start_new_session=True)  # fmt: skip
+        try:
+            assert board.stdout is not None
+            pty = next(
+                line.split()[-1] for line in board.stdout if line.startswith("baro_board: pty")
+            )
+            test = (
+                "tests/hardware/test_hil_baro.py::"
+                "test_firmware_reports_status_every_second_and_its_watchdog_works"
+            )
+            run = subprocess.run(
+                [sys.executable, "-m", "pytest", "-m", "hardware", f"--baro-port={pty}",
+                 "-p", "no:cacheprovider", "-q", test],
+                cwd=REPO, env=_environment(), capture_output=True, text=True,
+                timeout=SUBPROCESS_TIMEOUT_S, check=False,
+            )  # fmt: skip
+        finally:
+            os.killpg(board.pid, signal.SIGTERM)
+            board.wait(10)
+            if board.stdout is not None:
+                board.stdout.close()
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "test build: hung loop reset by the watchdog" in run.stdout

@@ -29,6 +29,7 @@ from hil import (
     QUICK_RETRY,
     Capture,
     assert_stream,
+    describe,
     running,
     session_kwargs,
     stream_for,
@@ -234,7 +235,7 @@ def test_handshake_config_and_sips_at_the_robots_cycle(
     writes = [t for t, _ in session.writes if t >= streaming_from]
     pauses = [b - a for a, b in itertools.pairwise(writes)]
     watchdog_s = int(identity.get("watchdog_ms", 2000)) / 1000
-    report("base", f"{identity}")
+    report("base", describe(identity))
     report("base", figures.line())
     report(
         "base",
@@ -381,7 +382,11 @@ def test_sigterm_disables_the_motors_and_closes_the_robot(
                 daemon.kill()
                 daemon.wait()
     disabled = [e for e in events() if e.get("event") == "motors disabled"]
-    report("base", f"SIGTERM: {disabled}")
+    confirmed = [e.get("confirmed_by_robot") for e in disabled]
+    report(
+        "base",
+        f"SIGTERM: baromapd exited 0; 'motors disabled', confirmed by the robot: {confirmed}",
+    )
     assert disabled and disabled[-1]["confirmed_by_robot"] is True
     client = Client(p2os_port)
     try:
