@@ -24,7 +24,7 @@ from baromap.protocols import p2os
 from baromap.protocols.robot_models import robot_model
 from baromapd.clock import HostClock
 from baromapd.config import BaseConfig, Retry
-from baromapd.pioneer import PioneerSession, choose_model
+from baromapd.pioneer import PULSE_EVERY_S, PioneerSession, choose_model
 
 
 class ScriptedRobot:
@@ -48,6 +48,8 @@ class ScriptedRobot:
         self.step_mm = step_mm
         self.sent = 0
         self.commands: list[int] = []
+        #: (wall time, command, argument) of every packet the host sent
+        self.packets: list[tuple[float, int, int | bytes | None]] = []
         self.opened = False
         self.master, self._slave = os.openpty()
         tty.setraw(self._slave)
@@ -84,6 +86,7 @@ class ScriptedRobot:
                     if not isinstance(cmd, p2os.CommandPacket):
                         continue
                     self.commands.append(cmd.command)
+                    self.packets.append((time.monotonic(), cmd.command, cmd.argument))
                     if cmd.command in (0, 1) and not synced:
                         os.write(self.master, p2os.encode_sync_echo(cmd.command))
                     elif cmd.command == 2 and not synced:
@@ -201,3 +204,51 @@ def test_model_choice() -> None:
         choose_model("p3at-sh", "p3at", False)
     with pytest.raises(DeviceError, match="'mystery'"):
         choose_model("mystery", "auto", False)
+
+
+def test_motors_enabled_only_when_configured_and_disabled_last_on_stop(
+    odometry: list[Message],
+) -> None:
+    """enable_motors: ENABLE 1 after OPEN; on stop STOP, ENABLE 0 (a SIP confirms it), CLOSE."""
+    with ScriptedRobot("p3at-sh", sips=1000) as robot:
+        session = _session(robot, "auto", odometry, enable_motors=True)
+        session.start()
+        try:
+            _wait_up(session)
+        finally:
+            session.stop()
+        health = session.health(0)
+        sent = [(command, argument) for _, command, argument in robot.packets]
+    configured = sent.index((p2os.Command.CONFIG, 1))  # asked for right after OPEN
+    assert (p2os.Command.ENABLE, 1) in sent[configured:]
+    assert sent[-3:] == [
+        (p2os.Command.STOP, None),
+        (p2os.Command.ENABLE, 0),
+        (p2os.Command.CLOSE, None),
+    ]
+    assert health.counters["motors_off"] == 1 and health.counters["motors_off_confirmed"] == 1
+
+
+def test_pulse_keeps_the_robot_hearing_from_the_host(odometry: list[Message]) -> None:
+    """While streaming, the host writes at least every PULSE_EVERY_S (plus a read's wait):
+    far inside the robot's 2 s watchdog."""
+    with ScriptedRobot("p3at-sh", sips=1000) as robot:
+        session = _session(robot, "auto", odometry)
+        session.start()
+        try:
+            _wait_up(session)
+            up = time.monotonic()
+            time.sleep(2.0)
+        finally:
+            session.stop()
+        streaming = [(t, c) for t, c, _ in robot.packets if t > up]
+    assert sum(c == p2os.Command.PULSE for _, c in streaming) >= 3
+    gaps = [b - a for (a, _), (b, _) in itertools.pairwise(streaming[:-1])]
+    assert max(gaps) < PULSE_EVERY_S + 0.4, gaps
+
+
+def _wait_up(session: PioneerSession) -> None:
+    deadline = time.monotonic() + 10
+    while session.state is not DeviceState.UP and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert session.state is DeviceState.UP, session.detail

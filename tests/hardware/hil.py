@@ -137,7 +137,7 @@ def assert_stream(figures: StreamFigures, before: DeviceHealth, after: DeviceHea
     assert after.counters.get("connects") == before.counters.get("connects"), "it reconnected"
     low, high = 0.85 * figures.expected_hz, 1.15 * figures.expected_hz
     assert low <= figures.rate_hz <= high, f"rate off: {figures.line()}"
-    # A pause the host's scheduler makes (a loaded machine) is not the device's: below 0.3 s
-    # a gap only counts when it is longer than three periods of a slow stream.
-    pause_s = max(3.0 / figures.expected_hz, 0.3)
+    # A pause the host's scheduler makes is not the device's: on a loaded test machine reads
+    # stall for half a second. A device that stops for longer, or loses what a rate shows, fails.
+    pause_s = max(3.0 / figures.expected_hz, 1.0)
     assert figures.longest_gap_s < pause_s, f"stream paused: {figures.line()}"
