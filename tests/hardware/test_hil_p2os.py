@@ -237,6 +237,12 @@ def test_handshake_config_and_sips_at_the_robots_cycle(
     watchdog_s = int(identity.get("watchdog_ms", 2000)) / 1000
     report("base", describe(identity))
     report("base", figures.line())
+    last = session.sips[-1]
+    report(
+        "base",
+        f"last SIP: flags 0x{last.flags:04x} (motors {'on' if last.motors_enabled else 'off'}), "
+        f"stall and bumpers 0x{last.stall_bumpers:04x}",
+    )
     report(
         "base",
         f"battery {after.counters.get('battery_dv', 0) / 10:.1f} V; host writes at most "
