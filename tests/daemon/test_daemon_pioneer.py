@@ -218,6 +218,7 @@ def test_motors_enabled_only_when_configured_and_disabled_last_on_stop(
         finally:
             session.stop()
         health = session.health(0)
+        time.sleep(0.2)  # the robot's thread reads what the session wrote last
         sent = [(command, argument) for _, command, argument in robot.packets]
     configured = sent.index((p2os.Command.CONFIG, 1))  # asked for right after OPEN
     assert (p2os.Command.ENABLE, 1) in sent[configured:]
