@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 import yaml
 
-from baromap.errors import InputFormatError
+from baromap.errors import EncodeError, InputFormatError
 from baromap.mapping.occupancy import FREE_THRESH, OCCUPIED_THRESH, OccupancyGrid
 
 FREE_VALUE = 254
@@ -34,10 +34,12 @@ def map_image(grid: OccupancyGrid) -> npt.NDArray[np.uint8]:
 
 
 def write_pgm(path: Path, image: npt.NDArray[np.uint8]) -> None:
-    h, w = image.shape
-    with path.open("wb") as handle:
-        handle.write(f"P5\n{w} {h}\n255\n".encode("ascii"))
-        handle.write(np.ascontiguousarray(image, dtype=np.uint8).tobytes())
+    """Write an 8-bit binary PGM (P5, maxval 255), with Pillow."""
+    from PIL import Image
+
+    if image.ndim != 2:
+        raise EncodeError(f"a PGM holds one channel, not an image of shape {image.shape}")
+    Image.fromarray(np.ascontiguousarray(image, dtype=np.uint8)).save(path, format="PPM")
 
 
 def read_pgm(path: Path) -> npt.NDArray[np.uint8]:
