@@ -13,6 +13,11 @@ no latency target and is published as block means): the worker takes it within
 :data:`PRESSURE_HOLD_S`, which saves a thread wake-up per barometer sample. A session that
 cannot be opened is retried with capped backoff; messages that arrive meanwhile still update
 what the queryable will answer, and their publications are counted as unsent.
+
+A client's session stays open while its router is gone (Zenoh reconnects by itself), and
+its puts then go nowhere: the worker asks the session for its routers and peers every
+:data:`LINK_CHECK_S`, and health says ``no router`` (down) while it has none, logged when
+that changes.
 """
 
 from __future__ import annotations
@@ -55,12 +60,17 @@ RETRY_FIRST_S = 0.25
 #: that would be a wake-up per sample, each to add the sample to a block mean published every
 #: 0.2 s by default); the worker looks at least this often instead.
 PRESSURE_HOLD_S = 0.2
+#: How often a client's worker asks whether a router (or peer) is connected.
+LINK_CHECK_S = 0.5
+#: A client's state while no router or peer is connected: its publications reach no one.
+NO_ROUTER = "no router"
 #: The publisher's state as a device state (anything else, like "connecting", is degraded).
 _DEVICE_STATES = {
     "open": DeviceState.UP,
     "stopped": DeviceState.DOWN,
     "failed": DeviceState.DOWN,
     "disabled": DeviceState.DOWN,
+    NO_ROUTER: DeviceState.DOWN,
 }
 
 
@@ -261,9 +271,34 @@ class LivePublisher:
             self._reference.declare(session)
         # held while serving: a token that is dropped is undeclared, and the node looks dead
         token = session.liveliness().declare_token(self.keys.key(Channel.ALIVE))
+        client = self.settings.mode.value == "client"
+        check_ns = 0
         while not self._stop.is_set():
             self._pump(publishers, timeout=None)
+            now = time.monotonic_ns()
+            if client and now >= check_ns:
+                check_ns = now + int(LINK_CHECK_S * 1e9)
+                self._check_link(session)
         token.undeclare()  # type: ignore[no-untyped-call]
+
+    def _check_link(self, session: zenoh.Session) -> None:
+        """A client is up while a router or peer is connected; a change is logged."""
+        try:
+            linked = bool(list(session.info.routers_zid()) or list(session.info.peers_zid()))
+        except Exception as exc:  # zenoh.ZError; a session closing under it
+            log.debug("zenoh link check failed", error=str(exc))
+            linked = False
+        status = "open" if linked else NO_ROUTER
+        if status == self._status:
+            return
+        self._status = status
+        where = ", ".join(self.settings.connect) or "multicast scouting"
+        if linked:
+            log.info("zenoh router reachable again", node=self.keys.prefix, connect=where)
+        else:
+            log.warning(
+                "zenoh router lost: publishing to no one", node=self.keys.prefix, connect=where
+            )
 
     def _declare(self, session: zenoh.Session) -> dict[Channel, zenoh.Publisher]:
         import zenoh

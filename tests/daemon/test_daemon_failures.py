@@ -11,6 +11,7 @@ whatever happens.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import os
 import random
@@ -40,10 +41,18 @@ class Baromapd:
     """One ``baromapd`` process with a notify socket; its log is JSON lines."""
 
     def __init__(
-        self, rig: Rig, tmp_path: Path, name: str, directory: Path | None = None, **extra: str
+        self,
+        rig: Rig,
+        tmp_path: Path,
+        name: str,
+        directory: Path | None = None,
+        zenoh: str | None = None,
+        **extra: str,
     ) -> None:
         self.config = tmp_path / f"{name}.toml"
         text = config_text(rig, **extra)
+        if zenoh is not None:
+            text = text.replace("[zenoh]\nenabled = false", zenoh)
         if directory is not None:
             text = text.replace(
                 f'directory = "{rig.directory / "rec"}"', f'directory = "{directory}"'
@@ -297,3 +306,59 @@ def test_sigterm_ends_the_daemon_while_its_disk_hangs(
             server.wait(5)
     (path,) = backing.glob("*.mcap")
     assert len(list(read_messages(path, [topics.BARO]))) > 0
+
+
+def _router(endpoint: str, log: Path) -> subprocess.Popen[bytes]:
+    """A Zenoh router (tests/live/nodes.py) as its own process, ready when this returns."""
+    nodes = Path(__file__).resolve().parents[1] / "live" / "nodes.py"
+    with log.open("ab") as err:
+        router = subprocess.Popen(
+            [sys.executable, str(nodes), "router", "--listen", endpoint],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=err,
+        )
+    assert router.stdout is not None
+    line = router.stdout.readline()  # {"ready": "router"} once its session is open
+    assert b"ready" in line, line
+    return router
+
+
+def test_router_loss_is_zenoh_down_and_logged(
+    rig: Rig, tmp_path: Path, daemons: list[Baromapd]
+) -> None:
+    """In client mode the publisher's session stays open while its router is gone: health must
+    say down (no router) for that time, and the log say when it went and came back; recording
+    goes on throughout."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{probe.getsockname()[1]}"
+    table = f'[zenoh]\nmode = "client"\nconnect = ["{endpoint}"]'
+    routers = [_router(endpoint, tmp_path / "router.log")]
+    try:
+        daemon = Baromapd(rig, tmp_path, "client", zenoh=table)
+        daemons.append(daemon)
+        daemon.wait_all_up()
+        daemon.wait("zenoh up", lambda: "zenoh up" in daemon.status(), 15)
+        routers[0].kill()
+        routers[0].wait()
+        lost_at = time.monotonic()
+        daemon.wait("zenoh down", lambda: "zenoh down (no router)" in daemon.status(), 10)
+        noticed_s = time.monotonic() - lost_at
+        routers.append(_router(endpoint, tmp_path / "router.log"))
+        daemon.wait("zenoh up again", lambda: "zenoh up" in daemon.status(), 30)
+        assert daemon.stop()[0] == 0
+    finally:
+        for router in routers:
+            if router.poll() is None:
+                router.kill()
+                router.wait()
+    events = [line.get("event") for line in daemon.logged()]
+    lost = events.index("zenoh router lost: publishing to no one")
+    assert events.index("zenoh router reachable again") > lost
+    assert events.count("zenoh router lost: publishing to no one") == 1
+    print(f"router loss noticed in {noticed_s:.2f} s")
+    (path,) = _runs(rig.directory / "rec")
+    seqs = [r.message.seq for r in read_messages(path, [topics.BARO])]
+    assert len(seqs) > 100
+    assert all((b - a) % 65536 == 1 for a, b in itertools.pairwise(seqs))
