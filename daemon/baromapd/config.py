@@ -23,8 +23,11 @@ Adding a table ``[name]``:
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
+import os
+import tempfile
 import tomllib
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -486,9 +489,52 @@ def parse_config(
 
 
 def load_config(path: str | Path) -> DaemonConfig:
+    """The configuration of the file at ``path``, checked against this machine too: its
+    recording directory must exist or be creatable, and be writable (what ``--check-config``
+    and the daemon's start need; :func:`parse_config` alone looks at the text only)."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigProblems(str(path), [Problem("<file>", f"cannot read: {exc}")]) from exc
-    return parse_config(text, str(path), path.parent)
+    config = parse_config(text, str(path), path.parent)
+    unusable = directory_problem(config.recording.directory)
+    if unusable is not None:
+        problem = Problem("recording.directory", unusable, DIRECTORY_HINT)
+        raise ConfigProblems(str(path), [problem])
+    return config
+
+
+DIRECTORY_HINT: Final = (
+    "a writable directory, or one that can be created; the unit's is its StateDirectory"
+)
+
+
+def directory_problem(directory: Path) -> str | None:
+    """Why recordings cannot be written into ``directory`` (None: they can).
+
+    It is tried, not inferred from permission bits: a directory is made where it is missing
+    and a file created in it (both removed again), so a read-only file system, a path under a
+    file or under ``/proc``, and root's own limits are all found.
+    """
+    missing = []
+    existing = directory
+    while not existing.exists() and existing.parent != existing:
+        missing.append(existing)
+        existing = existing.parent
+    if not existing.is_dir():
+        return f"{existing} is not a directory"
+    try:
+        for made in reversed(missing):
+            made.mkdir()
+        fd, probe = tempfile.mkstemp(dir=directory, prefix=".baromapd-check-")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        what = "cannot be created" if missing else "is not writable"
+        return f"{directory} {what}: {exc.strerror or exc}"
+    finally:
+        for made in missing:
+            with contextlib.suppress(OSError):
+                made.rmdir()
+    return None

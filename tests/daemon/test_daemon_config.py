@@ -167,3 +167,56 @@ def test_a_retry_key_sits_in_the_device_table_and_keeps_that_devices_defaults() 
         "recording.directory": "Expected `str` (a path), got `int`",
         "laser.mount.z_m": "unknown key",
     }
+
+
+def _with_directory(tmp_path: Path, directory: Path) -> Path:
+    path = tmp_path / "baromapd.toml"
+    path.write_text(
+        f'robot = "r1"\n[recording]\ndirectory = "{directory}"\n[barometer]\nport = "loop://"\n'
+    )
+    return path
+
+
+@pytest.mark.parametrize("where", ["under_a_file", "under_proc"])
+def test_an_unusable_recording_directory_exits_2_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], where: str
+) -> None:
+    (tmp_path / "a_file").write_text("")
+    directory = {
+        "under_a_file": tmp_path / "a_file" / "runs",
+        "under_proc": Path("/proc/baromapd-runs"),
+    }[where]
+    config = _with_directory(tmp_path, directory)
+    for args in (["--check-config", str(config)], ["--config", str(config)]):
+        assert main(args) == 2
+        problems = [line for line in capsys.readouterr().err.splitlines() if line.startswith("  ")]
+        assert len(problems) == 1 and problems[0].startswith("  recording.directory: "), problems
+    assert not directory.exists()
+
+
+def test_a_read_only_recording_directory_exits_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import os
+    import subprocess
+
+    if os.geteuid() != 0:
+        pytest.skip("mounting a read-only file system needs root (root also ignores chmod)")
+    mount = tmp_path / "ro"
+    mount.mkdir()
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(mount)], check=True)
+    try:
+        assert main(["--check-config", str(_with_directory(tmp_path, mount))]) == 2
+        assert "recording.directory: " in capsys.readouterr().err
+        assert main(["--check-config", str(_with_directory(tmp_path, mount / "runs"))]) == 2
+        assert "cannot be created: Read-only file system" in capsys.readouterr().err
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], check=False)
+
+
+def test_a_missing_but_creatable_directory_is_fine_and_left_as_it_was(tmp_path: Path) -> None:
+    directory = tmp_path / "not" / "yet"
+    assert load_config(_with_directory(tmp_path, directory)).recording.directory == directory
+    assert not (tmp_path / "not").exists()
+    assert config_module.directory_problem(tmp_path) is None
+    assert list(tmp_path.iterdir()) == [tmp_path / "baromapd.toml"]
