@@ -9,8 +9,10 @@ set -euo pipefail
 # tap should not depend on the firmware harness's compiler staying in this list.
 # avrdude: `make -C firmware flash` and its test against a stand-in bootloader; libusb-1.0-0:
 # pyusb's backend, for the daemon's reset of a wedged USB adapter.
+# systemd: systemd-analyze, for the unit's tests; bindfs: a FUSE mount whose server a test
+# stops, for a disk that hangs under the daemon.
 packages=(python3-venv gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev libelf-dev
-          pkg-config gcc libc6-dev g++ make avrdude libusb-1.0-0)
+          pkg-config gcc libc6-dev g++ make avrdude libusb-1.0-0 systemd bindfs)
 
 missing=()
 for p in "${packages[@]}"; do
