@@ -7,6 +7,7 @@ import math
 import os
 import shutil
 import signal
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -220,13 +221,28 @@ def test_power_cut_loses_only_the_unflushed_tail(tmp_path: Path) -> None:
     shutil.copy(path, cut)
     writer.close()
     data = cut.read_bytes()
-    for size in (len(data), len(data) - 5, len(data) - 200):
+    flushed = [100000.0 + i for i in range(100)]
+    # The copy ends in the chunk being written (its header only: the rest is in memory). Cut
+    # anywhere after the flushed chunk, the reader keeps exactly the flushed 100; cut inside
+    # it, nothing of it (a chunk is used whole), and it never raises.
+    chunk_end = _end_of_first_chunk(data)
+    for size in (len(data), len(data) - 5, len(data) - 200, chunk_end, chunk_end - 1, 100):
         cut.write_bytes(data[:size])
         got = [rec.message.pressure_pa for rec in read_messages(cut)]
-        assert got[: min(len(got), 100)] == [100000.0 + i for i in range(min(len(got), 100))]
-        assert len(got) >= (100 if size >= len(data) - 5 else 0)
+        assert got == (flushed if size >= chunk_end else []), size
+    cut.write_bytes(data)
     assert read_metadata(cut)["baromap"]["robot"] == "r1"
     assert len(load_pressure(path).t_ns) == 130
+
+
+def _end_of_first_chunk(data: bytes) -> int:
+    """Byte offset just past the file's first Chunk record."""
+    pos = 8  # the magic
+    while True:
+        opcode, length = struct.unpack_from("<BQ", data, pos)
+        pos += 9 + length
+        if opcode == 0x06:
+            return pos
 
 
 def test_flush_interval_writes_chunks_while_recording(tmp_path: Path) -> None:
