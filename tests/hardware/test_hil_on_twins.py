@@ -8,12 +8,16 @@ Each device must run at least three tests, skip none and pass all. A device whos
 failures are timing (its rate, a pause) runs once more, alone: on a loaded machine the twins'
 threads starve as a real device would not.
 
+Beside the twins, the firmware's test build runs in simavr at real time (when the toolchain
+is there) through the barometer's watchdog test, in a fourth process at the same time.
+
 Then the same against twins with faults scheduled throughout the run (a killed link, a stall,
 garbage on the line): the test that should catch each fault must fail, saying why.
 """
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import os
 import shutil
@@ -88,22 +92,26 @@ class Twins:
         self._log.close()
 
 
+def _ports(link_dir: Path) -> dict[str, tuple[str, str]]:
+    """Each device's option and its twin's link."""
+    return {device: (option, str(link_dir / link)) for device, (option, link, _) in DEVICES.items()}
+
+
 def _run_devices(
-    link_dir: Path, out: Path, runs: dict[str, list[str]]
+    ports: dict[str, tuple[str, str]], out: Path, runs: dict[str, list[str]]
 ) -> dict[str, tuple[list[Outcome], str]]:
-    """``pytest`` for each device at once, each in its own process (``runs``: the tests to
-    run, all of ``tests/hardware`` when empty): outcomes and output."""
+    """``pytest`` for each run at once, each in its own process with its device's port
+    (``ports``: name -> option and path; ``runs``: name -> the tests, all of
+    ``tests/hardware`` when empty): outcomes and output."""
     processes = {}
-    for device, extra in runs.items():
-        option, link, _ = DEVICES[device]
-        xml = out / f"{device}.xml"
+    for name, tests in runs.items():
+        option, path = ports[name]
+        xml = out / f"{name}.xml"
         # the space form for the laser, the = form for the others: both must work
-        port = (
-            [option, str(link_dir / link)] if device == "laser" else [f"{option}={link_dir / link}"]
-        )
+        port = [option, path] if name == "laser" else [f"{option}={path}"]
         command = [sys.executable, "-m", "pytest", *ARGS, *port, "-p", "no:cacheprovider",
-                   f"--junitxml={xml}", "-q", *(extra or ["tests/hardware"])]  # fmt: skip
-        processes[device] = (
+                   f"--junitxml={xml}", "-q", *(tests or ["tests/hardware"])]  # fmt: skip
+        processes[name] = (
             xml,
             subprocess.Popen(
                 command,
@@ -115,10 +123,10 @@ def _run_devices(
             ),
         )
     results = {}
-    for device, (xml, process) in processes.items():
+    for name, (xml, process) in processes.items():
         output, _ = process.communicate(timeout=SUBPROCESS_TIMEOUT_S)
-        print(f"== {device}\n{output}")
-        results[device] = (_outcomes(xml) if xml.exists() else [], output)
+        print(f"== {name}\n{output}")
+        results[name] = (_outcomes(xml) if xml.exists() else [], output)
     return results
 
 
@@ -151,17 +159,23 @@ def clean_runs(
     tmp_path_factory: pytest.TempPathFactory,
 ) -> Iterator[dict[str, tuple[list[Outcome], str]]]:
     base = tmp_path_factory.mktemp("hil")
-    twins = Twins(base / "links", base / "sim.log")
-    try:
+    ports = _ports(base / "links")
+    runs: dict[str, list[str]] = {device: [] for device in DEVICES}
+    with contextlib.ExitStack() as stack:
+        twins = Twins(base / "links", base / "sim.log")
+        stack.callback(twins.close)
+        board = _firmware_board(base / "simavr.log")  # alongside, when it can be built
+        if board is not None:
+            stack.callback(board.close)
+            ports["firmware"] = ("--baro-port", board.pty)
+            runs["firmware"] = [WATCHDOG_TEST]
         twins.wait_ready()
-        results = _run_devices(base / "links", base, {device: [] for device in DEVICES})
-        for device, (outcomes, output) in list(results.items()):
+        results = _run_devices(ports, base, runs)
+        for name, (outcomes, output) in list(results.items()):
             if _timing_only(outcomes):
-                again, rerun = _run_devices(base / "links", base, {device: []})[device]
-                results[device] = (again, f"{output}\n== again, alone (timing failed):\n{rerun}")
+                again, rerun = _run_devices(ports, base, {name: runs[name]})[name]
+                results[name] = (again, f"{output}\n== again, alone (timing failed):\n{rerun}")
         yield results
-    finally:
-        twins.close()
 
 
 @pytest.mark.parametrize("device", list(DEVICES))
@@ -222,7 +236,7 @@ def test_a_twin_fault_fails_the_test_that_should_catch_it(tmp_path: Path) -> Non
             device: [f"tests/hardware/{DEVICES[device][2]}.py::{name}"]
             for device, (name, _) in CATCHES.items()
         }
-        results = _run_devices(tmp_path / "links", tmp_path, runs)
+        results = _run_devices(_ports(tmp_path / "links"), tmp_path, runs)
     finally:
         twins.close()
     for device, (name, says) in CATCHES.items():
@@ -235,17 +249,41 @@ def test_a_twin_fault_fails_the_test_that_should_catch_it(tmp_path: Path) -> Non
         assert any(phrase in caught[0].message for phrase in says), caught[0].message
 
 
-def _firmware_harness() -> tuple[Path, Path]:
-    """The simavr harness and the firmware's test build (hang command), built if need be."""
+WATCHDOG_TEST = (
+    "tests/hardware/test_hil_baro.py::"
+    "test_firmware_reports_status_every_second_and_its_watchdog_works"
+)
+
+
+class FirmwareBoard:
+    """The firmware's test build (its hang command) in the simavr harness at real time."""
+
+    def __init__(self, harness: Path, elf: Path, log: Path) -> None:
+        self._log = log.open("w")
+        self.process = subprocess.Popen([str(harness), str(elf), "--speed", "1"],
+                                        stdout=subprocess.PIPE, stderr=self._log, text=True,
+                                        start_new_session=True)  # fmt: skip
+        assert self.process.stdout is not None
+        lines = (line for line in self.process.stdout if line.startswith("baro_board: pty"))
+        self.pty = next(lines, " none").split()[-1]
+
+    def close(self) -> None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.process.pid, signal.SIGTERM)
+        self.process.wait(10)
+        if self.process.stdout is not None:
+            self.process.stdout.close()
+        self._log.close()
+
+
+def _firmware_board(log: Path) -> FirmwareBoard | None:
+    """The firmware's test build in simavr, built if need be; None without the toolchain."""
     firmware = REPO / "firmware"
-    missing = [
-        tool for tool in ("make", "avr-gcc", "pkg-config", "gcc") if shutil.which(tool) is None
-    ]
-    probe = (
-        subprocess.run(["pkg-config", "--exists", "simavr"], check=False) if not missing else None
-    )
-    if missing or probe is None or probe.returncode != 0:
-        pytest.skip(f"firmware toolchain or simavr missing ({missing or 'simavr'})")
+    tools = ("make", "avr-gcc", "pkg-config", "gcc")
+    if any(shutil.which(tool) is None for tool in tools):
+        return None
+    if subprocess.run(["pkg-config", "--exists", "simavr"], check=False).returncode != 0:
+        return None
     build = firmware / "build"
     build.mkdir(exist_ok=True)
     with (build / ".build.lock").open("w") as lock:  # the firmware tests' lock: one build at a time
@@ -253,36 +291,17 @@ def _firmware_harness() -> tuple[Path, Path]:
         made = subprocess.run(["make", "--no-print-directory", "-C", str(firmware), "hooks", "sim"],
                               capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
     assert made.returncode == 0, made.stdout + made.stderr
-    return build / "baro_board", build / "hooks" / "baromap_baro.elf"
+    return FirmwareBoard(build / "baro_board", build / "hooks" / "baromap_baro.elf", log)
 
 
-def test_the_real_firmware_in_simavr_passes_the_barometer_watchdog_test(tmp_path: Path) -> None:
+def test_the_real_firmware_in_simavr_passes_the_barometer_watchdog_test(
+    clean_runs: dict[str, tuple[list[Outcome], str]],
+) -> None:
     """The firmware's test build running in simavr at real time, on a pty like a board's
     port: the hardware watchdog test sees its hung loop reset by the watchdog (the twin, like
     the shipped firmware, refuses the hang command instead)."""
-    harness, elf = _firmware_harness()
-    with (tmp_path / "simavr.log").open("w") as log:
-        board = subprocess.Popen([str(harness), str(elf), "--speed", "1"], stdout=subprocess.PIPE,
-                                 stderr=log, text=True, start_new_session=True)  # fmt: skip
-        try:
-            assert board.stdout is not None
-            pty = next(
-                line.split()[-1] for line in board.stdout if line.startswith("baro_board: pty")
-            )
-            test = (
-                "tests/hardware/test_hil_baro.py::"
-                "test_firmware_reports_status_every_second_and_its_watchdog_works"
-            )
-            run = subprocess.run(
-                [sys.executable, "-m", "pytest", "-m", "hardware", f"--baro-port={pty}",
-                 "-p", "no:cacheprovider", "-q", test],
-                cwd=REPO, env=_environment(), capture_output=True, text=True,
-                timeout=SUBPROCESS_TIMEOUT_S, check=False,
-            )  # fmt: skip
-        finally:
-            os.killpg(board.pid, signal.SIGTERM)
-            board.wait(10)
-            if board.stdout is not None:
-                board.stdout.close()
-    assert run.returncode == 0, run.stdout + run.stderr
-    assert "test build: hung loop reset by the watchdog" in run.stdout
+    if "firmware" not in clean_runs:
+        pytest.skip("firmware toolchain or simavr missing (scripts/system-deps.sh installs them)")
+    outcomes, output = clean_runs["firmware"]
+    assert [o.result for o in outcomes] == ["passed"], output
+    assert "test build: hung loop reset by the watchdog" in output
