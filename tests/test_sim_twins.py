@@ -257,6 +257,38 @@ def test_p2os_watchdog_stops_the_robot(clock: SimClock, base: P2osTwin) -> None:
         port.write(p2os.close_controller())
 
 
+def test_p2os_host_with_motors_enabled_drives_the_odometry_and_the_route_waits(
+    clock: SimClock, base: P2osTwin
+) -> None:
+    """VEL with the motors enabled: the odometry counts the commanded 200 mm/s, the route
+    stands still meanwhile; STOP zeroes the wheels; ENABLE 0 gives the robot back to the
+    route. Without ENABLE, VEL moves nothing."""
+    decoder = p2os.Decoder()
+    with serial.serial_for_url(base.path, baudrate=9600, timeout=0.05) as port:
+        p2os_connect(port, decoder)
+        port.write(p2os.vel(200))  # motors off: ignored
+        read_count(port, decoder, p2os.StandardSip, 3)
+        assert not base.host_driving
+        port.write(p2os.enable_motors(True))
+        port.write(p2os.vel(0))  # the host takes the robot
+        read_count(port, decoder, p2os.StandardSip, 2)
+        route_s = clock.robot_time()
+        start = base.odometry.x_m, base.odometry.y_m
+        port.write(p2os.vel(200))
+        time.sleep(1.0)
+        port.write(p2os.stop())
+        read_for(port, 0.3)  # what was sent while driving
+        sips = read_count(port, decoder, p2os.StandardSip, 2)
+        driven = math.hypot(base.odometry.x_m - start[0], base.odometry.y_m - start[1])
+        assert clock.robot_time() == route_s  # the route waited
+        port.write(p2os.enable_motors(False))
+        read_count(port, decoder, p2os.StandardSip, 3)
+        assert not base.host_driving
+        port.write(p2os.close_controller())
+    assert driven == pytest.approx(0.2, rel=0.15)  # 1 s at 200 mm/s, the error model's few %
+    assert sips[-1].left_vel == sips[-1].right_vel == 0
+
+
 @pytest.fixture
 def board(clock: SimClock, tmp_path: Path) -> Iterator[BaroTwin]:
     with BaroTwin(clock, tmp_path / "baro") as twin:
