@@ -47,14 +47,6 @@ def find_shared_data() -> Path | None:
 SHARED_DATA = find_shared_data()
 
 
-def hardware_port(config: pytest.Config, option: str) -> str:
-    """The port given for ``option``, or skip: hardware tests are opt-in."""
-    port = config.getoption(option)
-    if not port:
-        pytest.skip(f"no real device: pass {option} PATH to run against hardware")
-    return str(port)
-
-
 #: Files libraries keep open on purpose for the life of the process (caches, not leaks).
 PROCESS_CACHES = ("/matplotlib/mpl-data/fonts/",)
 
