@@ -12,16 +12,23 @@ from collections.abc import Callable
 
 import pytest
 
+from baromap.discovery import resolve_port
+from baromap.errors import BaromapError
 from baromapd.clock import HostClock
 
 REPORT = pytest.StashKey[list[tuple[str, str, str]]]()
 
 
 def _port(config: pytest.Config, option: str) -> str:
+    """The port given for ``option`` (a USB identity ``vid:pid[:serial]`` looked up now), or
+    skip: hardware tests are opt-in."""
     port = config.getoption(option)
     if not port:
         pytest.skip(f"no real device: pass {option} PATH to run against hardware")
-    return str(port)
+    try:
+        return resolve_port(str(port))
+    except BaromapError as exc:
+        pytest.fail(f"{option} {port}: {exc}", pytrace=False)
 
 
 @pytest.fixture
