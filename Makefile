@@ -10,12 +10,12 @@ PYTEST_ARGS ?=
 TAP    := $(BIN)/baromapd-tap
 TAP_CFLAGS := -std=gnu11 -O2 -Wall -Wextra -Werror
 
-.PHONY: demo test lint setup system-deps firmware bench clean tap
+.PHONY: demo test lint setup system-deps firmware bench clean tap viewer-client
 
 demo: $(STAMP) $(TAP)
 	$(BIN)/baromap demo
 
-test: $(TEST_STAMP) $(TAP)
+test: $(TEST_STAMP) $(TAP) viewer-client
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
@@ -63,8 +63,21 @@ $(TAP): daemon/tap.c
 	  echo "tap: no C compiler ($(CC)): the daemon runs the Python tap (daemon/baromapd/tap.py)"; \
 	fi
 
+# The live view's third-party client (tests/e2e/test_liveview.py runs it beside the demo):
+# @foxglove/ws-protocol and what it needs, as package-lock.json pins them.
+VIEWER_JS := tests/liveview/js
+VIEWER_STAMP := $(VIEWER_JS)/node_modules/.baromap-installed
+
+viewer-client:
+	@if command -v npm >/dev/null 2>&1; then $(MAKE) -s $(VIEWER_STAMP); \
+	else echo "live view client: not installed (no node/npm; as root: apt-get install nodejs npm)"; fi
+
+$(VIEWER_STAMP): $(VIEWER_JS)/package.json $(VIEWER_JS)/package-lock.json
+	npm ci --prefix $(VIEWER_JS) --no-audit --no-fund --loglevel=error
+	touch $@
+
 bench: $(STAMP) $(TAP)
 	for b in bench/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) build *.egg-info .pytest_cache .mypy_cache .ruff_cache $(VIEWER_JS)/node_modules

@@ -10,6 +10,14 @@ time with the mapping the recording states).
 
     python bench/daemon.py [--minutes 5] [--load N] [--twins-rt] [--daemon-nice N]
                            [--compression zstd|lz4|none] [--no-zenoh]
+                           [--view-clients N [--view-stalled M]] [--view-compare]
+
+The live view is off unless ``--view-clients`` is given: then the daemon serves it on a free
+port and N viewers (``@foxglove/ws-protocol``-style clients of the ``websockets`` library, in
+a process of their own) subscribe to every channel, M of them never reading; the live view's
+process, its map and its viewers' counters are printed. ``--view-compare`` runs the bench
+twice, without the view and with three viewers (one never reading), and prints what the view
+adds to the daemon's CPU and what each recording kept.
 
 ``--load N`` runs N busy processes beside it (the navigation stack of a real laptop) at the
 bench's own niceness, so the daemon competes with them at equal priority unless
@@ -24,6 +32,7 @@ import argparse
 import bisect
 import contextlib
 import itertools
+import json
 import os
 import resource
 import signal
@@ -48,6 +57,8 @@ min_free_mb = 0
 compression = "{compression}"
 [zenoh]
 {zenoh}
+[live_view]
+{live_view}
 [laser]
 port = "{laser}"
 baud = 500000
@@ -202,12 +213,36 @@ def main() -> int:
     parser.add_argument("--compression", default="zstd", choices=["zstd", "lz4", "none"])
     parser.add_argument("--no-zenoh", action="store_true", help="no live publisher")
     parser.add_argument("--warm-up", type=float, default=10.0, help="s before steady-state CPU")
+    parser.add_argument("--view-clients", type=int, default=0, help="live view viewers (0: off)")
+    parser.add_argument("--view-stalled", type=int, default=0, help="of them, never reading")
+    parser.add_argument(
+        "--view-compare",
+        action="store_true",
+        help="run without the live view, then with 3 viewers (1 never reading); compare",
+    )
+    parser.add_argument("--viewers", metavar="URL", help=argparse.SUPPRESS)  # the viewers' process
     args = parser.parse_args()
+    if args.viewers:
+        return _viewers(args.viewers, args.view_clients, args.view_stalled)
+    if args.view_compare:
+        without = _run(args, 0, 0)
+        print()
+        with_view = _run(args, 3, 1)
+        print()
+        _compare(without, with_view)
+        return 0 if without["exit"] == with_view["exit"] == 0 else 1
+    return 0 if _run(args, args.view_clients, args.view_stalled)["exit"] == 0 else 1
+
+
+def _run(args: argparse.Namespace, view_clients: int, view_stalled: int) -> dict[str, float]:
+    """One bench run; prints its figures and returns the ones a comparison needs."""
     zenoh = (
         "enabled = false"
         if args.no_zenoh
         else f'listen = ["tcp/127.0.0.1:{_free_port()}"]'  # not the default port: others use it
     )
+    view_port = _free_port()
+    live_view = f"port = {view_port}" if view_clients else "enabled = false"
     with tempfile.TemporaryDirectory(prefix="baromapd-bench-") as tmp:
         work = Path(tmp)
         with SimDevices(link_dir=work / "links", minutes=args.minutes + 5, seed=11) as sim:
@@ -221,6 +256,7 @@ def main() -> int:
                     baro=paths["baro"],
                     compression=args.compression,
                     zenoh=zenoh,
+                    live_view=live_view,
                 )
             )
             twins_note = _twins_realtime() if args.twins_rt else "twins at normal priority"
@@ -241,26 +277,42 @@ def main() -> int:
                     _renice(proc.pid, daemon_nice)  # before its threads start: they inherit it
                 if args.daemon_fifo is not None:
                     _realtime(proc.pid, args.daemon_fifo)
-                peak_kb = taps_kb = 0
+                peak_kb = taps_kb = view_kb = 0
+                viewers = None
+                if view_clients:
+                    viewers = _start_viewers(
+                        work / "daemon.log", f"ws://127.0.0.1:{view_port}", view_clients,
+                        view_stalled,
+                    )  # fmt: skip
+                view_cpu: list[float] = []
                 deadline = started + args.minutes * 60
                 warm = (started + args.warm_up, 0.0)
                 warm_cpu: tuple[float, float] | None = None
                 while time.monotonic() < deadline:
                     time.sleep(min(1.0, max(0.0, deadline - time.monotonic())))
                     peak_kb = max(peak_kb, _hwm_kb(proc.pid))
-                    taps = _children(proc.pid)
+                    view_pid = _view_process(proc.pid)
+                    taps = [c for c in _children(proc.pid) if c != view_pid]
                     taps_kb = max(taps_kb, sum(_hwm_kb(c) for c in taps))
+                    if view_pid is not None:
+                        view_kb = max(view_kb, _hwm_kb(view_pid))
                     if args.tap_fifo is not None:
                         for tap in taps:
                             _realtime(tap, args.tap_fifo)
                     if warm_cpu is None and time.monotonic() >= warm[0]:
                         warm_cpu = (time.monotonic(), _cpu_s(proc.pid))
+                        if view_pid is not None:
+                            view_cpu = [_cpu_s(view_pid)]
                         if daemon_nice is not None:
                             _renice(proc.pid, daemon_nice)  # every thread, surely
                         if args.daemon_fifo is not None:
                             _realtime(proc.pid, args.daemon_fifo)
                 end_cpu = (time.monotonic(), _cpu_s(proc.pid))
+                view_pid = _view_process(proc.pid)
+                if view_pid is not None and view_cpu:
+                    view_cpu.append(_cpu_s(view_pid))
                 threads_cpu = _threads_cpu(proc.pid)
+                seen = _stop_viewers(viewers)
                 load_end = os.getloadavg()[0]
                 _stop(busy)
                 before = resource.getrusage(resource.RUSAGE_CHILDREN)  # the busy ones
@@ -269,6 +321,9 @@ def main() -> int:
                 wall_s = time.monotonic() - started
             finally:
                 _stop(busy)
+                if viewers is not None and viewers.poll() is None:
+                    viewers.kill()
+                    viewers.wait()
             after = resource.getrusage(resource.RUSAGE_CHILDREN)
             truths = {name: _truth(t) for name, t in (("laser", sim.lms200), ("base", sim.p3at),
                                                       ("baro", sim.baro))}  # fmt: skip
@@ -370,7 +425,138 @@ def main() -> int:
     print(_describe("barometer", baro_errors, 2.0))
     print(_describe("odometry", None if base_truth is None else
                     _errors_nearest([m.t_ns for m in odom], base_truth), None))  # fmt: skip
-    return 0 if code == 0 else 1
+    steady_pct = float("nan")
+    if warm_cpu is not None and end_cpu[0] > warm_cpu[0]:
+        steady_pct = 100 * (end_cpu[1] - warm_cpu[1]) / (end_cpu[0] - warm_cpu[0])
+    result = {
+        "exit": float(code),
+        "steady_pct": steady_pct,
+        "scans": len(scans),
+        "scans_sent": sent["scans"],
+        "odom": len(odom),
+        "sips": sent["sips"],
+        "baro": len(baro),
+        "samples": sent["samples"],
+        "dropped": dropped,
+        "baro_gaps": lost_baro,
+    }
+    if view_clients:
+        view = health.get("live_view")
+        steady_s = end_cpu[0] - warm_cpu[0] if warm_cpu is not None else float("nan")
+        view_pct = (
+            100 * (view_cpu[1] - view_cpu[0]) / steady_s if len(view_cpu) == 2 else float("nan")
+        )
+        result["view_pct"] = view_pct
+        print(f"live view: {view_clients} viewers subscribed to every channel, {view_stalled} "
+              "of them never reading")  # fmt: skip
+        print(f"  its process (server, front, live map): {view_pct:.2f} % of one core in the "
+              f"steady state (part of the daemon's figure above), peak RSS "
+              f"{view_kb / 1024:.0f} MB")  # fmt: skip
+        if view is not None:
+            c = view.counters
+            map_s = c.get("map_cpu_ms", 0) / 1000
+            print(f"  live map: {c.get('map_keyframes', 0)} keyframes matched and drawn, "
+                  f"{map_s:.1f} s of CPU in {wall_s:.0f} s ({100 * map_s / wall_s:.2f} % of one "
+                  f"core), its grids {c.get('map_bytes', 0) / 1e6:.1f} MB; map work dropped "
+                  f"{c.get('map_dropped', 0)}")  # fmt: skip
+            per_client = {
+                k: v for k, v in c.items() if k.startswith("client_") and k.endswith("_dropped")
+            }
+            print(f"  daemon -> view messages: {c.get('sent', 0)} sent, {c.get('dropped', 0)} "
+                  f"dropped; viewers: {c.get('clients', 0)} connected at the last report, "
+                  f"data messages dropped per viewer {per_client or 'none'}")  # fmt: skip
+        for number, counts in sorted(seen.items()):
+            never = " (never reading)" if counts["stalled"] else ""
+            print(f"  viewer {number}: {counts['messages']} messages, "
+                  f"{counts['bytes'] / 1e6:.1f} MB read{never}")  # fmt: skip
+    return result
+
+
+def _compare(without: dict[str, float], with_view: dict[str, float]) -> None:
+    print("live view, compared: the same bench without it, then with 3 viewers (1 never reading)")
+    extra = with_view["steady_pct"] - without["steady_pct"]
+    print(f"  daemon CPU, steady state: {without['steady_pct']:.2f} % without the view, "
+          f"{with_view['steady_pct']:.2f} % with it (its process included): "
+          f"+{extra:.2f} points of one core")  # fmt: skip
+    for name, run in (("without", without), ("with", with_view)):
+        print(f"  recorded {name} the view: {run['scans']:.0f}/{run['scans_sent']:.0f} scans, "
+              f"{run['odom']:.0f}/{run['sips']:.0f} odometry, {run['baro']:.0f}/"
+              f"{run['samples']:.0f} pressure (recorded/sent), {run['dropped']:.0f} dropped, "
+              f"{run['baro_gaps']:.0f} barometer sequence gaps")  # fmt: skip
+
+
+def _view_process(daemon_pid: int) -> int | None:
+    for child in _children(daemon_pid):
+        try:
+            if b"baromapd.liveview_child" in Path(f"/proc/{child}/cmdline").read_bytes():
+                return child
+        except OSError:
+            continue
+    return None
+
+
+def _start_viewers(
+    log: Path, url: str, clients: int, stalled: int, timeout_s: float = 120.0
+) -> subprocess.Popen[str]:
+    """The viewers' process, once the daemon says its live view serves."""
+    deadline = time.monotonic() + timeout_s
+    while "live view serving" not in log.read_text(errors="replace"):
+        if time.monotonic() > deadline:
+            raise SystemExit(f"the daemon's live view did not start; see {log}")
+        time.sleep(0.2)
+    argv = [sys.executable, __file__, "--viewers", url, "--view-clients", str(clients)]
+    argv += ["--view-stalled", str(stalled)]
+    return subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
+
+
+def _stop_viewers(viewers: subprocess.Popen[str] | None) -> dict[int, dict[str, int]]:
+    if viewers is None:
+        return {}
+    viewers.send_signal(signal.SIGTERM)
+    out, _ = viewers.communicate(timeout=30)
+    return {int(k): v for k, v in json.loads(out or "{}").items()}
+
+
+def _viewers(url: str, clients: int, stalled: int) -> int:
+    """Viewers of the live view until SIGTERM: each subscribes to every channel; the first
+    ``stalled`` stop reading once subscribed. Prints what each read, as JSON."""
+    import asyncio
+
+    from websockets.asyncio.client import connect
+
+    counts = {i: {"messages": 0, "bytes": 0, "stalled": int(i < stalled)} for i in range(clients)}
+
+    async def viewer(number: int) -> None:
+        async with connect(url, subprotocols=["foxglove.websocket.v1"], max_size=None) as ws:
+            async for frame in ws:
+                if isinstance(frame, str):
+                    message = json.loads(frame)
+                    if message.get("op") == "advertise":
+                        subscriptions = [
+                            {"id": c["id"], "channelId": c["id"]} for c in message["channels"]
+                        ]
+                        await ws.send(
+                            json.dumps({"op": "subscribe", "subscriptions": subscriptions})
+                        )
+                        if counts[number]["stalled"]:
+                            ws.transport.pause_reading()
+                            await asyncio.Event().wait()
+                else:
+                    counts[number]["messages"] += 1
+                    counts[number]["bytes"] += len(frame)
+
+    async def all_viewers() -> None:
+        stop = asyncio.Event()
+        asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, stop.set)
+        tasks = [asyncio.create_task(viewer(i)) for i in range(clients)]
+        await stop.wait()
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+
+    asyncio.run(all_viewers())
+    print(json.dumps(counts))
+    return 0
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Debian packages baromap's firmware build and flashing, firmware-in-the-loop tests, C port tap
-# and USB adapter reset need.
+# Debian packages baromap's firmware build and flashing, firmware-in-the-loop tests, C port tap,
+# USB adapter reset and live view client test need.
 # As root: installs what is missing. Otherwise: says what is missing and how to get it;
 # the tests that need them are then skipped with that reason, the rest still run.
 set -euo pipefail
@@ -13,6 +13,10 @@ set -euo pipefail
 # stops, for a disk that hangs under the daemon.
 packages=(python3-venv gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev libelf-dev
           pkg-config gcc libc6-dev g++ make avrdude libusb-1.0-0 systemd bindfs)
+# Node.js runs a third-party client of the daemon's live view in the end-to-end tests
+# (tests/liveview/js); a Node installed some other way is left alone.
+command -v node >/dev/null 2>&1 || packages+=(nodejs)
+command -v npm >/dev/null 2>&1 || packages+=(npm)
 
 missing=()
 for p in "${packages[@]}"; do

@@ -45,6 +45,12 @@ def register(subparsers: Any) -> None:
         help=f"how much faster than real time the twins play the mission (default "
         f"{DEFAULT_SPEED:g}, at most {MAX_SPEED:g})",
     )
+    parser.add_argument(
+        "--keep-alive",
+        action="store_true",
+        help="when the mission is over, keep baromapd and its live view running until Ctrl-C, "
+        "then build the maps",
+    )
     parser.set_defaults(run=run)
 
 
@@ -87,10 +93,10 @@ def _sigterm_unwinds() -> Iterator[None]:
 
 def run(args: argparse.Namespace) -> int:
     with _sigterm_unwinds():
-        return run_demo(Mission(speed=args.speed), Path(args.out))
+        return run_demo(Mission(speed=args.speed), Path(args.out), keep_alive=args.keep_alive)
 
 
-def run_demo(mission: Mission, out: Path) -> int:
+def run_demo(mission: Mission, out: Path, *, keep_alive: bool = False) -> int:
     from baromap.cli.demo_live import run_live
 
     out = out.resolve()
@@ -102,7 +108,7 @@ def run_demo(mission: Mission, out: Path) -> int:
     (out / "mission.json").write_text(json.dumps(mission_record(mission)), encoding="utf-8")
 
     _say("\n1/3 baromapd records the twins; baromap watch follows it over Zenoh")
-    live = run_live(mission, out, _show)
+    live = run_live(mission, out, _show, keep_alive=keep_alive)
     _say(
         f"\n2/3 baromapd stopped by SIGTERM (exit {live.daemon_exit}) after "
         f"{live.wall_s:.0f} s; configuration {live.config}"

@@ -24,7 +24,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from baromap.cli.demo_children import Child, ChildFailed, Children, Line, command
-from baromap.cli.demo_config import daemon_config, free_loopback_port, twin_ports, twin_settings
+from baromap.cli.demo_config import (
+    daemon_config,
+    free_loopback_port,
+    port_is_free,
+    twin_ports,
+    twin_settings,
+)
 from baromap.cli.demo_mission import Mission
 
 #: How long a child may take to get going on a loaded machine (imports, a Zenoh session).
@@ -33,6 +39,8 @@ START_TIMEOUT_S = 90.0
 PROGRESS_EVERY_S = 10.0
 #: After the mission's last simulated second, this long for the last frames to be recorded.
 TAIL_S = 1.0
+#: The live view's usual port, taken when it is free.
+VIEW_PORT = 8765
 
 
 @dataclass(frozen=True, slots=True)
@@ -55,6 +63,8 @@ class LiveRun:
     daemon_exit: int
     watch_lines: list[str] = field(default_factory=list)
     wall_s: float = 0.0
+    #: where the daemon served its live view (None if it did not)
+    view_url: str | None = None
 
 
 class _Session:
@@ -68,6 +78,7 @@ class _Session:
         self.been_up: set[str] = set()
         self.twin_paths: dict[str, str] | None = None
         self.daemon_events: set[str] = set()
+        self.view_url: str | None = None
 
     def handle(self, line: Line) -> None:
         if line.text is None:  # a stream ended; the child's exit is checked where it matters
@@ -104,6 +115,11 @@ class _Session:
                 detail = entry.get("detail")
                 text = f"{device} {state}" + (f": {detail}" if detail else "")
                 self.show(Shown("baromapd", text))
+        elif event == "live view serving":
+            self.view_url = str(entry.get("url"))
+            self.show(
+                Shown("baromapd", f"live view on {self.view_url} (Foxglove: Open connection)")
+            )
         elif level in ("warning", "error", "critical"):
             self.show(Shown("baromapd", f"{level}: {event}"))
 
@@ -143,10 +159,11 @@ class Additions:
     """What a bench adds to the demo's set-up (the demo itself uses none of it).
 
     ``config``: daemon tables merged into the generated configuration (rotation, a Zenoh
-    router to connect to); ``twins``: twin settings (``faults``); ``scale_detector=False``
-    leaves the floor detector at its real-time defaults; ``watch_connect``: where the watcher
-    connects (default: the daemon itself); ``every_second``: called about once a second during
-    the mission with the simulated time and the daemon's pid (sampling, restarting a router).
+    router to connect to, ``live_view``); ``twins``: twin settings (``faults``);
+    ``scale_detector=False`` leaves the floor detector at its real-time defaults;
+    ``watch_connect``: where the watcher connects (default: the daemon itself);
+    ``every_second``: called about once a second during the mission with the simulated time
+    and the daemon's pid (sampling, restarting a router).
     """
 
     config: Mapping[str, Mapping[str, object]] = field(default_factory=dict)
@@ -170,6 +187,7 @@ def _write_settings(
         out / "recording",
         endpoint,
         base_baud=mission.base_baud,
+        view_port=VIEW_PORT if port_is_free(VIEW_PORT) else free_loopback_port(),
         extra=extra,
     )
     config.write_text(text, encoding="utf-8")
@@ -183,8 +201,12 @@ def run_live(
     out: Path,
     show: Callable[[Shown], None],
     additions: Additions | None = None,
+    keep_alive: bool = False,
 ) -> LiveRun:
     """Play the mission on the twins with the real daemon recording and a watcher following.
+
+    ``keep_alive``: when the mission is over, the daemon (and its live view) runs on until
+    Ctrl-C or SIGTERM, for a person to look; then everything stops as usual.
 
     ``out`` receives ``baromapd.toml``, ``twins.toml``, ``recording/``, ``twins-truth.jsonl``
     and ``logs/``.
@@ -248,6 +270,8 @@ def run_live(
             recording_dir=recording_dir,
             additions=more,
         )
+        if keep_alive:
+            _linger(session, daemon)
         daemon_exit = daemon.stop(signal.SIGTERM, timeout=60.0)
         deadline = time.monotonic() + 15.0
         while time.monotonic() < deadline and not any("gone" in s for s in session.watch_lines):
@@ -264,7 +288,21 @@ def run_live(
         daemon_exit=daemon_exit,
         watch_lines=session.watch_lines,
         wall_s=time.monotonic() - started,
+        view_url=session.view_url,
     )
+
+
+def _linger(session: _Session, daemon: Child) -> None:
+    """The mission is over: the daemon serves on until Ctrl-C (or SIGTERM), then stops."""
+    where = session.view_url or "the live view (not serving: see the daemon's log)"
+    session.show(
+        Shown("progress", f"mission over; baromapd keeps serving {where}: Ctrl-C to finish")
+    )
+    try:
+        while daemon.running:
+            session.pump(1.0)
+    except KeyboardInterrupt:
+        session.show(Shown("progress", "finishing: the daemon closes the recording"))
 
 
 def _follow(

@@ -32,7 +32,7 @@ from baromapd.config import DaemonConfig
 from baromapd.fanout import Consumer, Fanout
 from baromapd.floors import FloorTracker
 from baromapd.live import create_publisher
-from baromapd.liveview import LiveView, LiveViewConfig
+from baromapd.liveview import LiveView
 from baromapd.lms200 import Lms200Session
 from baromapd.notify import Notifier
 from baromapd.pioneer import PioneerSession
@@ -69,7 +69,7 @@ class Daemon:
         notifier: Notifier | None = None,
         resolve: Callable[[str], str] = resolve_port,
         live: bool = True,
-        view: LiveViewConfig | None = None,
+        view: bool = True,
     ) -> None:
         self.config = config
         self.clock = clock or HostClock()
@@ -98,8 +98,8 @@ class Daemon:
             self.fanout.subscribe(self.live)
         # the live view's process: every message, never waited for (baromapd/liveview.py)
         self.view: LiveView | None = None
-        if view is not None and view.enabled:
-            self.view = LiveView.for_daemon(view, config.robot, mount, config.log_level)
+        if view and config.live_view.enabled:
+            self.view = LiveView.for_daemon(config.live_view, config.robot, mount, config.log_level)
             self.fanout.subscribe(self.view)
         common: dict[str, Any] = {
             "clock": self.clock,

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import ipaddress
 import math
 import os
 import tempfile
@@ -251,6 +252,29 @@ class RecordingConfig(Table, frozen=True):
     queue_size: Annotated[PositiveInt, doc("messages waiting; beyond it, counted drops")] = 8192
 
 
+ADDRESS_HINT: Final = (
+    '"127.0.0.1" keeps the view on this machine; "0.0.0.0" (or one interface\'s address) '
+    "opens it to the network"
+)
+
+
+class LiveViewConfig(Table, frozen=True):
+    """``[live_view]``: the Foxglove WebSocket server a person watches the robot on."""
+
+    enabled: Annotated[bool, doc("serve the recorded channels and a live map while running")] = True
+    address: Annotated[str, doc(ADDRESS_HINT)] = "127.0.0.1"
+    port: Annotated[int, Meta(ge=1, le=65535), doc("viewers connect to ws://address:port")] = 8765
+    resolution_m: Annotated[
+        float, Meta(ge=0.02, le=0.5), doc("the live map's cell, m (post-run maps: 0.05)")
+    ] = 0.1
+
+    def problems(self) -> Iterator[Problem]:
+        try:
+            ipaddress.ip_address(self.address)
+        except ValueError:
+            yield Problem("address", f"{self.address!r} is not an IP address", ADDRESS_HINT)
+
+
 class DaemonConfig(Table, frozen=True):
     """The whole file: top-level keys, then one field per table."""
 
@@ -264,6 +288,7 @@ class DaemonConfig(Table, frozen=True):
     #: ``[zenoh]`` and ``[reference]`` as written, for the live publisher (None when absent).
     zenoh: dict[str, Any] | None = None
     reference: dict[str, Any] | None = None
+    live_view: LiveViewConfig = msgspec.field(default_factory=LiveViewConfig)
     log_level: LogLevel = "info"
     #: The file's text, recorded in every recording's metadata.
     source_text: str = ""

@@ -20,19 +20,20 @@ without it; one that ends otherwise is logged once and not restarted.
 
 from __future__ import annotations
 
+import json
 import pickle
 import socket
 import subprocess
 import sys
 import threading
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any, Final
 
 import structlog
 
 from baromap.messages import DeviceHealth, DeviceState, Message
 from baromap.recording.frames import LaserMount
-from baromapd.liveview_child import ChildSettings
+from baromapd.config import LiveViewConfig
 
 log = structlog.get_logger(__name__)
 
@@ -43,14 +44,25 @@ MAX_REPORT: Final = 1 << 20
 
 
 @dataclass(frozen=True, slots=True)
-class LiveViewConfig:
-    """The ``[live_view]`` table: on by default, on loopback only unless an address is named."""
+class ChildSettings:
+    """What the daemon tells its live view (JSON on the command line)."""
 
-    enabled: bool = True
-    address: str = "127.0.0.1"
+    robot: str
+    host: str = "127.0.0.1"
     port: int = 8765
-    #: the live map's cell (m)
     resolution_m: float = 0.1
+    laser_mount: tuple[float, float, float] | None = None
+    log_level: str = "info"
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self))
+
+    @classmethod
+    def from_json(cls, text: str) -> ChildSettings:
+        data = json.loads(text)
+        mount = data.get("laser_mount")
+        data["laser_mount"] = tuple(mount) if mount is not None else None
+        return cls(**data)
 
 
 class LiveView:

@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import collections
 import contextlib
-import json
 import logging
 import pickle
 import signal
@@ -30,7 +29,7 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from typing import Any, Final
 
 import foxglove
@@ -41,6 +40,7 @@ from baromap.liveview.channels import ViewChannels
 from baromap.liveview.floor_map import LiveFloorMap, LiveMapSettings
 from baromap.messages import FloorState, LaserScan, Message, Odometry
 from baromap.recording.frames import LaserMount
+from baromapd.liveview import ChildSettings
 from baromapd.liveview_front import FrontSettings, FrontThread
 from baromapd.osthread import name_os_thread
 
@@ -54,28 +54,6 @@ MAP_QUEUE: Final = 300
 MAP_EVERY_S: Final = 1.0
 #: A report to the daemon this often (s).
 REPORT_EVERY_S: Final = 1.0
-
-
-@dataclass(frozen=True, slots=True)
-class ChildSettings:
-    """What the daemon tells its live view (JSON on the command line)."""
-
-    robot: str
-    host: str = "127.0.0.1"
-    port: int = 8765
-    resolution_m: float = 0.1
-    laser_mount: tuple[float, float, float] | None = None
-    log_level: str = "info"
-
-    def to_json(self) -> str:
-        return json.dumps(asdict(self))
-
-    @classmethod
-    def from_json(cls, text: str) -> ChildSettings:
-        data = json.loads(text)
-        mount = data.get("laser_mount")
-        data["laser_mount"] = tuple(mount) if mount is not None else None
-        return cls(**data)
 
 
 class MapWorker:

@@ -100,8 +100,9 @@ def config_text(
             "silence_s = 1.0",
         ],
     }
-    # Live publishing off: parallel test workers would all listen on the default port.
-    lines = ['robot = "test"', "[zenoh]", "enabled = false"]
+    # Live publishing and the live view off: parallel test workers would all listen on the
+    # default ports.
+    lines = ['robot = "test"', "[zenoh]", "enabled = false", "[live_view]", "enabled = false"]
     for name, body in tables.items():
         if name != "recording" and name not in devices:
             continue

@@ -113,7 +113,7 @@ def test_a_failing_detector_is_fed_no_more_and_stops_the_watchdog(tmp_path: Path
         f'robot = "r"\n[recording]\ndirectory = "{tmp_path}"\n'
         '[barometer]\nport = "loop://"\n[zenoh]\nenabled = false\n'
     )
-    daemon = Daemon(config, live=False)
+    daemon = Daemon(config, live=False, view=False)
     tracker = daemon.floors
     assert tracker is not None
     now = time.monotonic_ns()

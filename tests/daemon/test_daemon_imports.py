@@ -1,4 +1,5 @@
-"""The daemon starts without what it never uses: the recording reader, YAML, batch detection.
+"""The daemon starts without what it never uses: the recording reader, YAML, batch detection,
+the live view's own process.
 
 Each costs CPU at every start (``python -X importtime -c "import baromapd.main"``); the packages
 that hold them load them on first use, so their names must still work from outside.
@@ -18,6 +19,10 @@ NOT_AT_START = (
     "mcap_protobuf",
     "yaml",
     "baromap.floors.detection",
+    # the live view's server, front and map run in a process of their own
+    "baromapd.liveview_child",
+    "websockets",
+    "scipy",
 )
 
 

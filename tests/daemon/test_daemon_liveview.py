@@ -14,18 +14,24 @@ import time
 
 import pytest
 import structlog
-from daemon_rig import Rig, RunningDaemon, make_config, read_all
+from daemon_rig import Rig, RunningDaemon, config_text, read_all
 from websockets.asyncio.client import connect
 
 from baromap import messages
 from baromap.recording import topics
-from baromapd.liveview import LiveViewConfig
+from baromapd.config import DaemonConfig, parse_config
 from baromapd.liveview_front import WEBSOCKET_SUBPROTOCOL
 
 pytestmark = pytest.mark.timeout(180)
 
 #: The live view's process imports the SDK, numpy and scipy: slow on a loaded machine.
 START_S = 60.0
+
+
+def _with_view(rig: Rig, port: int) -> DaemonConfig:
+    """The rig's configuration with the live view on ``port``."""
+    text = config_text(rig).replace("[live_view]\nenabled = false", f"[live_view]\nport = {port}")
+    return parse_config(text)
 
 
 def _view_health(run: RunningDaemon) -> messages.DeviceHealth:
@@ -39,7 +45,7 @@ def test_a_port_in_use_costs_the_view_and_not_the_recording(rig: Rig) -> None:
         taken.listen()
         port = taken.getsockname()[1]
         with structlog.testing.capture_logs() as logged:
-            run = RunningDaemon(make_config(rig), view=LiveViewConfig(port=port))
+            run = RunningDaemon(_with_view(rig, port))
             with run:
                 run.wait_up()
                 run.wait_until(
@@ -69,7 +75,7 @@ def test_a_viewer_sees_the_recorded_channels_and_is_counted(rig: Rig) -> None:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
-    with RunningDaemon(make_config(rig), view=LiveViewConfig(port=port)) as run:
+    with RunningDaemon(_with_view(rig, port)) as run:
         run.wait_up()
         run.wait_until(
             lambda: _view_health(run).state is messages.DeviceState.UP,

@@ -28,7 +28,8 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> DemoRun:
         try:
             if not done.exists():
                 run = run_demo(shared / "demo")
-                record = {k: getattr(run, k) for k in ("exit_code", "stdout", "stderr", "wall_s")}
+                keys = ("exit_code", "stdout", "stderr", "wall_s", "viewer_skipped")
+                record = {k: getattr(run, k) for k in keys}
                 done.write_text(json.dumps(record))
             record = json.loads(done.read_text())
         finally:

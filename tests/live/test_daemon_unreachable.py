@@ -59,7 +59,7 @@ def run_daemon(twins: SimDevices, directory: Path, zenoh_table: str) -> tuple[Da
         f'[barometer]\nport = "{paths["baro"]}"\nrate_hz = 50\n{PATIENT}'
         f"[zenoh]\n{zenoh_table}\n"
     )
-    daemon = Daemon(config)
+    daemon = Daemon(config, view=False)
     assert daemon.live is not None, "the publisher is part of this run"
     thread = threading.Thread(target=daemon.run, name="test-baromapd")
     thread.start()
