@@ -262,6 +262,11 @@ class LiveFloorMap:
     def floor_id(self) -> int | None:
         return self._floor_id
 
+    @property
+    def t_ns(self) -> int:
+        """The newest message's time (0 before the first: nothing to show yet)."""
+        return self._last_t_ns
+
     def odometry(self, odom: Odometry) -> None:
         self._odom = np.array([odom.x_m, odom.y_m, odom.theta_rad])
         self._odom_t_ns = odom.t_ns

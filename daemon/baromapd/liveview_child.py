@@ -114,8 +114,9 @@ class MapWorker:
                         self.map.floor_state(message)
                 if time.monotonic() >= next_publish:
                     next_publish = time.monotonic() + MAP_EVERY_S
-                    self.channels.log_map(self.map.snapshot())
-                    self.published += 1
+                    if self.map.t_ns:  # nothing to show before the first message
+                        self.channels.log_map(self.map.snapshot())
+                        self.published += 1
                 self.cpu_s = time.thread_time()
         except Exception as exc:
             self.error = f"{type(exc).__name__}: {exc}"

@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import signal
 import socket
 import time
 
+import numpy as np
 import pytest
 import structlog
 from daemon_rig import Rig, RunningDaemon, config_text, read_all
@@ -19,7 +22,8 @@ from websockets.asyncio.client import connect
 
 from baromap import messages
 from baromap.recording import topics
-from baromapd.config import DaemonConfig, parse_config
+from baromapd.config import ConfigProblems, DaemonConfig, parse_config
+from baromapd.liveview import ChildSettings, LiveView
 from baromapd.liveview_front import WEBSOCKET_SUBPROTOCOL
 
 pytestmark = pytest.mark.timeout(180)
@@ -120,3 +124,52 @@ def test_a_viewer_sees_the_recorded_channels_and_is_counted(rig: Rig) -> None:
     ]
     assert max(h.counters["clients"] for h in recorded) == 1
     assert recorded[-1].state is messages.DeviceState.UP
+
+
+def test_the_live_view_table_is_checked_with_the_rest() -> None:
+    base = 'robot = "r"\n[barometer]\nport = "loop://"\n'
+    config = parse_config(base)
+    assert config.live_view.enabled and config.live_view.address == "127.0.0.1"
+    assert config.live_view.port == 8765
+    with pytest.raises(ConfigProblems) as bad:
+        parse_config(
+            base + '[live_view]\naddress = "robot.local"\nport = 70000\nresolution_m = 1.0\n'
+            "colour = 1\n"
+        )
+    keys = sorted(p.key for p in bad.value.problems)
+    assert keys == [
+        "live_view.address",
+        "live_view.colour",
+        "live_view.port",
+        "live_view.resolution_m",
+    ]
+
+
+def test_a_stopped_view_process_never_holds_the_daemon_up() -> None:
+    """The view's process frozen (SIGSTOP): every offer still returns at once, what its pair
+    cannot hold is counted as dropped, and nothing is lost from the count."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    view = LiveView(ChildSettings(robot="test", port=port))
+    try:
+        deadline = time.monotonic() + START_S
+        while view.health(0).state is not messages.DeviceState.UP:
+            assert time.monotonic() < deadline, view.health(0)
+            time.sleep(0.2)
+        assert view._proc is not None
+        os.kill(view._proc.pid, signal.SIGSTOP)
+        n = 5000
+        ranges = np.ones(181, np.float32)
+        flags = np.zeros(181, np.uint16)
+        sent_before = view.sent
+        for k in range(n):
+            view.offer(messages.LaserScan(k + 1, -1.57, 0.0175, 80.0, ranges, flags))
+        assert view.dropped > 0
+        assert view.sent - sent_before + view.dropped == n
+        os.kill(view._proc.pid, signal.SIGCONT)
+        assert view.health(0).state is messages.DeviceState.UP
+    finally:
+        if view._proc is not None:
+            os.kill(view._proc.pid, signal.SIGCONT)
+        view.close()
