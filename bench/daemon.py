@@ -459,12 +459,18 @@ def _run(args: argparse.Namespace, view_clients: int, view_stalled: int) -> dict
                   f"{map_s:.1f} s of CPU in {wall_s:.0f} s ({100 * map_s / wall_s:.2f} % of one "
                   f"core), its grids {c.get('map_bytes', 0) / 1e6:.1f} MB; map work dropped "
                   f"{c.get('map_dropped', 0)}")  # fmt: skip
-            per_client = {
-                k: v for k, v in c.items() if k.startswith("client_") and k.endswith("_dropped")
-            }
+            # each viewer's drops as last reported while it was connected (one that stopped
+            # reading is disconnected once it misses a ping)
+            per_client: dict[str, int] = {}
+            for h in by_topic.get(topics.DIAGNOSTICS, []):
+                if isinstance(h, messages.DeviceHealth) and h.device == "live_view":
+                    for k, v in h.counters.items():
+                        if k.startswith("client_") and k.endswith("_dropped"):
+                            per_client[k] = max(per_client.get(k, 0), v)
             print(f"  daemon -> view messages: {c.get('sent', 0)} sent, {c.get('dropped', 0)} "
-                  f"dropped; viewers: {c.get('clients', 0)} connected at the last report, "
-                  f"data messages dropped per viewer {per_client or 'none'}")  # fmt: skip
+                  f"dropped; viewers: {c.get('served', 0)} served, {c.get('clients', 0)} still "
+                  f"connected at the last report; data messages dropped per viewer "
+                  f"{per_client or 'none'}")  # fmt: skip
         for number, counts in sorted(seen.items()):
             never = " (never reading)" if counts["stalled"] else ""
             print(f"  viewer {number}: {counts['messages']} messages, "
