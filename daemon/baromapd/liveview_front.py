@@ -29,6 +29,7 @@ import contextlib
 import itertools
 import json
 import os
+import socket
 import threading
 import time
 from dataclasses import dataclass
@@ -68,6 +69,9 @@ class FrontSettings:
     max_queued_bytes: int = 8 << 20
     ping_interval_s: float = 20.0
     ping_timeout_s: float = 60.0
+    #: the kernel's send buffer towards one viewer (bytes): what the kernel holds for a viewer
+    #: that does not read is bounded too, and the rest waits in the counted queue
+    socket_buffer: int = 1 << 18
 
 
 @dataclass(slots=True)
@@ -194,6 +198,9 @@ class Front:
         address = f"{peer[0]}:{peer[1]}" if peer else "?"
         stats = ClientStats(next(self._numbers), address, str(ws.subprotocol or ""))
         viewer = _Viewer(stats, self.settings)
+        sock = ws.transport.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.settings.socket_buffer)
         try:
             upstream = await connect(
                 self.upstream_url,

@@ -56,7 +56,9 @@ def view() -> Iterator[View]:
     sdk = foxglove.start_server(host="127.0.0.1", port=0, capabilities=[], context=context)
     front = FrontThread(
         f"ws://127.0.0.1:{sdk.port}",
-        FrontSettings(port=_free_port(), max_queued=64, ping_interval_s=60.0),
+        FrontSettings(
+            port=_free_port(), max_queued=64, ping_interval_s=60.0, socket_buffer=1 << 16
+        ),
     )
     assert front.start() is None
     try:
@@ -175,7 +177,11 @@ def test_a_viewer_that_stops_reading_costs_only_itself(view: View) -> None:
     results: dict[str, int] = {"reader": 0}
 
     async def viewer(name: str, reads: bool) -> None:
-        async with connect(view.url, subprotocols=[SDK_SUBPROTOCOL], max_queue=4) as ws:
+        # small kernel buffers both ways, so a viewer that stops reading is soon seen as such
+        sock = socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 16)  # before the window opens
+        sock.connect(("127.0.0.1", int(view.url.rsplit(":", 1)[1])))
+        async with connect(view.url, subprotocols=[SDK_SUBPROTOCOL], max_queue=4, sock=sock) as ws:
             ids = await _advertised(ws, {"/scan"})
             subscribe = {"op": "subscribe", "subscriptions": [{"id": 1, "channelId": ids["/scan"]}]}
             await ws.send(json.dumps(subscribe))
