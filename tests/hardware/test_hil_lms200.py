@@ -44,16 +44,22 @@ def _telegrams(port: serial.Serial, decoder: lms200.Decoder, seconds: float) -> 
     return out
 
 
-def _find_baud(path: str) -> int:
-    """The sensor's speed: the first at which a status request gets a good telegram back."""
+def _find_baud(path: str) -> tuple[int, lms200.StatusReport | None]:
+    """The sensor's speed: the first at which a status request gets a good telegram back; and
+    the status reply, when that telegram was one (a sensor left streaming may answer with a
+    scan first)."""
     for baud in SEARCH_BAUDS:
         with serial.serial_for_url(path, baudrate=baud, timeout=0.05) as port:
             port.reset_input_buffer()
             port.write(lms200.status_request())
             decoder = lms200.Decoder(at_boundary=False)
+            found = False
             for item in _telegrams(port, decoder, 0.4 + 2 * 9000 / baud):
-                if isinstance(item, lms200.Telegram | lms200.ScanTelegram):
-                    return baud
+                found = found or isinstance(item, lms200.Telegram | lms200.ScanTelegram)
+                if isinstance(item, lms200.Telegram) and item.command == lms200.Reply.STATUS:
+                    return baud, lms200.parse_status_reply(item)
+            if found:
+                return baud, None
     pytest.fail(f"no LMS200 answers at {SEARCH_BAUDS} baud", pytrace=False)
 
 
@@ -64,7 +70,16 @@ def test_reset_waits_for_the_power_on_telegram_then_the_session_starts_from_powe
     host_clock: HostClock,
     report: Callable[[str, str], None],
 ) -> None:
-    found = _find_baud(lms_port)
+    found, status = _find_baud(lms_port)
+    assert status is not None, "no status reply to a status request"
+    report(
+        "laser",
+        f"status: software {status.software_version.strip()}, operating mode "
+        f"0x{status.operating_mode:02x}, device status {status.device_status} (0 ok), measuring "
+        f"mode {status.measuring_mode}, {status.angle_deg} deg / {status.resolution_cdeg / 100} "
+        f"deg, units {'mm' if status.units == 1 else 'cm'}, laser on {status.laser_on}",
+    )
+    assert status.device_status == 0, f"the sensor reports device status {status.device_status}"
     with serial.serial_for_url(lms_port, baudrate=found, timeout=0.05) as port:
         port.reset_input_buffer()
         port.write(lms200.reset())
@@ -156,7 +171,7 @@ def test_baud_search_finds_a_sensor_left_streaming_by_a_client_that_died(
     dead.shutdown = lambda: None  # type: ignore[method-assign]
     with running(dead):
         time.sleep(0.3)
-    assert _find_baud(lms_port) == left_at, "the first session did not leave it at its speed"
+    assert _find_baud(lms_port)[0] == left_at, "the first session did not leave it at its speed"
 
     capture = Capture()
     session = _session(lms_port, baud, capture, host_clock)
