@@ -146,7 +146,7 @@ class _FloorGrid:
     def empty(self) -> bool:
         return self.keyframes == 0
 
-    def field(self) -> LikelihoodField:
+    def likelihood_field(self) -> LikelihoodField:
         half = 0.5 * self.resolution
         return LikelihoodField(
             self.likelihood, (self.origin[0] + half, self.origin[1] + half), self.resolution
@@ -212,8 +212,8 @@ class _FloorGrid:
         target = self.log_odds[row : row + h, col : col + w]
         target += one.log_odds
         np.clip(target, -L_CLAMP, L_CLAMP, out=target)
-        field = self.field()
-        stamp(self.likelihood, field.origin_xy, self.resolution, self.sigma, world)
+        centres = self.likelihood_field().origin_xy
+        stamp(self.likelihood, centres, self.resolution, self.sigma, world)
 
     def add_pose(self, pose: FloatArray, most: int) -> None:
         self.path.append(pose.copy())
@@ -330,7 +330,7 @@ class LiveFloorMap:
             window = search_window(
                 linear, angular, lattice_angle_step(typical, s.resolution_m), s.resolution_m
             )
-            fld = grid.field()
+            fld = grid.likelihood_field()
             coarse = fld.pooled(window.coarse_step_cells) if window.coarse_step_cells > 1 else None
             result = match(
                 fld,
