@@ -73,8 +73,8 @@ viewer-client:
 	else echo "live view client: not installed (no node/npm; as root: apt-get install nodejs npm)"; fi
 
 $(VIEWER_STAMP): $(VIEWER_JS)/package.json $(VIEWER_JS)/package-lock.json
-	npm ci --prefix $(VIEWER_JS) --no-audit --no-fund --loglevel=error
-	touch $@
+	@if npm ci --prefix $(VIEWER_JS) --no-audit --no-fund --loglevel=error; then touch $@; \
+	else echo "live view client: npm ci failed (no registry?); its end-to-end test is skipped"; fi
 
 bench: $(STAMP) $(TAP)
 	for b in bench/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
