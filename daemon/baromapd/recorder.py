@@ -3,10 +3,11 @@
 It uses the library's :class:`~baromap.recording.RecordingWriter` for everything MCAP; what it
 adds is what a long unattended run needs:
 
-- Durability: a power cut or SIGKILL loses at most ``flush_interval_s`` of any stream. The
-  chunk is closed :data:`FLUSH_LEAD_S` earlier than that (and the file fsynced): what is lost
-  is the time since the last flush plus the age of the last message in it, which for the base's
-  10 Hz odometry is up to 0.1 s more, and whatever the queue held.
+- Durability: SIGKILL loses at most ``flush_interval_s`` of any stream: the writer ends a chunk
+  twice an interval (:func:`chunk_interval_s`), because what is lost is the time since the
+  last chunk plus the age of the last message in it (up to 0.1 s for the base's 10 Hz
+  odometry) plus the queue's latency, which on a loaded machine is tenths of a second. The
+  file is fsynced once an interval, off this thread, for a power cut.
 - Rotation by size and duration. One thread writes in order, so a split falls between two
   messages: nothing is lost or written twice. Each file is self-contained: it starts with the
   run's metadata record and every device identity known so far.
@@ -51,8 +52,8 @@ from baromapd.osthread import name_os_thread
 log = structlog.get_logger(__name__)
 
 MB: Final = 1_000_000
-#: The writer ends its chunks this much before ``flush_interval_s`` (at most half of it).
-FLUSH_LEAD_S: Final = 0.25
+#: Chunks the writer ends per ``flush_interval_s``.
+CHUNKS_PER_FLUSH_INTERVAL: Final = 2
 RESUME_HEADROOM: Final = 1.2
 #: How often (at most) the current file's size is checked for rotation.
 SIZE_CHECK_NS: Final = 250_000_000
@@ -524,7 +525,7 @@ class Syncer:
 
 def chunk_interval_s(flush_interval_s: float) -> float:
     """How often the writer ends a chunk, so that no stream loses more than the interval."""
-    return max(flush_interval_s - FLUSH_LEAD_S, flush_interval_s / 2)
+    return flush_interval_s / CHUNKS_PER_FLUSH_INTERVAL
 
 
 def recovered_path(path: Path) -> Path:
