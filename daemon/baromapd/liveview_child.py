@@ -184,6 +184,8 @@ def serve(pair: socket.socket, settings: ChildSettings) -> int:
                 packet = pair.recv(MAX_PACKET)
             except TimeoutError:
                 continue
+            except ConnectionResetError:
+                packet = b""  # the daemon closed its end with reports of ours unread
             if not packet:
                 return 0  # the daemon closed its end
             message = pickle.loads(packet)

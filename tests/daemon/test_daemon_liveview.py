@@ -173,3 +173,18 @@ def test_a_stopped_view_process_never_holds_the_daemon_up() -> None:
         if view._proc is not None:
             os.kill(view._proc.pid, signal.SIGCONT)
         view.close()
+
+
+def test_the_view_process_ends_cleanly_when_the_daemon_closes_with_reports_unread() -> None:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    view = LiveView(ChildSettings(robot="test", port=port))
+    deadline = time.monotonic() + START_S
+    while view.health(0).state is not messages.DeviceState.UP:
+        assert time.monotonic() < deadline, view.health(0)
+        time.sleep(0.2)
+    time.sleep(2.5)  # reports pile up in the daemon's end, unread
+    view.close()
+    assert view._proc is not None
+    assert view._proc.returncode == 0
