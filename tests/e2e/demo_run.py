@@ -103,22 +103,24 @@ def run_demo(out: Path) -> DemoRun:
     viewer: subprocess.Popen[bytes] | None = None
     out.mkdir(parents=True, exist_ok=True)
     (out / "viewer.json").unlink(missing_ok=True)
-    deadline = started + DEMO_TIMEOUT_S
+    # a demo that hangs, silent or not, is killed at the deadline (its output then ends)
+    watchdog = threading.Timer(DEMO_TIMEOUT_S, proc.kill)
+    watchdog.start()
     try:
         for line in proc.stdout or ():
             lines.append(line)
             found = VIEW_LINE.search(line)
             if found and viewer is None and missing is None:
-                viewer = subprocess.Popen(
-                    ["node", "view.js", found.group(1), str(out / "viewer.json")],
-                    cwd=VIEWER_JS,
-                    stdout=subprocess.DEVNULL,
-                    stderr=(out / "viewer.log").open("wb"),
-                )
-            if time.monotonic() > deadline:
-                proc.kill()
-        proc.wait(max(1.0, deadline - time.monotonic()))
+                with (out / "viewer.log").open("wb") as log:  # the child has its own copy
+                    viewer = subprocess.Popen(
+                        ["node", "view.js", found.group(1), str(out / "viewer.json")],
+                        cwd=VIEWER_JS,
+                        stdout=subprocess.DEVNULL,
+                        stderr=log,
+                    )
+        proc.wait()
     finally:
+        watchdog.cancel()
         if proc.poll() is None:
             proc.kill()
             proc.wait()

@@ -13,9 +13,12 @@ import json
 from typing import Any
 
 import pytest
-from demo_run import DemoRun
+from demo_run import DEMO_TIMEOUT_S, DemoRun
 
 from baromap.recording import topics
+
+# the first test to ask for the demo runs it (tests/e2e/conftest.py)
+pytestmark = pytest.mark.timeout(DEMO_TIMEOUT_S + 120)
 
 #: Channels a viewer must see live: the recording's, and the live map's.
 LIVE_CHANNELS = (
