@@ -292,3 +292,134 @@ def test_cut_files_of_an_earlier_run_are_recovered_at_start(tmp_path: Path) -> N
         assert len(list(reader.iter_messages())) == 50
     # this run's own file is not taken for a cut one, nor recovered again by the next run
     assert recorder_module.cut_recordings(tmp_path) == []
+
+
+def test_fault_reasons_name_what_the_os_refused() -> None:
+    import errno
+
+    from baromapd.recorder import fault_reason
+
+    def reason(code: int) -> str:
+        return fault_reason(RecordingWriteError("cannot write", OSError(code, "refused")))
+
+    assert reason(errno.ENOSPC).startswith("disk full: ")
+    assert reason(errno.EDQUOT).startswith("disk full: ")
+    assert reason(errno.EIO).startswith("I/O error: ")
+    assert reason(errno.EROFS).startswith("read-only file system: ")
+    assert reason(errno.EACCES).startswith("permission denied: ")
+    assert reason(errno.EPERM).startswith("permission denied: ")
+    assert reason(errno.ENOENT).startswith("OS error: ")
+    assert fault_reason(OSError(errno.EIO, "x")) == "I/O error: [Errno 5] x"
+    try:
+        raise RuntimeError("library") from OSError(errno.ENOSPC, "full")
+    except RuntimeError as exc:
+        assert fault_reason(exc) == "disk full: library"
+    assert fault_reason(RecordingWriteError("no os error")) == (
+        "writer error: RecordingWriteError: no os error"
+    )
+    assert fault_reason(ValueError("v")) == "writer error: ValueError: v"
+
+
+def test_the_retry_pause_doubles_to_its_cap_and_three_faults_in_a_minute_are_fatal(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    clock = [10**12]
+    monkeypatch.setattr(recorder_module.time, "monotonic_ns", lambda: clock[0])
+    rec = _recorder(tmp_path)
+    first = recorder_module.FAULT_RETRY_NS
+    with capture_logs() as logged:
+        rec._fault("write", OSError(5, "bad block"))
+        assert rec._retry_ns == clock[0] + first
+        assert rec._retry_delay_ns == 2 * first
+        assert rec.paused == "recorder fault: I/O error: [Errno 5] bad block"
+        clock[0] += recorder_module.FAULT_WINDOW_NS + 1  # long past: the pause starts afresh
+        rec._fault("flush", OSError(5, "bad block"))
+        assert rec._retry_ns == clock[0] + first and rec.fatal is None
+        for _ in range(4):
+            rec._retry_delay_ns = min(rec._retry_delay_ns * 2, recorder_module.FAULT_RETRY_MAX_NS)
+        assert rec._retry_delay_ns == recorder_module.FAULT_RETRY_MAX_NS
+        clock[0] += 1
+        rec._fault("write", OSError(5, "bad block"))
+        assert rec.fatal is None  # two within the window
+        clock[0] += 1
+        rec._fault("open", OSError(5, "bad block"))
+    assert rec.fatal == "3 faults within 60 s: I/O error: [Errno 5] bad block"
+    assert rec.faults == 4
+    said = [e for e in logged if e["event"] == "recorder fault"]
+    assert said == [
+        {
+            "event": "recorder fault",
+            "log_level": "error",
+            "reason": "I/O error: [Errno 5] bad block",
+            "during": "write",
+            "path": None,
+            "error": "OSError: [Errno 5] bad block",
+        }
+    ]
+    assert [e for e in logged if e["event"] == "recorder gives up"] == [
+        {"event": "recorder gives up", "log_level": "error", "reason": rec.fatal}
+    ]
+
+
+def test_a_full_disk_is_never_fatal(tmp_path: Path) -> None:
+    rec = _recorder(tmp_path)
+    for _ in range(10):
+        rec._fault("write", OSError(28, "No space left on device"))
+    assert rec.fatal is None and rec.faults == 10
+    assert rec.paused == "recorder fault: disk full: [Errno 28] No space left on device"
+
+
+def _cut_file(path: Path) -> None:
+    writer = RecordingWriter(path, robot="r1", flush_interval_s=3600)
+    for sample in _samples(50):
+        writer.write(sample)
+    writer.flush()
+    writer.write(_samples(1, t0=1_800_000_000_000_000_000)[0])
+    copy = path.with_name("copy-" + path.name)
+    import shutil as sh
+
+    sh.copy(path, copy)
+    writer.close()
+    copy.replace(path)
+
+
+def test_a_cut_file_is_left_alone_without_room_for_its_copy(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _cut_file(tmp_path / "r1_old_000.mcap")
+    size_mb = (tmp_path / "r1_old_000.mcap").stat().st_size / 1e6
+    rec = _recorder(tmp_path)
+    for free in (None, size_mb / 2):
+        monkeypatch.setattr(Recorder, "_free_mb", lambda self, free=free: free)
+        with capture_logs() as logged:
+            rec._recover([tmp_path / "r1_old_000.mcap"])
+        (said,) = logged
+        assert said["event"] == "cut recording not recovered: not enough free space"
+        assert said["path"] == str(tmp_path / "r1_old_000.mcap")
+        assert said["size_mb"] == round(size_mb, 1)
+        assert said["free_mb"] == (None if free is None else round(free, 1))
+    assert rec.recovered == []
+    assert not (tmp_path / "r1_old_000.recovered.mcap").exists()
+
+
+def test_a_cut_file_that_cannot_be_recovered_is_said_and_skipped(tmp_path: Path) -> None:
+    from baromap.recording.recover import MCAP_MAGIC
+
+    broken = tmp_path / "r1_broken_000.mcap"
+    broken.write_bytes(MCAP_MAGIC + b"\x01\xff")  # cut inside its header
+    good = tmp_path / "r1_good_000.mcap"
+    _cut_file(good)
+    rec = _recorder(tmp_path)
+    with capture_logs() as logged:
+        rec._recover(recorder_module.cut_recordings(tmp_path))
+    failed, recovered = logged
+    assert failed["event"] == "cut recording not recovered"
+    assert failed["path"] == str(broken) and "header" in failed["error"]
+    assert recovered["event"] == "cut recording recovered"
+    assert recovered["path"] == str(good)
+    assert recovered["recovered"] == str(tmp_path / "r1_good_000.recovered.mcap")
+    assert recovered["messages"] == 50
+    assert recovered["size"] == good.stat().st_size
+    assert 0 < recovered["cut_at"] < recovered["size"]
+    assert "length is unset" in recovered["reason"]
+    assert rec.recovered == [tmp_path / "r1_good_000.recovered.mcap"]

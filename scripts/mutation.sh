@@ -1,0 +1,102 @@
+#!/usr/bin/env bash
+# Mutation testing (mutmut) of one part, in a scratch copy of HEAD, with the narrowest tests
+# that cover it; not part of `make test` (CPU-heavy: run it nice'd). docs/mutation.md has the
+# figures and the survivors.
+#
+#   scripts/mutation.sh protocols|recorder|detector [SCRATCH_DIR]
+#
+# Needs the checkout's .venv (`make setup`) and mutmut in it (`.venv/bin/pip install mutmut`).
+set -euo pipefail
+
+part=${1:?usage: scripts/mutation.sh protocols|recorder|detector [SCRATCH_DIR]}
+repo=$(cd "$(dirname "$0")/.." && pwd)
+scratch=${2:-${TMPDIR:-/tmp}/baromap-mutation-$part}
+
+# mutmut names a mutant by its file's path from the copy's root, so the daemon's package is
+# moved there (daemon/baromapd -> baromapd) for its modules to be named as they are imported.
+case $part in
+  protocols)
+    only='baromap/protocols/*'
+    tests='tests/test_lms200.py tests/test_p2os.py tests/test_baro_codec.py'
+    ;;
+  recorder)
+    only='baromapd/recorder.py'
+    tests='tests/daemon/test_daemon_recorder.py'
+    ;;
+  detector)
+    only='baromap/floors/online.py'
+    tests='tests/test_floors_online.py'
+    ;;
+  *) echo "unknown part $part" >&2; exit 2 ;;
+esac
+
+rm -rf "$scratch"
+mkdir -p "$scratch"
+git -C "$repo" archive HEAD | tar -x -C "$scratch"
+mv "$scratch/daemon/baromapd" "$scratch/baromapd"
+# The root conftest only loads pytest_baromap, which the installed entry point loads anyway;
+# mutmut, taking "." off sys.path, makes it unimportable (pytest exit 4).
+rm "$scratch/conftest.py"
+# mutmut reads its settings from setup.cfg; the list values are one per line.
+{
+  echo "[mutmut]"
+  # without it, this mutmut (3.8) ran its statistics pass into a pytest usage error (exit 4)
+  echo "debug=true"
+  echo "source_paths="
+  echo "    ."
+  echo "only_mutate="
+  echo "    $only"
+  echo "pytest_add_cli_args_test_selection="
+  for t in $tests; do echo "    $t"; done
+  echo "pytest_add_cli_args="
+  echo "    -p"
+  echo "    no:cacheprovider"
+  echo "    -x"
+  echo "    -q"
+} > "$scratch/setup.cfg"
+cd "$scratch"
+# The copy's own code must be what the tests import, not the checkout's editable install:
+# a venv that sees the checkout venv's packages through a .pth line (whose own .pth files,
+# the editable install's finder among them, are then not run), and the copy on PYTHONPATH.
+"$repo/.venv/bin/python" -m venv --without-pip "$scratch/venv"
+site=$("$scratch/venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
+"$repo/.venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])' > "$site/checkout-venv.pth"
+# mutmut takes the directory it runs the tests in off sys.path, so the copy's packages are
+# found by a finder of their own (as an editable install's are).
+cat > "$site/baromap_mutants.py" <<PY
+import importlib.machinery
+import sys
+
+
+class MutantsFinder:
+    @classmethod
+    def find_spec(cls, name, path=None, target=None):
+        if path is None and name in ("baromap", "baromapd", "pytest_baromap"):
+            return importlib.machinery.PathFinder.find_spec(name, ["$scratch/mutants"])
+        return None
+
+
+sys.meta_path.insert(0, MutantsFinder)
+PY
+echo "import baromap_mutants" > "$site/baromap-mutants.pth"
+"$scratch/venv/bin/python" -m mutmut run --max-children "${MUTMUT_CHILDREN:-2}" || true
+"$scratch/venv/bin/python" -m mutmut results --all true > "$scratch/results.txt" || true
+"$repo/.venv/bin/python" - "$scratch/results.txt" <<'PY'
+import collections, sys
+counts = collections.Counter()
+survivors = []
+for line in open(sys.argv[1]):
+    name, _, status = line.strip().rpartition(": ")
+    if not name:
+        continue
+    counts[status] += 1
+    if status == "survived":
+        survivors.append(name)
+total = sum(counts.values())
+killed = counts["killed"] + counts["timeout"]
+print(dict(counts))
+print(f"killed {killed} of {total}: {100 * killed / max(total, 1):.1f} %")
+print("survivors:")
+for name in survivors:
+    print("  ", name)
+PY
