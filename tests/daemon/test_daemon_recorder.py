@@ -423,3 +423,118 @@ def test_a_cut_file_that_cannot_be_recovered_is_said_and_skipped(tmp_path: Path)
     assert 0 < recovered["cut_at"] < recovered["size"]
     assert "length is unset" in recovered["reason"]
     assert rec.recovered == [tmp_path / "r1_good_000.recovered.mcap"]
+
+
+def test_percentiles_at_their_edges() -> None:
+    empty = LatencyHistogram()
+    assert empty.percentile_ns(50) == 0
+    assert len(empty.bins) == recorder_module.LATENCY_BINS + 1
+    hist = LatencyHistogram()
+    for _ in range(50):
+        hist.add(10_000)  # bin 0
+    for _ in range(50):
+        hist.add(50_000)  # bin 2
+    assert hist.percentile_ns(50) == 20_000  # half the samples are in bin 0: its upper edge
+    assert hist.percentile_ns(51) == 50_000  # bin 2's edge is 60 us, no sample above 50 us
+    one = LatencyHistogram()
+    one.add(30_000)
+    assert one.percentile_ns(50) == 30_000
+    edge = LatencyHistogram()
+    for _ in range(100):
+        edge.add(0)
+    edge.add(110_000)
+    assert edge.percentile_ns(100) == 110_000
+    assert (edge.count, edge.max_ns, edge.bins[0], edge.bins[5]) == (101, 110_000, 100, 1)
+
+
+def test_health_says_each_state_with_its_counters(tmp_path: Path) -> None:
+    rec = _recorder(tmp_path)
+    fresh = rec.health(7)
+    assert (fresh.t_ns, fresh.device, fresh.port) == (7, "recorder", str(tmp_path))
+    assert (fresh.state, fresh.detail) == (DeviceState.UP, "recording none yet")
+    assert fresh.counters == {"messages": 0, "files": 0, "backlog": 0, "faults": 0}
+    rec.files.append(tmp_path / "r1_test_000.mcap")
+    rec.written.update({topics.BARO: 3, topics.SCAN: 2})
+    rec.latency[topics.BARO] = LatencyHistogram()
+    rec.latency[topics.BARO].add(45_000)
+    up = rec.health(0)
+    assert (up.state, up.detail) == (DeviceState.UP, "recording r1_test_000.mcap")
+    assert up.counters == {
+        "messages": 5,
+        "files": 1,
+        "backlog": 0,
+        "faults": 0,
+        f"latency_p50_us{topics.BARO}": 45,
+        f"latency_p99_us{topics.BARO}": 45,
+    }
+    rec.dropped["LaserScan"] = 4
+    degraded = rec.health(0)
+    assert degraded.state is DeviceState.DEGRADED
+    assert degraded.detail == "queue overflowed: messages dropped"
+    assert degraded.counters["dropped_queue_LaserScan"] == 4
+    rec.lost["PressureSample"] = 2
+    rec.paused = "disk guard: 5 MB free, below min_free_mb 10"
+    paused = rec.health(0)
+    assert (paused.state, paused.detail) == (DeviceState.DOWN, rec.paused)
+    assert paused.counters["dropped_paused_PressureSample"] == 2
+    rec.fatal = "3 faults within 60 s: I/O error"
+    assert rec.health(0).detail == "recorder gave up: 3 faults within 60 s: I/O error"
+    rec.error = "ValueError: bug"
+    assert rec.health(0).detail == "writer thread failed: ValueError: bug"
+    assert rec.health(0).state is DeviceState.DOWN
+
+
+def test_the_guard_and_the_resumption_at_their_edges(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import shutil as sh
+    from collections import namedtuple
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(sh, "disk_usage", lambda path: usage(0, 0, 5_000_000))
+    assert _recorder(tmp_path)._free_mb() == 5.0
+
+    free: list[float | None] = [100.0]
+    monkeypatch.setattr(Recorder, "_free_mb", lambda self: free[0])
+    config = RecordingConfig(directory=tmp_path, min_free_mb=100.0)
+    rec = Recorder(config, robot="r1", metadata={}, run_name="r1_edges")
+    rec._open()
+    rec._guard_disk()  # exactly the limit: still writing
+    assert rec._writer is not None
+    free[0] = 99.9
+    rec._guard_disk()
+    assert rec._writer is None and rec.paused is not None
+    free[0] = 119.9  # the limit with 20 % headroom is 120
+    rec._guard_disk()
+    assert rec._writer is None
+    free[0] = 120.0
+    with capture_logs() as logged:
+        rec._guard_disk()
+    assert rec._writer is not None and rec.paused is None
+    (resumed,) = [e for e in logged if e["event"] == "recording resumes"]
+    assert resumed["after"] == "disk guard: 100 MB free, below min_free_mb 100"
+    assert resumed["free_mb"] == 120.0
+    # a full disk with no guard: 1 MB and its headroom before a new file
+    rec._fault("write", OSError(28, "No space left on device"))
+    rec.config = RecordingConfig(directory=tmp_path, min_free_mb=0.0)
+    free[0] = 1.19
+    rec._guard_disk()
+    assert rec._writer is None
+    free[0] = 1.2
+    rec._guard_disk()
+    assert rec._writer is not None and rec.fault is None
+    # another fault: retried when its pause is over, not before
+    rec._fault("write", OSError(5, "bad block"))
+    free[0] = None
+    due = rec._retry_ns
+    monkeypatch.setattr(recorder_module.time, "monotonic_ns", lambda: due - 1)
+    rec._guard_disk()
+    assert rec._writer is None
+    monkeypatch.setattr(recorder_module.time, "monotonic_ns", lambda: due)
+    with capture_logs() as logged:
+        rec._guard_disk()
+    assert rec._writer is not None
+    (resumed,) = [e for e in logged if e["event"] == "recording resumes"]
+    assert resumed["after"] == "recorder fault: I/O error: [Errno 5] bad block"
+    assert resumed["free_mb"] is None
+    rec._close()
