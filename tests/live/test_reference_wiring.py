@@ -5,8 +5,8 @@ ten seconds) while a robot standing still on its floor sees the same rise. The r
 side (``create_publisher`` from its configuration, the floor tracker's ``offer_reference``)
 hands the station's samples to the detector: no floor change. Without the station the same
 samples are a floor change. The station's and the robot's samples reach the tracker in time
-order (each station sample is seen arriving before the robot's of the same instant), as they
-would live.
+order (each second of station samples is seen arriving before the robot's of the same
+second), as they would live.
 """
 
 from __future__ import annotations
@@ -26,6 +26,9 @@ from baromapd.live import LivePublisher, create_publisher
 
 P0 = 100_000.0
 RATE_HZ = 5
+#: Station samples sent before the robot's of the same instants (one round trip per batch:
+#: a second of samples, well inside the tracker's reference tolerance).
+BATCH = RATE_HZ
 
 
 def weather(t_s: float) -> float:
@@ -70,12 +73,15 @@ def run_robot(with_station: bool) -> list[Message]:
                 station.offer(sample(-1000 + probe))  # before the run: the same calm weather
                 probe += 1
                 time.sleep(0.01)
-        for i in range(RATE_HZ * 100):
+        for first in range(0, RATE_HZ * 100, BATCH):
+            batch = range(first, first + BATCH)
             if with_station:
-                expected = int(robot.health()["reference_samples"]) + 1
-                station.offer(sample(i))
+                expected = int(robot.health()["reference_samples"]) + BATCH
+                for i in batch:
+                    station.offer(sample(i))
                 wait(lambda e=expected: robot.health()["reference_samples"] >= e)
-            tracker.offer(sample(i, offset=-50.0))  # the robot stands a few metres higher
+            for i in batch:
+                tracker.offer(sample(i, offset=-50.0))  # the robot stands a few metres higher
     finally:
         if robot is not None:
             robot.close()
