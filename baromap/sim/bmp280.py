@@ -17,7 +17,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
-from scipy.signal import lfilter
 
 from baromap.arrays import FloatArray
 
@@ -57,6 +56,10 @@ class Bmp280:
         self, pressure_pa: npt.ArrayLike, air_c: npt.ArrayLike
     ) -> tuple[FloatArray, FloatArray]:
         """Readings (Pa, degC) for consecutive samples of the true pressure and air temperature."""
+        # scipy.signal here, not at the top: it pulls in scipy.stats, a second of CPU that every
+        # process importing the twins (the daemon's tests, `baromap sim`) would pay at start.
+        from scipy.signal import lfilter
+
         p = np.atleast_1d(np.asarray(pressure_pa, dtype=np.float64))
         air = np.broadcast_to(np.asarray(air_c, dtype=np.float64), p.shape)
         # The die temperature: first-order lag towards air + self-heating.
