@@ -7,10 +7,12 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.baromap-installed
 TEST_STAMP := $(VENV)/.baromap-test-installed
 PYTEST_ARGS ?=
+# One pytest worker per core; tests sharing a module's fixture stay on one worker.
+XDIST  := -n auto --dist loadgroup
 TAP    := $(BIN)/baromapd-tap
 TAP_CFLAGS := -std=gnu11 -O2 -Wall -Wextra -Werror
 
-.PHONY: demo test lint setup system-deps firmware bench clean tap viewer-client
+.PHONY: demo test check lint setup system-deps firmware bench clean tap viewer-client
 
 demo: $(STAMP) $(TAP)
 	$(BIN)/baromap demo
@@ -20,7 +22,15 @@ test: $(TEST_STAMP) $(TAP) viewer-client
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 	@if command -v avr-gcc >/dev/null 2>&1; then $(MAKE) -C firmware; else echo "firmware: build skipped (avr-gcc not found; install gcc-avr avr-libc arduino-core-avr)"; fi
-	$(BIN)/pytest $(PYTEST_ARGS)
+	$(BIN)/pytest $(XDIST) $(PYTEST_ARGS)
+
+# The inner loop: lint, types and the fast tests (no real processes, ptys, simulators or
+# networks; nothing marked slow). `make test` runs everything.
+check: $(TEST_STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
+	$(BIN)/pytest $(XDIST) -q -m "not slow" $(PYTEST_ARGS)
 
 lint: $(TEST_STAMP)
 	$(BIN)/ruff check .

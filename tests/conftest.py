@@ -1,4 +1,5 @@
-"""Suite-wide fixtures: hardware ports and a guard against leaked threads and fds.
+"""Suite-wide fixtures: hardware ports, a guard against leaked threads and fds, and the split
+between the fast inner loop (``make check``) and the whole suite (``make test``).
 
 The hardware options themselves are declared by the ``pytest_baromap`` plugin (repository root).
 """
@@ -45,6 +46,46 @@ def find_shared_data() -> Path | None:
 
 
 SHARED_DATA = find_shared_data()
+
+
+#: Folders whose tests start real processes, pseudo-terminals, simulators or networks: slow by
+#: nature, so ``make check`` (``-m "not slow"``) leaves them to ``make test``. A test elsewhere
+#: that takes more than a few seconds of CPU carries ``@pytest.mark.slow`` itself.
+INTEGRATION_DIRS = ("daemon", "e2e", "firmware", "hardware", "live", "liveview")
+#: Fixtures of these scopes are made once per worker: their tests stay on one worker
+#: (pytest-xdist's ``--dist loadgroup``), or every worker would make them again.
+SHARED_SCOPES = ("module", "package")
+
+
+def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool | None:
+    """With ``-m "not slow"`` the integration folders are not even imported (their modules
+    load the daemon, the twins and Zenoh: seconds of the inner loop's minute)."""
+    if config.getoption("markexpr") != "not slow":
+        return None
+    tests_dir = Path(__file__).resolve().parent
+    if collection_path.parent == tests_dir and collection_path.name in INTEGRATION_DIRS:
+        return True
+    return None
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    tests_dir = Path(__file__).resolve().parent
+    for item in items:
+        relative = item.path.resolve().relative_to(tests_dir)
+        if len(relative.parts) > 1 and relative.parts[0] in INTEGRATION_DIRS:
+            item.add_marker(pytest.mark.slow)
+        fixture_info = getattr(item, "_fixtureinfo", None)
+        if fixture_info is None:
+            continue
+        scopes = {
+            definition.scope
+            for definitions in fixture_info.name2fixturedefs.values()
+            for definition in definitions
+            if definition.baseid  # the suite's own fixtures, not plugins'
+        }
+        if scopes & set(SHARED_SCOPES):
+            group = relative.parts[0] if len(relative.parts) > 1 else str(relative)
+            item.add_marker(pytest.mark.xdist_group(group))
 
 
 #: Files libraries keep open on purpose for the life of the process (caches, not leaks).
