@@ -22,6 +22,9 @@ from baromap.recording.carmen import parse_lines
 from baromap.recording.carmen_import import to_laser_scan
 from baromap.sim.big_loop import BEAMS, BigLoop, BigLoopConfig, big_loop
 
+#: Seconds to minutes of CPU each: `make test` runs them, `make check` does not.
+pytestmark = pytest.mark.slow
+
 SMALL = BigLoopConfig(side_m=(30.0, 40.0))
 
 

@@ -31,6 +31,7 @@ def _load_bench() -> ModuleType:
 bench = _load_bench()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(bench.CODECS))
 def test_fuzz_pass_raises_nothing_and_chunking_never_matters(name: str) -> None:
     result = bench.fuzz_codec(name, FUZZ_INPUTS, seed=1234, compare_every=1)

@@ -124,6 +124,7 @@ def test_one_lap_has_no_revisit_to_score() -> None:
     assert math.isnan(score.mean_m)
 
 
+@pytest.mark.slow
 def test_revisit_moves_find_the_bend(
     ring: tuple[np.ndarray, ScanGeometry, list[np.ndarray]],
 ) -> None:

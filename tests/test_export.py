@@ -22,6 +22,9 @@ from baromap.recording import LaserMount, RecordingWriter, read_messages, read_m
 from baromap.recording import topics as t
 from baromap.sim.record import record_run
 
+#: Seconds to minutes of CPU each: `make test` runs them, `make check` does not.
+pytestmark = pytest.mark.slow
+
 T0 = 1_763_700_000_000_000_000
 MOUNT = LaserMount(0.12, -0.03, 0.02)
 

@@ -104,6 +104,7 @@ def test_real_logs_online_meets_the_bar_live_and_post_run(shared_data: Path) -> 
             assert result.post_run.accuracy == 1.0  # the control never leaves its floor
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(20))
 def test_twenty_simulated_runs_meet_the_bar(seed: int) -> None:
     """The online method on 20 seeds x 46 min, 1.5 hPa/h drift, spikes, revisits, odometry."""
@@ -117,6 +118,7 @@ def test_twenty_simulated_runs_meet_the_bar(seed: int) -> None:
     assert result.live.agrees, result.live.disagreement
 
 
+@pytest.mark.slow
 def test_live_visits_are_decided_when_the_robot_drives_off() -> None:
     """With odometry a visit is decided as soon as the pressure has settled and the robot has
     driven a metre from where it stood in the car, and never before it did."""
@@ -147,6 +149,7 @@ def test_live_visits_are_decided_when_the_robot_drives_off() -> None:
         assert drove_off - 0.2 <= decided <= max(drove_off, settled + 2.0) + 0.2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 7, 13])
 def test_simulated_runs_with_drift_and_spikes(seed: int) -> None:
     _, s = evaluate(sim_case(seed, SimSettings(drift_hpa_per_h=3.0)), "online")
@@ -155,6 +158,7 @@ def test_simulated_runs_with_drift_and_spikes(seed: int) -> None:
     assert s.height_error_m is not None and s.height_error_m < 0.5
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("stops", "odometry"), [("stay", True), ("stay", False), ("leave", True), ("leave", False)]
 )

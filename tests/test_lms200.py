@@ -152,12 +152,14 @@ def encode(message: L.Ack | L.Nak | L.Telegram | L.ScanTelegram) -> bytes:
     return message.encode()
 
 
+@pytest.mark.slow
 @settings(max_examples=100, deadline=None)
 @given(messages())
 def test_every_message_type_round_trips(message) -> None:
     assert decode(encode(message)) == [message]
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None)
 @given(st.lists(messages(), min_size=1, max_size=8), st.randoms(use_true_random=False))
 def test_any_chunking_gives_identical_output(batch, rnd: random.Random) -> None:

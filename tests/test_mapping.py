@@ -810,6 +810,7 @@ def test_a_draw_moves_odometry_by_under_a_micrometre_and_repeats() -> None:
     assert not np.array_equal(first, perturbed(odom, 4, 1))
 
 
+@pytest.mark.slow
 def test_front_end_holds_on_a_sparse_log(shared_data: Path) -> None:
     """The first 300 scans of the Intel log, every third kept: 100 scans over 179 m, a scan
     every 2.2 m (median; up to 3.1 m) and turns of up to 125 degrees between scans, sparser
@@ -847,6 +848,7 @@ def _robot_behind_the_laser(source: Path, target: Path, mount: tuple[float, floa
                 dst.write(line)
 
 
+@pytest.mark.slow
 def test_a_log_whose_laser_sits_off_the_robot_centre_maps_the_robot(
     shared_data: Path, tmp_path: Path
 ) -> None:
@@ -872,6 +874,7 @@ def test_a_log_whose_laser_sits_off_the_robot_centre_maps_the_robot(
     assert on_mount < max(0.1, 2 * as_read)
 
 
+@pytest.mark.slow
 def test_a_log_of_a_short_range_laser_maps_without_its_no_return_code_as_walls(
     shared_data: Path, tmp_path: Path
 ) -> None:
@@ -901,6 +904,7 @@ def test_a_log_of_a_short_range_laser_maps_without_its_no_return_code_as_walls(
     assert run_prepared(short, 0).slam_ate.rms_m < 1.0
 
 
+@pytest.mark.slow
 def test_a_laser_that_sees_nothing_for_a_while_is_driven_through_on_odometry(
     shared_data: Path, tmp_path: Path
 ) -> None:
@@ -988,6 +992,7 @@ def test_a_log_from_outside_the_data_directory_runs_by_name(
         laser_logs.register_log("with_relations", copy, tmp_path / "missing.relations")
 
 
+@pytest.mark.slow
 def test_loops_close_on_a_sparse_log_after_metres_of_drift(shared_data: Path) -> None:
     """The last half of the Acapulco log, every third scan kept: 137 scans, a scan every 3 m.
     Its revisits score 0.3-0.55 against the few scans around the revisited place (under the
@@ -1004,6 +1009,7 @@ def test_loops_close_on_a_sparse_log_after_metres_of_drift(shared_data: Path) ->
     assert report.slam_ate.rms_m < 0.4
 
 
+@pytest.mark.slow
 def test_front_end_holds_through_turns_of_a_sparse_log(shared_data: Path) -> None:
     """The second half of Freiburg 079, every 30th scan kept: 80 scans, 2-3 m and turns of
     100-170 degrees between scans. Looking back after such a turn, a scan overlaps the
@@ -1042,6 +1048,7 @@ def _check_thinned_log_run(
     assert report.slam_ate.rms_m < ate_below
 
 
+@pytest.mark.slow
 def test_a_sparse_scan_that_fits_along_a_ridge_is_matched_not_left_to_odometry(
     shared_data: Path,
 ) -> None:
@@ -1058,6 +1065,7 @@ def test_a_sparse_scan_that_fits_along_a_ridge_is_matched_not_left_to_odometry(
     )
 
 
+@pytest.mark.slow
 def test_a_closure_beyond_the_drift_model_puts_a_wrong_front_end_turn_right(
     shared_data: Path,
 ) -> None:
@@ -1076,6 +1084,7 @@ def test_a_closure_beyond_the_drift_model_puts_a_wrong_front_end_turn_right(
     assert report.result.stats["loop_beyond_drift"] > 0
 
 
+@pytest.mark.slow
 def test_one_scan_matching_two_submaps_beyond_the_drift_model_confirms_itself(
     shared_data: Path,
 ) -> None:
@@ -1097,6 +1106,7 @@ def test_one_scan_matching_two_submaps_beyond_the_drift_model_confirms_itself(
     )
 
 
+@pytest.mark.slow
 def test_a_closure_beyond_the_drift_model_is_looked_for_again_where_it_puts_the_robot(
     shared_data: Path,
 ) -> None:
@@ -1110,6 +1120,7 @@ def test_a_closure_beyond_the_drift_model_is_looked_for_again_where_it_puts_the_
     )
 
 
+@pytest.mark.slow
 def test_a_front_end_match_odometry_cannot_explain_yields_in_the_last_solve(
     shared_data: Path,
 ) -> None:
@@ -1343,6 +1354,7 @@ def test_edge_scatter_is_the_real_error_over_the_claimed_one() -> None:
     assert graph.scatter("loop") == (0, 1.0)
 
 
+@pytest.mark.slow
 def test_a_log_read_once_scores_every_seed_as_a_log_read_for_each(shared_data: Path) -> None:
     """The bench reads a log and scores the corrected poses' revisits once for all seeds: a
     seed run on the prepared log reports what a run reading the log itself reports, and the
@@ -1368,6 +1380,7 @@ def test_a_log_read_once_scores_every_seed_as_a_log_read_for_each(shared_data: P
     assert first.slam_ate.rms_m != second.slam_ate.rms_m  # two seeds, two runs
 
 
+@pytest.mark.slow
 def test_the_intel_log_cut_just_after_its_first_return_to_the_start_closes_that_loop(
     shared_data: Path,
 ) -> None:

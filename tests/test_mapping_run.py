@@ -21,6 +21,9 @@ from baromap.sim.building import make_building
 from baromap.sim.record import record_run
 from baromap.sim.scenario import SIM_EPOCH_NS
 
+#: Seconds to minutes of CPU each: `make test` runs them, `make check` does not.
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def short_run(tmp_path_factory: pytest.TempPathFactory) -> Path:

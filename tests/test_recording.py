@@ -113,6 +113,7 @@ truth = st.builds(
 json_messages = pressure | odometry | floor_event | floor_state | health | truth
 
 
+@pytest.mark.slow
 @given(json_messages)
 def test_json_round_trip(message: m.Message) -> None:
     assert jsonmsg.loads(type(message), jsonmsg.dumps(message)) == message
@@ -256,6 +257,7 @@ def test_flush_interval_writes_chunks_while_recording(tmp_path: Path) -> None:
         assert not writer.flush_if_due()  # nothing new since the last flush
 
 
+@pytest.mark.slow
 def test_closed_files_leave_no_channels_behind(tmp_path: Path) -> None:
     """A daemon opens a file a minute for days: the plain channels of a closed file (JSON, and
     the scans' protobuf) must go (the foxglove SDK keeps every ``foxglove.Channel`` in a

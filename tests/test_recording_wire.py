@@ -13,6 +13,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 from foxglove.channels import LaserScanChannel
 from foxglove.messages import LaserScan, Pose, Quaternion, Timestamp, Vector3
 from hypothesis import example, given
@@ -84,6 +85,7 @@ def lms_scan(beams: int, t_ns: int, nan_every: int = 7) -> m.LaserScan:
     return m.LaserScan(t_ns, -math.pi / 2, math.pi / max(beams - 1, 1), 8.183, ranges, flags)
 
 
+@pytest.mark.slow
 @given(scans())
 @example(lms_scan(181, 1_764_000_000_123_456_789))
 @example(lms_scan(361, MAX_T_NS))
@@ -94,6 +96,7 @@ def test_scan_bytes_are_the_sdks(scan: m.LaserScan) -> None:
     assert foxglove_wire.LaserScanEncoder(t.LASER_FRAME).encode(scan) == expected
 
 
+@pytest.mark.slow
 @given(st.lists(scans(), min_size=2, max_size=6))
 def test_one_encoder_follows_changing_scans(batch: list[m.LaserScan]) -> None:
     encoder = foxglove_wire.LaserScanEncoder("laser_2")

@@ -17,6 +17,9 @@ from baromap.mapping.restarts import run_slam_best_of
 from baromap.mapping.revisits import ScanGeometry, consistency, revisit_partners
 from baromap.mapping.slam import SlamResult
 
+#: Seconds to minutes of CPU each: `make test` runs them, `make check` does not.
+pytestmark = pytest.mark.slow
+
 
 def _processes() -> int:
     """Processes two workers make runs in now: a process running other threads is not forked

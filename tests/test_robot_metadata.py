@@ -39,6 +39,7 @@ def test_recorded_factors_win_and_bad_records_are_input_errors() -> None:
         model_from_metadata({ROBOT_METADATA: {"model": "p3at", "dist_conv_factor": "x"}})
 
 
+@pytest.mark.slow
 def test_a_recordings_counters_turn_into_its_own_metres_again(tmp_path: Path) -> None:
     path = tmp_path / "run.mcap"
     record_run(path, seed=1, floors=2, minutes=2.0, progress=False)

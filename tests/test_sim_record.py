@@ -25,6 +25,9 @@ from baromap.sim.record import (
 )
 from baromap.sim.scenario import make_scenario, pressure_run
 
+#: Seconds to minutes of CPU each: `make test` runs them, `make check` does not.
+pytestmark = pytest.mark.slow
+
 MINUTES = 4.0
 ROUTE = [1, 2, 0]
 

@@ -140,6 +140,7 @@ def test_lms200_answers_nak_invalid_and_refuses_bad_variants(lms: Lms200Twin) ->
         assert (reply.angle_deg, reply.resolution_cdeg) == (180, 100)
 
 
+@pytest.mark.slow
 def test_lms200_faults_show_up_as_counted_bad_frames(lms: Lms200Twin) -> None:
     decoder = lms200.Decoder()
     with serial.serial_for_url(lms.path, baudrate=9600, timeout=0.05) as port:

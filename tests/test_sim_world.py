@@ -65,6 +65,7 @@ def test_floors_differ_and_the_ground_floor_is_open(building: bld.Building) -> N
     assert np.bincount(upper.ravel())[1:].max() * bld.RASTER_M**2 < biggest
 
 
+@pytest.mark.slow
 def test_building_is_deterministic_per_seed() -> None:
     a = bld.make_building.__wrapped__(3)
     b = bld.make_building.__wrapped__(3)
@@ -78,6 +79,7 @@ def test_building_is_deterministic_per_seed() -> None:
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(8))
 def test_every_nav_edge_keeps_clear_of_walls_and_everything_is_reachable(seed: int) -> None:
     building = bld.make_building(seed)
@@ -255,6 +257,7 @@ def test_pressure_agrees_with_height_and_drift(run) -> None:  # type: ignore[no-
     assert (~doors[still]).mean() > 0.95
 
 
+@pytest.mark.slow
 def test_weather_drift_is_bounded_and_can_exceed_a_storey() -> None:
     exceeded = 0
     for seed in range(6):

@@ -239,6 +239,7 @@ def test_interlaced_scans_come_no_faster_than_the_mirror(tmp_path: Path) -> None
     assert mean_gap > 1.5 / 75
 
 
+@pytest.mark.slow
 def test_a_scheduled_power_cycle_ends_with_the_power_on_telegram(tmp_path: Path) -> None:
     settings = TwinSettings(
         laser_boot_s=0.3, faults=(Fault("lms200", at_s=1.5, kind="power_cycle", duration_s=0.2),)
@@ -297,6 +298,7 @@ def handshake(port: serial.Serial, decoder: p2os.Decoder) -> p2os.Sync2Info:
     return seen[-1]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("subclass", "model"), [("p3at-sh", P3AT_SH), ("p3at", P3AT)])
 def test_each_generation_counts_in_its_own_units(tmp_path: Path, subclass: str, model) -> None:
     settings = TwinSettings(robot_subclass=subclass)
