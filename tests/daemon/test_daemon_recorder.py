@@ -51,11 +51,14 @@ def test_rotation_by_size_loses_and_repeats_nothing(tmp_path: Path) -> None:
 
 def test_rotation_by_duration(tmp_path: Path) -> None:
     rec = _recorder(tmp_path, rotate_minutes=0.5 / 60)
-    rec.start()
-    for sample in _samples(20):
-        rec.offer(sample)
-        time.sleep(0.05)
-    rec.close()
+    with capture_logs() as logged:
+        rec.start()
+        for sample in _samples(20):
+            rec.offer(sample)
+            time.sleep(0.05)
+        rec.close()
+    rotations = [e for e in logged if e["event"] == "rotating recording"]
+    assert rotations and all(e["reason"] == "rotation" for e in rotations)
     assert len(rec.files) >= 2
     got = [r.message.seq for path in rec.files for r in read_messages(path, [topics.BARO])]
     assert got == list(range(20))
@@ -178,6 +181,8 @@ def test_a_writer_failure_of_any_type_is_a_fault_said_once_and_a_new_file_follow
     faults = [e for e in logged if e["event"] == "recorder fault"]
     assert len(faults) == 1, faults
     assert faults[0]["log_level"] == "error" and faults[0]["reason"].startswith("writer error")
+    assert faults[0]["during"] == "write"
+    assert rec.lost == {"PressureSample": 10}  # the one that failed and the nine after it
     assert [e["event"] for e in logged].count("recording resumes") == 1
     assert rec.fatal is None
     assert len(rec.files) == 2
@@ -538,3 +543,31 @@ def test_the_guard_and_the_resumption_at_their_edges(
     assert resumed["after"] == "recorder fault: I/O error: [Errno 5] bad block"
     assert resumed["free_mb"] is None
     rec._close()
+
+
+def test_a_failed_flush_is_a_fault_too(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    def refuse(writer: RecordingWriter) -> bool:
+        raise RecordingWriteError("cannot flush", OSError(5, "bad block"))
+
+    rec = _recorder(tmp_path, flush_interval_s=0.05)
+    rec._open()
+    monkeypatch.setattr(RecordingWriter, "flush_if_due", refuse)
+    with capture_logs() as logged:
+        rec._flush_if_due()
+    (fault,) = [e for e in logged if e["event"] == "recorder fault"]
+    assert fault["during"] == "flush" and fault["reason"] == "I/O error: cannot flush"
+    assert fault["error"] == "RecordingWriteError: cannot flush"
+    assert rec._writer is None and rec.faults == 1
+
+
+def test_latency_is_kept_per_topic_from_the_read(tmp_path: Path) -> None:
+    rec = _recorder(tmp_path)
+    rec.start()
+    sample = _samples(1)[0]
+    rec.offer_received(sample, time.monotonic_ns() - 5_000_000)  # read 5 ms ago
+    rec.offer_received(sample, time.monotonic_ns() - 5_000_000)
+    rec.close()
+    hist = rec.latency[topics.BARO]
+    assert hist.count == 2 and list(rec.latency) == [topics.BARO]
+    assert 5_000_000 <= hist.max_ns < 60_000_000_000
+    assert rec.health(0).counters[f"latency_p50_us{topics.BARO}"] >= 5_000
