@@ -571,3 +571,26 @@ def test_latency_is_kept_per_topic_from_the_read(tmp_path: Path) -> None:
     assert hist.count == 2 and list(rec.latency) == [topics.BARO]
     assert 5_000_000 <= hist.max_ns < 60_000_000_000
     assert rec.health(0).counters[f"latency_p50_us{topics.BARO}"] >= 5_000
+
+
+def test_the_syncer_fsyncs_what_it_is_asked_on_its_own_daemon_thread(tmp_path: Path) -> None:
+    from baromapd.recorder import Syncer
+
+    present = tmp_path / "a.mcap"
+    present.write_bytes(b"x")
+    with capture_logs() as logged:
+        syncer = Syncer()
+        assert (syncer._thread.name, syncer._thread.daemon) == ("baromapd-fsync", True)
+        assert (syncer.syncs, syncer.errors) == (0, 0)
+        syncer.request(present)
+        _wait(lambda: syncer.syncs == 1)
+        syncer.request(tmp_path / "moved-away.mcap")
+        _wait(lambda: syncer.errors == 1)
+        syncer.close(2.0)
+    assert not syncer._thread.is_alive()
+    assert (syncer.syncs, syncer.errors) == (1, 1)
+    (warning,) = [e for e in logged if e["event"] == "fsync failed"]
+    assert (
+        warning["path"] == str(tmp_path / "moved-away.mcap") and "No such file" in warning["error"]
+    )
+    assert warning["log_level"] == "warning"
