@@ -594,3 +594,37 @@ def test_the_syncer_fsyncs_what_it_is_asked_on_its_own_daemon_thread(tmp_path: P
         warning["path"] == str(tmp_path / "moved-away.mcap") and "No such file" in warning["error"]
     )
     assert warning["log_level"] == "warning"
+
+
+def test_closing_a_file_that_fails_is_a_fault_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def refuse(writer: RecordingWriter) -> None:
+        raise RecordingWriteError("cannot close", OSError(28, "No space left on device"))
+
+    rec = _recorder(tmp_path)
+    rec._open()
+    monkeypatch.setattr(RecordingWriter, "close", refuse)
+    with capture_logs() as logged:
+        rec._close()  # a close that fails while all was well: the fault, said
+        rec._open()
+        rec._close()  # and again while in that fault: only noted
+    (fault,) = [e for e in logged if e["event"] == "recorder fault"]
+    assert fault["during"] == "close" and fault["reason"] == "disk full: cannot close"
+    (noted,) = [e for e in logged if e["event"] == "faulted recording left unfinished"]
+    assert noted == {
+        "event": "faulted recording left unfinished",
+        "log_level": "debug",
+        "path": str(rec.files[-1]),
+    }
+
+
+def test_an_unreadable_file_is_said_and_the_others_still_looked_at(tmp_path: Path) -> None:
+    locked = tmp_path / "a_000.mcap"
+    locked.mkdir()  # a directory by a recording's name: opening it fails
+    _cut_file(tmp_path / "b_000.mcap")
+    with capture_logs() as logged:
+        assert recorder_module.cut_recordings(tmp_path) == [tmp_path / "b_000.mcap"]
+    (said,) = logged
+    assert said["event"] == "recording not readable" and said["path"] == str(locked)
+    assert "Is a directory" in said["error"] and said["log_level"] == "warning"
