@@ -228,6 +228,39 @@ def _needs_root_and(*programs: str) -> None:
             pytest.skip(f"{program} not installed (scripts/system-deps.sh installs it as root)")
 
 
+def _fill(rig: Rig, tmp_path: Path, daemons: list[Baromapd], disk: Path) -> tuple[Baromapd, Path]:
+    """A daemon recording onto ``disk`` (``min_free_mb = 0``: no guard) with all but 400 kB
+    taken by a filler file, once its writer has failed: (the daemon, the filler)."""
+    filler = disk / "filler"
+    free = shutil.disk_usage(disk).free
+    filler.write_bytes(b"\0" * (free - 400_000))  # the rest fills in seconds
+    daemon = Baromapd(rig, tmp_path, "full", disk, recording='compression = "none"')
+    daemons.append(daemon)
+    daemon.wait("a recorder fault", lambda: bool(_faults(daemon)), 30)
+    daemon.wait("the fault in STATUS=", lambda: "recorder down" in daemon.status(), 5)
+    assert "disk full" in daemon.status()
+    return daemon, filler
+
+
+def _faults(daemon: Baromapd) -> list[dict[str, object]]:
+    return [line for line in daemon.logged() if line.get("event") == "recorder fault"]
+
+
+def _every_file_opens(disk: Path, tmp_path: Path) -> list[Path]:
+    """Every recording on ``disk`` opens in the official reader, directly or after
+    ``baromap recover`` (written off the full disk); the cut ones."""
+    files = sorted(disk.glob("*.mcap"))
+    cut = [path for path in files if is_cut(path)]
+    for path in files:
+        if path in cut:
+            fixed = tmp_path / ("fixed-" + path.name)
+            _recover(path, fixed)
+            assert _official(fixed) > 0, path
+        else:
+            assert _official(path) > 0, path
+    return cut
+
+
 def test_a_disk_that_fills(rig: Rig, tmp_path: Path, daemons: list[Baromapd]) -> None:
     """A 3 MB tmpfs, ``min_free_mb = 0`` (no guard): the writer's failure is a recorder fault,
     named in the log (once) and in systemd's status; devices go on; recording resumes in a new
@@ -235,22 +268,11 @@ def test_a_disk_that_fills(rig: Rig, tmp_path: Path, daemons: list[Baromapd]) ->
     directly or after ``baromap recover``."""
     _needs_root_and("mount", "umount")
     with _tmpfs(tmp_path / "disk", "3m") as disk:
-        filler = disk / "filler"
-        free = shutil.disk_usage(disk).free
-        filler.write_bytes(b"\0" * (free - 400_000))  # the rest fills in seconds
-        daemon = Baromapd(rig, tmp_path, "full", disk, recording='compression = "none"')
-        daemons.append(daemon)
-
-        def faults() -> list[dict[str, object]]:
-            return [line for line in daemon.logged() if line.get("event") == "recorder fault"]
-
-        daemon.wait("a recorder fault", lambda: bool(faults()), 30)
-        daemon.wait("the fault in STATUS=", lambda: "recorder down" in daemon.status(), 5)
-        assert "disk full" in daemon.status()
+        daemon, filler = _fill(rig, tmp_path, daemons, disk)
         time.sleep(1.5)  # the fault goes on: said once, the daemon and its devices live on
         assert daemon.proc.poll() is None
         assert "laser up" in daemon.status() and "barometer up" in daemon.status()
-        (fault,) = faults()
+        (fault,) = _faults(daemon)
         assert str(fault["reason"]).startswith("disk full")
         filler.unlink()
         daemon.wait(
@@ -263,13 +285,27 @@ def test_a_disk_that_fills(rig: Rig, tmp_path: Path, daemons: list[Baromapd]) ->
         assert code == 0 and took < 10.0, (code, took)
         files = sorted(disk.glob("*.mcap"))
         assert len(files) == 2
-        whole = [path for path in files if not is_cut(path)]
-        cut = [path for path in files if is_cut(path)]
-        assert len(whole) == 1 and _official(whole[0]) > 0  # the file after the space came back
-        for path in cut:  # the file the disk filled under
-            fixed = tmp_path / ("fixed-" + path.name)
-            _recover(path, fixed)
-            assert _official(fixed) > 0
+        cut = _every_file_opens(disk, tmp_path)
+        # The file the disk filled under is cut; the one after the space came back is whole.
+        assert len(cut) == 1, (cut, files)
+
+
+def test_sigterm_while_the_disk_is_full(rig: Rig, tmp_path: Path, daemons: list[Baromapd]) -> None:
+    """The same disk, never freed: SIGTERM ends the daemon within 10 s with the disk still
+    full, a clean stop (a full disk is not a fault restarting fixes); the log names the full
+    disk; the file it filled opens in the official reader after ``baromap recover``."""
+    _needs_root_and("mount", "umount")
+    with _tmpfs(tmp_path / "disk", "3m") as disk:
+        daemon, _ = _fill(rig, tmp_path, daemons, disk)
+        time.sleep(1.0)  # devices go on streaming into a recorder that cannot write
+        assert shutil.disk_usage(disk).free < 64 * 1024, "the disk is still full"
+        code, took = daemon.stop()
+        assert code == 0 and took < 10.0, (code, took, daemon.tail())
+        (fault,) = _faults(daemon)
+        assert str(fault["reason"]).startswith("disk full"), fault
+        assert any(line.get("event") == "baromapd stopped" for line in daemon.logged())
+        assert len(list(disk.glob("*.mcap"))) == 1
+        assert len(_every_file_opens(disk, tmp_path)) == 1, "the file the disk filled is cut"
 
 
 def test_sigterm_ends_the_daemon_while_its_disk_hangs(
