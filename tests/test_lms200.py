@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 
@@ -87,6 +88,21 @@ def test_table_crc_every_length() -> None:
     for n in range(L.MAX_TELEGRAM_BYTES + 1):
         data = rng.randbytes(n)
         assert L.crc16(data) == L.crc16_bitwise(data), n
+
+
+def test_crc_table_rows_are_each_bytes_contribution() -> None:
+    """The table :func:`L.crc16` reads is built once at import; built again here (any number
+    of rows), XOR of its entries for each byte at its distance from the end is SICK's CRC."""
+    rows = 40
+    table = L._crc_table(rows)
+    assert table.shape == (rows, 256) and table.dtype == np.uint16
+    rng = random.Random(11)
+    for n in range(rows + 1):
+        data = rng.randbytes(n)
+        crc = 0
+        for j, byte in enumerate(data):
+            crc ^= int(table[n - 1 - j][byte])
+        assert crc == L.crc16_bitwise(data), n
 
 
 # -- round trips -------------------------------------------------------------------------------
@@ -211,12 +227,122 @@ def test_config_status_variant_type_replies_round_trip() -> None:
     assert L.set_config(config)[5:-2] == config.pack()
 
 
+def test_status_reply_fields_sit_at_sicktoolboxs_offsets() -> None:
+    """Every field a B1 reply carries, each a value no other field has, at its data offset."""
+    report = L.StatusReport(
+        software_version="V03.21X",
+        operating_mode=0x24,
+        device_status=3,
+        variant=4,
+        measuring_mode=5,
+        angle_deg=100,
+        resolution_cdeg=25,
+        address=6,
+        units=0,
+        laser_on=7,
+        prom_version="P1",
+    )
+    (telegram,) = decode(L.status_reply(report, status=0x11))
+    assert telegram.status == 0x11 and len(telegram.data) == L.STATUS_FULL_BYTES
+    data = telegram.data
+    assert data[0:7] == b"V03.21X" and data[123:130] == b"P1     "
+    assert (data[7], data[8], data[17], data[101]) == (0x24, 3, 4, 5)
+    assert data[106:110] == bytes((100, 0, 25, 0))
+    assert (data[119], data[121], data[122]) == (6, 0, 7)
+    assert sum(data) == sum(b"V03.21XP1     ") + 0x24 + 3 + 4 + 5 + 100 + 25 + 6 + 7
+    assert L.parse_status_reply(telegram) == dataclasses.replace(report, prom_version="P1     ")
+    # the shortest reply that holds every field; a longer version string is cut to 7
+    shortest = L.status_reply(dataclasses.replace(report, software_version="V03.21XYZ"), size=130)
+    (telegram,) = decode(shortest)
+    parsed = L.parse_status_reply(telegram)
+    assert len(telegram.data) == 130 and parsed is not None
+    assert parsed.software_version == "V03.21X"
+    with pytest.raises(EncodeError, match="130"):
+        L.status_reply(report, size=129)
+    cut = L.Telegram(L.SENSOR_ADDRESS, L.Reply.STATUS, telegram.data[:129], 0x10)
+    assert L.parse_status_reply(cut) is None
+    # bytes that are no ASCII read as replacement characters, never as an error
+    garbled = L.Telegram(L.SENSOR_ADDRESS, L.Reply.STATUS, b"\xff" * 130, 0x10)
+    parsed = L.parse_status_reply(garbled)
+    assert parsed is not None and parsed.software_version == "\ufffd" * 7
+    assert parsed.prom_version == "\ufffd" * 7
+
+
 def test_reply_parsers_refuse_other_or_short_telegrams() -> None:
     short = L.Telegram(L.SENSOR_ADDRESS, L.Reply.STATUS, b"\x00" * 10, 0x10)
     assert L.parse_status_reply(short) is None
     assert L.parse_variant_reply(short) is None
     assert L.mode_result(short) is None
     assert L.LmsConfig.unpack(b"\x00" * 33) is None
+
+
+def test_host_commands_are_the_listed_bytes() -> None:
+    """Each command builder is its command byte and arguments (LEN, CRC: the vectors above)."""
+    assert L.reset() == L.encode_telegram(0x10)
+    assert L.type_request() == L.encode_telegram(0x3A)
+    assert L.config_request() == L.encode_telegram(0x74)
+    assert L.start_mean(2) == L.encode_telegram(0x20, b"\x26\x02")
+    assert L.start_mean(250) == L.encode_telegram(0x20, b"\x26\xfa")
+    assert L.start_subrange(1, 181) == L.encode_telegram(0x20, b"\x27\x01\x00\xb5\x00")
+    assert L.start_subrange(7, 7) == L.encode_telegram(0x20, b"\x27\x07\x00\x07\x00")
+    assert L.start_subrange(1, 1023) == L.encode_telegram(0x20, b"\x27\x01\x00\xff\x03")
+    assert L.start_mean_subrange(2, 11, 300) == L.encode_telegram(0x20, b"\x28\x02\x0b\x00\x2c\x01")
+    assert L.start_mean_subrange(250, 1, 1) == L.encode_telegram(0x20, b"\x28\xfa\x01\x00\x01\x00")
+
+
+@pytest.mark.parametrize(
+    ("call", "args"),
+    [
+        (L.start_mean, (1,)),
+        (L.start_mean, (251,)),
+        (L.start_subrange, (0, 10)),
+        (L.start_subrange, (11, 10)),
+        (L.start_subrange, (1, 1024)),
+        (L.start_mean_subrange, (1, 1, 10)),
+        (L.start_mean_subrange, (251, 1, 10)),
+        (L.start_mean_subrange, (5, 0, 10)),
+        (L.start_mean_subrange, (5, 11, 10)),
+        (L.start_mean_subrange, (5, 1, 1024)),
+    ],
+)
+def test_mean_and_subrange_modes_refuse_what_the_sensor_cannot_do(call, args) -> None:
+    with pytest.raises(EncodeError):
+        call(*args)
+
+
+def test_reset_and_power_on_replies_decode() -> None:
+    stream = L.reset_reply() + L.power_on_telegram("LMS ready", status=0x11) + L.reset_reply(0x12)
+    assert decode(stream) == [
+        L.Telegram(L.SENSOR_ADDRESS, 0x91, b"", 0x10),
+        L.Telegram(L.SENSOR_ADDRESS, 0x90, b"LMS ready", 0x11),
+        L.Telegram(L.SENSOR_ADDRESS, 0x91, b"", 0x12),
+    ]
+    assert L.power_on_telegram("x") == L.encode_reply(0x90, b"x", 0x10)
+
+
+def test_a_short_configuration_block_updates_the_leading_fields() -> None:
+    """ARIA's 32-byte 77 block sets the fields it holds; the last one (two bytes) keeps its
+    value."""
+    current = L.LmsConfig(blanking=1, fields_bc_restart_times=9, dazzle_evaluation=7)
+    wanted = L.LmsConfig(
+        blanking=300,
+        units=0,
+        contours=tuple(range(15)),
+        fields_bc_restart_times=4,
+        dazzle_evaluation=5,
+    )
+    block = wanted.pack()
+    assert current.updated(block) == wanted
+    merged = current.updated(block[: L.MIN_CONFIG_BLOCK])
+    assert merged == dataclasses.replace(wanted, dazzle_evaluation=7)
+    assert current.updated(block[: L.MIN_CONFIG_BLOCK - 1]) is None
+    assert current.updated(block + b"\x00") is None
+
+
+def test_range_bits_per_measuring_mode() -> None:
+    assert [L.range_bits(mode) for mode in L.MeasuringMode] == [13, 13, 13, 14, 14, 15, 15, 16]
+    with pytest.raises(ConfigError, match="0x07"):
+        L.range_bits(0x07)
 
 
 @pytest.mark.parametrize(
@@ -379,6 +505,33 @@ def test_partial_scans_start_a_quarter_degree_further_per_index(index: int) -> N
     assert math.isclose(laser.angle_increment_rad, math.radians(1.0))
 
 
+def test_scan_encoder_defaults_and_header_fields() -> None:
+    """A B0 in mm, whole, with nothing after the values, unless told; a sample size makes a
+    B6, a subrange a B7, both a BF, each header field read back."""
+    (plain,) = decode(L.encode_scan([1, 2, 3]))
+    assert plain.reply == L.Reply.SCAN and plain.count_word == 3 | 1 << 14
+    assert plain.extra == b"" and plain.sample_size is None and plain.subrange is None
+    assert len(L.encode_scan([1, 2, 3])) == 4 + 1 + 2 + 6 + 1 + 2
+    cases = [
+        ({"sample_size": 5}, L.Reply.MEAN_SCAN, 5, None),
+        ({"subrange": (2, 4)}, L.Reply.SUBRANGE_SCAN, None, (2, 4)),
+        ({"sample_size": 7, "subrange": (3, 5)}, L.Reply.MEAN_SUBRANGE_SCAN, 7, (3, 5)),
+    ]
+    for header, reply, sample_size, subrange in cases:
+        (scan,) = decode(L.encode_scan([1, 2, 3], extra=b"\x09\x00", **header))
+        assert (scan.reply, scan.sample_size, scan.subrange) == (reply, sample_size, subrange)
+        assert scan.extra == b"\x09\x00" and scan.values.tolist() == [1, 2, 3]
+
+
+def test_laser_scans_carry_the_scan_index_and_the_range_of_the_mode() -> None:
+    (scan,) = decode(L.encode_scan(np.full(181, 100), extra=b"\x05\x01"))
+    laser = scan.to_laser_scan(0, bits=15)
+    assert laser.scan_index == 0x105 and laser.range_max_m == pytest.approx(32.76)
+    (single,) = decode(L.encode_scan([100]))  # one beam: its field is its step
+    step = single.to_laser_scan(0, field_deg=10.0).angle_increment_rad
+    assert math.isclose(step, math.radians(10.0))
+
+
 def test_unknown_beam_count_needs_the_configured_field() -> None:
     (scan,) = decode(L.encode_scan(np.full(180, 100), units="cm"))
     with pytest.raises(ConfigError):
@@ -409,6 +562,13 @@ def test_error_codes_and_raw_bits_become_flags() -> None:
 
 def test_status_byte_decoding() -> None:
     assert L.decode_status(0x10).healthy
+    assert L.decode_status(0x14) == L.SensorStatus(0x14, L.Severity.FATAL, False, False)
+    # bits 3-5 are no flags, bits 0-2 the severity only
+    assert L.decode_status(0x3B) == L.SensorStatus(0x3B, L.Severity.ERROR, False, False)
+    assert L.decode_status(0x45) == L.SensorStatus(0x45, None, True, False)
+    assert L.decode_status(0x86) == L.SensorStatus(0x86, None, False, True)
+    (scan,) = decode(L.encode_scan(np.full(181, 100), status=0xC3))
+    assert scan.sensor_status() == L.decode_status(0xC3)
     s = L.decode_status(0xC3)
     assert s.code is L.Severity.ERROR and s.implausible and s.pollution and not s.healthy
     assert L.decode_status(0x07).code is None
@@ -437,6 +597,26 @@ def test_range_words_carry_explicit_flags() -> None:
     flags = [int(BeamFlag.DAZZLE), int(BeamFlag.RAW_BIT14), 0]
     words = L.range_words([1.0, 2.0, 3.0], flags, units="mm")
     assert list(words) == [0x1FFE, 2000 | 0x4000, 3000]
+    assert words.dtype == np.uint16 and not words.flags.writeable
+
+
+def test_range_words_of_wider_range_fields() -> None:
+    """With 15 range bits (the 32 m modes) the error codes sit at the top of the wider field
+    and one raw flag bit fits above it; with 16 none does."""
+    nan = math.nan
+    assert list(L.range_words([nan, 40.0, 10.0, -1.0], bits=15)) == [0x7FFF, 0x7FF7, 10000, 0x7FFF]
+    assert list(L.range_words([1.0], [int(BeamFlag.DAZZLE)], bits=15)) == [0x7FFE]
+    raw = int(BeamFlag.RAW_BIT13 | BeamFlag.RAW_BIT14 | BeamFlag.RAW_BIT15)
+    expected = {13: 1000 | 0xE000, 14: 1000 | 0xC000, 15: 1000 | 0x8000, 16: 1000}
+    for bits, word in expected.items():
+        assert list(L.range_words([1.0], [raw], bits=bits)) == [word], bits
+    assert list(L.range_words([1.0], [int(BeamFlag.RAW_BIT13)])) == [1000 | 0x2000]
+    with pytest.raises(EncodeError):
+        L.range_words([1.0], bits=12)
+    with pytest.raises(EncodeError):
+        L.range_words([[1.0]])
+    with pytest.raises(EncodeError):
+        L.range_words([1.0, 2.0], [0])
 
 
 # -- real data -------------------------------------------------------------------------------
