@@ -70,6 +70,55 @@ def test_checksum_worked_example() -> None:
     assert P.checksum(b"\xff\xff\xff\xff\x07") == (0xFFFE ^ 0x07)
 
 
+def _word_sum(data: bytes) -> int:
+    """The checksum as protocols.md words it: big-endian words summed, an odd byte XORed."""
+    total = 0
+    for i in range(0, len(data) - 1, 2):
+        total = (total + (data[i] << 8 | data[i + 1])) & 0xFFFF
+    return total ^ data[-1] if len(data) % 2 else total
+
+
+def test_checksum_of_every_length_and_of_longer_data_than_a_packet_holds() -> None:
+    rng = random.Random(3)
+    for n in [*range(P.MAX_COUNT + 4), 300, 301, 1000]:
+        data = rng.randbytes(n)
+        assert P.checksum(data) == _word_sum(data), n
+
+
+def test_encoders_take_the_extremes_the_wire_can_carry() -> None:
+    longest = P.encode_packet(b"\x90" * P.MAX_DATA)
+    assert len(longest) == 3 + P.MAX_COUNT
+    assert decode(longest) == [P.RobotPacket(0x90, b"\x90" * (P.MAX_DATA - 1))]
+    assert decode(P.encode_command(0xFF), "host") == [P.CommandPacket(0xFF)]
+    assert P.encode_command(11, 0)[3:7] == b"\x0b\x3b\x00\x00"
+    assert P.encode_command(11, -1)[3:7] == b"\x0b\x1b\x01\x00"
+    extremes = [P.encode_command(11, v) for v in (P.INT_ARG_MAX, P.INT_ARG_MIN)]
+    assert decode(b"".join(extremes), "host") == [
+        P.CommandPacket(11, 0x7FFF),
+        P.CommandPacket(11, -0x8000),
+    ]
+    text = b"t" * (P.MAX_DATA - 3)
+    assert decode(P.encode_command(28, text), "host") == [P.CommandPacket(28, text)]
+    with pytest.raises(EncodeError, match="196 bytes is too long"):
+        P.encode_command(28, text + b"t")
+    with pytest.raises(EncodeError, match="32768 is not a 2-byte short"):
+        P.encode_command(11, 0x8000)
+
+
+def test_a_sip_with_fewer_sonar_readings_than_its_count_is_a_format_error() -> None:
+    body = bytearray(SIP.encode()[3:-2])  # two readings
+    body[19] = 3
+    (bad,) = decode(P.encode_packet(bytes(body)))
+    assert isinstance(bad, BadFrame) and bad.reason == "format"
+
+
+def test_a_config_packet_keeps_its_trailing_bytes() -> None:
+    values = {name: (name if kind == "s" else 1) for name, kind in P.CONFIG_FIELDS[:4]}
+    raw = P.encode_config(values, b"\xfe")
+    (config,) = decode(raw)
+    assert config.extra == b"\xfe" and config.encode() == raw
+
+
 def test_other_commands() -> None:
     assert decode(
         P.stop() + P.reset_odometry() + P.config_request() + P.host_baud(38400), "host"
