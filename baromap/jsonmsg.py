@@ -41,6 +41,7 @@ JSON_TYPES: dict[str, type] = {
         messages.PressureSample,
         messages.Odometry,
         messages.FloorEvent,
+        messages.RideEvent,
         messages.FloorState,
         messages.DeviceHealth,
         messages.TruthPose,

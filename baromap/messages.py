@@ -191,6 +191,9 @@ class FloorEventKind(enum.StrEnum):
     #: A revised version of the transition named by ``replaces`` (a trip that went on past a
     #: landing, a floor found to be one already known): it stands in that event's place.
     CORRECTION = "correction"
+    #: The transition named by ``replaces`` did not happen (the car went on and brought the
+    #: robot back to the floor it left, without the robot leaving it): it is withdrawn.
+    RETRACTION = "retraction"
 
 
 @dataclass(frozen=True, slots=True)
@@ -212,11 +215,16 @@ class FloorEvent:
 
     ``t_start_ns`` .. ``t_end_ns`` bound the pressure change (the whole trip, landings and
     stops in the car included; ``t_end_ns`` is when the pressure came to rest at the new
-    level); ``t_ns`` is when the detector decided, never before ``t_end_ns``: the robot
-    counts as visiting a floor once it drove off (odometry) or stayed long enough there.
-    ``delta_pa``/``delta_m`` are the measured step, ``level_pa`` the pressure of the new
-    floor at ``t_ns`` (reference-station correction undone). ``at_end`` says the input ended
-    before the decision could be taken on a settled, confirmed stop.
+    level); ``t_ns`` is when the detector decided, never before ``t_end_ns``: at the car's
+    stop when the robot rode in it (odometry), else once the robot drove off or stayed long
+    enough there. ``delta_pa``/``delta_m`` are the measured step, ``level_pa`` the pressure
+    of the new floor at ``t_ns`` (reference-station correction undone). ``at_end`` says the
+    input ended before the decision could be taken on a settled, confirmed stop.
+    ``estimated_name`` says ``to_name`` was counted in storeys from a named floor (no
+    building model placed it): a name a person could give otherwise, though never changed.
+
+    A ``RETRACTION`` repeats the withdrawn transition's fields (its own ``event_id``,
+    ``t_ns`` and ``replaces``): applying it removes that transition from the account.
     """
 
     t_ns: int
@@ -234,6 +242,7 @@ class FloorEvent:
     delta_m: float
     level_pa: float
     at_end: bool = False
+    estimated_name: bool = False
 
 
 class FloorPhase(enum.StrEnum):
@@ -274,6 +283,52 @@ class FloorState:
     floors_known: int
     stop_floor_id: int | None = None
     stop_name: str | None = None
+
+
+class RideEventKind(enum.StrEnum):
+    """Where a ride stands: announced, ended at a decided floor, or withdrawn."""
+
+    #: The car (or the walker) began to move vertically away from ``from_id``.
+    STARTED = "ride_started"
+    #: The ride ended at ``to_id``: the floor event ``floor_event_id`` decided it.
+    ENDED = "ride_ended"
+    #: The announced ride was none (``reason`` says why): a transient, a ramp, a spike.
+    RETRACTED = "ride_retracted"
+
+
+class RideDirection(enum.StrEnum):
+    UP = "up"
+    DOWN = "down"
+
+
+@dataclass(frozen=True, slots=True)
+class RideEvent:
+    """A ride announced as it starts, so a consumer can act before the floor is decided.
+
+    ``ride_id`` numbers rides within a run (1, 2, ...); every event of one ride carries it.
+    A ride is announced once (``STARTED``: ``direction``, the floor it left) and then either
+    ends (``ENDED``: ``to_id``/``to_name`` of the floor decided, and ``floor_event_id``, the
+    :class:`FloorEvent` that decided it, a transition or a correction) or is withdrawn
+    (``RETRACTED``, with a ``reason``). A ride that turns the other way before it ends is
+    withdrawn and announced again. Consumers that want only final floors ignore rides: the
+    floor events alone are the account of the run.
+
+    ``t_start_ns`` is when the vertical motion began (the last calm moment before it);
+    ``t_ns`` when the event was published. ``estimated_name`` is as in :class:`FloorEvent`.
+    """
+
+    t_ns: int
+    ride_id: int
+    kind: RideEventKind
+    direction: RideDirection
+    t_start_ns: int
+    from_id: int
+    from_name: str
+    to_id: int | None = None
+    to_name: str | None = None
+    floor_event_id: int | None = None
+    estimated_name: bool = False
+    reason: str = ""
 
 
 class DeviceState(enum.StrEnum):
@@ -321,6 +376,7 @@ Message = (
     | LaserScan
     | Odometry
     | FloorEvent
+    | RideEvent
     | FloorState
     | DeviceHealth
     | TruthPose

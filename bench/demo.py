@@ -80,13 +80,14 @@ def measure(mission: Mission, work: Path, scale_detector: bool) -> dict[str, flo
         err = np.abs(_stamp_errors_ms(stamps, true_unix)) * mission.speed
         figures[f"{device}_err_p50_ms"] = float(np.percentile(err, 50))
         figures[f"{device}_err_p99_ms"] = float(np.percentile(err, 99))
-    events = apply_corrections(
+    published = [
         r.message
         for r in read_messages(recording, [topics.FLOOR_EVENT])
         if isinstance(r.message, FloorEvent)
-    )
+    ]
+    events = apply_corrections(published)
     post = build.segmentation.detection
-    live_score = score(live_detection(events, post), floor_truth)
+    live_score = score(live_detection(published, post), floor_truth)
     post_score = score(post, floor_truth)
     assert floor_truth.heights_m is not None
     heights = floor_truth.heights_m

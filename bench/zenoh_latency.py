@@ -102,6 +102,8 @@ def decisions(samples: list[PressureSample], ends: np.ndarray) -> tuple[list[int
     indices, settle = [], []
     for i, s in enumerate(samples):
         for event in detector.update(s):
+            if not isinstance(event, FloorEvent):
+                continue  # rides go out too, but the latency is the floor decisions'
             indices.append(i)
             before = ends[ends <= event.t_ns]
             if before.size:
@@ -174,7 +176,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             live = set()
             for i in deciding:
                 live.update(range(i - REAL_BEFORE, i + REAL_AFTER))
-            tracker = FloorTracker(FloorDetectorConfig(), offer_stamped)
+            tracker = FloorTracker(FloorDetectorConfig())
             next_at = time.monotonic()
             for i, sample in enumerate(samples):
                 next_at += 1.0 / RATE_HZ if i in live else 1.0 / FAST_RATE
@@ -183,11 +185,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                     time.sleep(pause)
                 if i in live:
                     offered_at[sample.t_ns] = time.monotonic_ns()
-                    tracker.offer(sample)
+                    for made in tracker.process(sample):
+                        offer_stamped(made)
                     publisher.offer(sample)
                 else:
-                    tracker.offer(sample)
-            tracker.close()
+                    for made in tracker.process(sample):
+                        offer_stamped(made)
+            for made in tracker.finish():
+                offer_stamped(made)
         time.sleep(1.0)
     finally:
         subscriber.stdin.write("\n")

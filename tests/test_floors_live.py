@@ -22,7 +22,15 @@ from baromap.floors import (
 )
 from baromap.floors.building_model import BuildingModel, ModelFloor
 from baromap.floors.replay import replay
-from baromap.messages import NS_PER_S, FloorEvent, FloorEventKind, FloorPhase, Odometry
+from baromap.messages import (
+    NS_PER_S,
+    FloorEvent,
+    FloorEventKind,
+    FloorPhase,
+    Odometry,
+    RideDirection,
+    RideEventKind,
+)
 from baromap.messages import PressureSample as Sample
 
 STOREY_M = 3.2
@@ -125,10 +133,19 @@ def intermediate_stop(stop_s: float, drive_m: float) -> Trace:
 def test_a_5_s_stop_in_the_car_is_part_of_the_ride(odometry: bool) -> None:
     tr = intermediate_stop(5.0, drive_m=0.0)
     detector = live(tr, odometry=odometry)
-    (event,) = detector.events
+    (event,) = detector.transitions
     assert (event.from_id, event.to_id) == (0, 1)
     assert event.delta_m == pytest.approx(2 * STOREY_M, abs=0.15)
     assert secs(event.t_start_ns) < 60.5  # the trip began with the first leg
+    kinds = [e.kind for e in detector.events]
+    if odometry:
+        # decided as the car stopped at the passing floor, corrected when it went on
+        assert kinds == [FloorEventKind.TRANSITION, FloorEventKind.CORRECTION]
+        halt, _ = tr.stays_s[1]
+        assert secs(detector.events[0].t_ns) - halt < 2.0
+        assert detector.registry.known == 2  # the passing floor was no floor of the run
+    else:
+        assert kinds == [FloorEventKind.TRANSITION]
 
 
 def test_a_5_s_stop_where_the_robot_drives_off_is_a_visit() -> None:
@@ -144,13 +161,16 @@ def test_a_5_s_stop_where_the_robot_drives_off_is_a_visit() -> None:
 
 def test_a_long_stop_without_moving_stays_in_the_car_with_odometry() -> None:
     tr = intermediate_stop(40.0, drive_m=0.0)
-    assert moves(live(tr).events) == [(0, 1)]
+    detector = live(tr)
+    assert moves(detector.transitions) == [(0, 1)]
+    assert detector.transitions[0].delta_m == pytest.approx(2 * STOREY_M, abs=0.15)
     # Without odometry, 40 s at a storey is a visit.
     assert moves(live(tr, odometry=False).events) == [(0, 1), (1, 2)]
 
 
 def test_while_stopped_the_state_says_so() -> None:
-    # Floor 1 is known from a first visit; on the way up again the car stops there.
+    # Floor 1 is known from a first visit; on the way up again the car stops there. Without
+    # odometry nothing says the robot stays in: the stop is not yet a visit.
     tr = trace(
         [
             Stay(0.0, 60),
@@ -162,13 +182,8 @@ def test_while_stopped_the_state_says_so() -> None:
     )
     stop_start = tr.stays_s[3][0]
     detector = OnlineFloorDetector()
-    odo_t, odo_x, odo_y = tr.odometry
-    o = 0
     seen = None
     for ti, pi in zip(tr.t_ns.tolist(), tr.pressure_pa.tolist(), strict=True):
-        while o < odo_t.size and odo_t[o] <= ti:
-            detector.update_odometry(Odometry(int(odo_t[o]), float(odo_x[o]), float(odo_y[o]), 0))
-            o += 1
         detector.update(Sample(ti, pi, 15.0))
         if seen is None and secs(ti) > stop_start + 4.0:
             seen = detector.state()
@@ -176,6 +191,40 @@ def test_while_stopped_the_state_says_so() -> None:
     assert (seen.floor_id, seen.name) == (0, "0")  # still where the ride began
     assert (seen.stop_floor_id, seen.stop_name) == (1, "1")
     assert seen.level_m == pytest.approx(STOREY_M, abs=0.15)
+    assert moves(detector.transitions) == [(0, 1), (1, 0), (0, 2)]
+
+
+def test_a_halt_with_the_robot_in_the_car_is_decided_at_once_and_corrected() -> None:
+    # The same ride with odometry (the robot stands in the car all along): the halt at the
+    # known floor is decided as the car stops there, and corrected when the car goes on.
+    tr = trace(
+        [
+            Stay(0.0, 60),
+            Stay(STOREY_M, 60, drive_m=3.0),
+            Stay(0.0, 60, drive_m=3.0),
+            Stay(STOREY_M, 8.0),
+            Stay(2 * STOREY_M, 60, drive_m=3.0),
+        ]
+    )
+    detector = OnlineFloorDetector()
+    odo_t, odo_x, odo_y = tr.odometry
+    o = 0
+    during_halt = None
+    halt_start, _ = tr.stays_s[3]
+    for ti, pi in zip(tr.t_ns.tolist(), tr.pressure_pa.tolist(), strict=True):
+        while o < odo_t.size and odo_t[o] <= ti:
+            detector.update_odometry(Odometry(int(odo_t[o]), float(odo_x[o]), float(odo_y[o]), 0))
+            o += 1
+        detector.update(Sample(ti, pi, 15.0))
+        if during_halt is None and secs(ti) > halt_start + 4.0:
+            during_halt = detector.state()
+    assert during_halt is not None and during_halt.phase is FloorPhase.SETTLED
+    assert (during_halt.floor_id, during_halt.name) == (1, "1")
+    halt, correction = detector.events[2:]
+    assert (halt.kind, halt.to_id) == (FloorEventKind.TRANSITION, 1)
+    assert secs(halt.t_ns) - halt_start < 2.0
+    assert (correction.kind, correction.replaces) == (FloorEventKind.CORRECTION, halt.event_id)
+    assert (correction.from_id, correction.to_id) == (0, 2)
     assert moves(detector.transitions) == [(0, 1), (1, 0), (0, 2)]
 
 
@@ -217,8 +266,16 @@ def test_a_stop_followed_by_a_turn_back_is_a_visit() -> None:
     tr = trace([Stay(0.0, 60), Stay(-STOREY_M, 8.0), Stay(0.0, 60)])
     detector = live(tr, odometry=False)
     assert moves(detector.events) == [(0, 1), (1, 0)]
-    # With odometry and the robot never leaving the car, it was one ride there and back.
-    assert moves(live(tr).events) == []
+    # With odometry and the robot never leaving the car, it was one ride there and back:
+    # decided as the car stopped, withdrawn when it came back.
+    detector = live(tr)
+    assert [e.kind for e in detector.events] == [
+        FloorEventKind.TRANSITION,
+        FloorEventKind.RETRACTION,
+    ]
+    assert detector.events[1].replaces == detector.events[0].event_id
+    assert detector.transitions == () and apply_corrections(detector.events) == []
+    assert detector.registry.known == 1 and detector.state().floor_id == 0
 
 
 # -- 3. what was published is what a replay gives ------------------------------------------
@@ -252,7 +309,7 @@ def test_event_ids_are_unique_and_increasing() -> None:
 
 def test_a_correction_of_an_unknown_event_is_refused() -> None:
     tr = intermediate_stop(40.0, drive_m=0.0)
-    (event,) = live(tr).events
+    event = live(tr).events[0]
     orphan = FloorEvent(**{**_fields(event), "kind": FloorEventKind.CORRECTION, "replaces": 99})
     with pytest.raises(InputFormatError):
         apply_corrections([event, orphan])
@@ -320,6 +377,105 @@ def test_a_floor_the_model_does_not_know_gets_a_counted_name() -> None:
     tr = trace([Stay(0.0, 60), Stay(-3.4, 60, drive_m=3.0)])
     (event,) = live(tr, config).events
     assert event.to_name == "G-1"
+
+
+def test_consecutive_floors_get_consecutive_names_past_a_tall_lobby() -> None:
+    # A 5.4 m ground storey under 3.4 m ones, started on the first floor: the lobby is one
+    # storey down (1.6 storeys of 3.4 m), and the floor above it the next name.
+    tr = trace(
+        [
+            Stay(0.0, 60),
+            Stay(3.4, 60, drive_m=3.0),
+            Stay(-5.4, 60, drive_m=3.0),
+            Stay(6.8, 60, drive_m=3.0),
+        ]
+    )
+    detector = live(tr, FloorDetectorConfig(start_floor="1"))
+    assert [e.to_name for e in detector.events] == ["2", "0", "3"]
+    assert [e.estimated_name for e in detector.events] == [True, True, True]
+    # counted in the 3.4 m storey the first ride showed, not the nominal 3.5 m
+    assert detector.registry.name(0) == "1" and not detector.registry.estimated(0)
+
+
+def test_two_storeys_at_once_leave_a_name_for_the_floor_between() -> None:
+    tr = trace([Stay(0.0, 60), Stay(2 * STOREY_M, 60, drive_m=3.0), Stay(STOREY_M, 60)])
+    detector = live(tr)
+    assert [e.to_name for e in detector.transitions] == ["2", "1"]
+
+
+def test_a_configured_storey_height_names_tall_storeys_one_by_one() -> None:
+    # 6 m storeys: counted in the nominal 3.5 m they would be two apart each.
+    tr = trace([Stay(0.0, 60), Stay(6.0, 60, drive_m=3.0), Stay(12.2, 60, drive_m=3.0)])
+    assert [e.to_name for e in live(tr).events] == ["2", "4"]
+    config = FloorDetectorConfig(storey_m=6.0)
+    assert [e.to_name for e in live(tr, config).events] == ["1", "2"]
+
+
+def test_a_name_from_the_model_is_no_estimate() -> None:
+    model = BuildingModel((ModelFloor("G", 0.0), ModelFloor("M", 4.0)))
+    config = FloorDetectorConfig(start_floor="G", building=model)
+    tr = trace([Stay(0.0, 60), Stay(4.0, 60, drive_m=3.0), Stay(-3.4, 60, drive_m=3.0)])
+    events = live(tr, config).events
+    assert [(e.to_name, e.estimated_name) for e in events] == [("M", False), ("G-1", True)]
+
+
+# -- 5. rides: announced as they start ------------------------------------------------------
+
+
+def test_a_ride_is_announced_as_it_starts_and_ended_by_its_transition() -> None:
+    tr = trace([Stay(0.0, 60), Stay(-STOREY_M, 60, drive_m=3.0)])
+    detector = live(tr)
+    started, ended = detector.rides
+    assert (started.kind, ended.kind) == (RideEventKind.STARTED, RideEventKind.ENDED)
+    assert started.ride_id == ended.ride_id == 1
+    assert started.direction is ended.direction is RideDirection.DOWN
+    assert (started.from_id, started.from_name, started.to_id) == (0, "0", None)
+    (event,) = detector.events
+    assert (ended.to_id, ended.to_name, ended.floor_event_id) == (1, "-1", event.event_id)
+    # announced during the ride (3.2 s at 1 m/s), decided once the car stopped
+    ride_start, _ = tr.stays_s[0][1], tr.stays_s[1][0]
+    assert secs(started.t_ns) - ride_start < 2.0 < secs(event.t_ns) - ride_start
+    assert abs(secs(started.t_start_ns) - ride_start) < 0.5
+
+
+@pytest.mark.parametrize("spike_pa", [-15.0, 15.0])
+def test_a_spike_is_no_ride(spike_pa: float) -> None:
+    # A ventilation spike: by the time the change has begun, the pressure is on its way
+    # back, so no ride is announced.
+    tr = trace([Stay(0.0, 120)])
+    after = (tr.seconds() - 60.0).clip(0.0, None)
+    spike = np.where(after > 0.0, spike_pa * np.exp(-after / 1.5), 0.0)
+    spiked = Trace(tr.t_ns, tr.pressure_pa + spike, tr.temperature_c, tr.odometry, ())
+    detector = live(spiked)
+    assert detector.events == [] and detector.rides == []
+
+
+def test_a_ride_that_comes_to_rest_short_of_a_floor_is_withdrawn_with_a_reason() -> None:
+    # 1.2 m up (a ramp, a landing), a while there, and back: announced, then withdrawn.
+    tr = trace([Stay(0.0, 60), Stay(1.2, 20), Stay(0.0, 60)])
+    detector = live(tr, odometry=False)
+    assert detector.events == []
+    started, withdrawn = detector.rides
+    assert (started.kind, started.direction) == (RideEventKind.STARTED, RideDirection.UP)
+    assert withdrawn.kind is RideEventKind.RETRACTED and withdrawn.ride_id == started.ride_id
+    assert withdrawn.reason == "came to rest 1.2 m from floor 0: no ride"
+
+
+def test_rides_with_a_halt_are_each_a_ride() -> None:
+    # The robot stays in the car through a halt: two rides, the second ends with the
+    # correction of what the first decided.
+    detector = live(intermediate_stop(5.0, drive_m=0.0))
+    kinds = [(r.ride_id, r.kind) for r in detector.rides]
+    assert kinds == [
+        (1, RideEventKind.STARTED),
+        (1, RideEventKind.ENDED),
+        (2, RideEventKind.STARTED),
+        (2, RideEventKind.ENDED),
+    ]
+    first, correction = detector.events
+    assert detector.rides[1].floor_event_id == first.event_id
+    assert detector.rides[3].floor_event_id == correction.event_id
+    assert detector.rides[2].from_id == first.to_id
 
 
 @pytest.mark.parametrize(

@@ -25,7 +25,7 @@ LAYERS: tuple[str | set[str], ...] = (
     "baromap.floors",
     "baromap.recording",
     "baromap.odometry",
-    {"baromap.protocols", "baromap.jsonmsg", "baromap.discovery"},
+    {"baromap.protocols", "baromap.jsonmsg", "baromap.discovery", "baromap.building"},
     "baromap.messages",
     {"baromap.errors", "baromap.logs", "baromap.arrays"},
 )

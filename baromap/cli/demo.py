@@ -142,8 +142,8 @@ def mission_record(mission: Mission) -> dict[str, Any]:
 def build_and_summarise(
     mission: Mission, recording: Path, maps_dir: Path, truth_log: Path
 ) -> list[str]:
-    import yaml
 
+    from baromap.building import read_building
     from baromap.cli.demo_summary import TrueRun, summary_lines
     from baromap.evaluation.map_files import score_outputs
     from baromap.evaluation.twin_truth import HostClock, sim_timeline, truth_series
@@ -158,14 +158,13 @@ def build_and_summarise(
     result = build_maps(recording, maps_dir, progress=True)
     for line in build_lines(result, maps_dir):
         _say(f"  {line}")
-    building = yaml.safe_load((maps_dir / "building.yaml").read_text(encoding="utf-8"))
+    building = read_building(maps_dir / "building.yaml")
     events = apply_corrections(
         r.message
         for r in read_messages(recording, [topics.FLOOR_EVENT])
         if isinstance(r.message, FloorEvent)
     )
     detection = result.segmentation.detection
-    start_floor = detection.segments[0].floor if detection and detection.segments else None
     scenario = make_scenario(
         mission.seed, floors=mission.floors, minutes=mission.minutes, route=mission.route
     )
@@ -186,7 +185,6 @@ def build_and_summarise(
         building=building,
         events=events,
         t0_ns=int(result.run.scans.t_ns[0]) if len(result.run.scans) else 0,
-        start_floor=start_floor,
         post_run_transitions=len(detection.transitions) if detection else 0,
         truth=truth,
         files=result.files,

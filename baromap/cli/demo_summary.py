@@ -1,11 +1,11 @@
 """What the demo tells the user at the end: floors, transitions, files, and how to look.
 
-Floors come from build-maps (post-run, ordered by height, with their maps); transitions from
-what the daemon published live (its recorded ``/floor/event``, corrections applied: what
-``baromap watch`` printed). The live detector names floors from the start floor in storeys;
-each post-run floor is given the live name of the floor at its height, so the two accounts can
-be read side by side. The simulator's truth is shown beside them: it is a demo on simulated
-hardware, and the user should see whether the product got it right.
+Floors come from build-maps (post-run, ordered by height, with their maps and names:
+``building.yaml`` names them by order in height and keeps the live detector's name beside
+each); transitions from what the daemon published live (its recorded ``/floor/event``,
+corrections applied: what ``baromap watch`` printed). The simulator's truth is shown beside
+them: it is a demo on simulated hardware, and the user should see whether the product got it
+right.
 """
 
 from __future__ import annotations
@@ -13,13 +13,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
+from baromap.building import Building
 from baromap.evaluation.map_files import MapFileScore
 from baromap.messages import NS_PER_S, FloorEvent
-
-#: A post-run floor takes a live floor's name when their heights agree this well (m).
-SAME_FLOOR_M = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -31,31 +28,6 @@ class TrueRun:
     maps: tuple[MapFileScore, ...] = ()  # the map files against the true plans
 
 
-def live_floor_heights(events: Sequence[FloorEvent]) -> dict[str, float]:
-    """Each live floor name and its height above the start floor."""
-    heights: dict[str, float] = {}
-    for e in events:
-        heights.setdefault(e.to_name, e.height_m)
-        heights.setdefault(e.from_name, e.height_m - e.delta_m)
-    return heights
-
-
-def name_floors(
-    floors: Sequence[dict[str, Any]], events: Sequence[FloorEvent], start_floor: int | None
-) -> dict[int, str]:
-    """Post-run floor index -> name: building.yaml's own, else the live name at that height."""
-    names = {int(f["index"]): str(f["name"]) for f in floors if f.get("name") is not None}
-    elevation = {int(f["index"]): float(f["elevation_m"]) for f in floors}
-    if start_floor is None or start_floor not in elevation:
-        return names
-    offset = elevation[start_floor]
-    for name, height in live_floor_heights(events).items():
-        index = min(elevation, key=lambda k: abs(elevation[k] - offset - height))
-        if abs(elevation[index] - offset - height) < SAME_FLOOR_M:
-            names.setdefault(index, name)
-    return names
-
-
 def _clock(t_ns: int, t0_ns: int) -> str:
     seconds = max(0.0, (t_ns - t0_ns) / NS_PER_S)
     return f"{int(seconds // 60):02d}:{seconds % 60:04.1f}"
@@ -65,16 +37,14 @@ def summary_lines(
     *,
     out: Path,
     recording: Path,
-    building: dict[str, Any],
+    building: Building,
     events: Sequence[FloorEvent],
     t0_ns: int,
-    start_floor: int | None,
     post_run_transitions: int,
     truth: TrueRun | None,
     files: Sequence[Path],
 ) -> list[str]:
-    floors = list(building.get("floors", []))
-    names = name_floors(floors, events, start_floor)
+    floors = building.floors
 
     def rel(path: Path) -> str:
         try:
@@ -82,14 +52,18 @@ def summary_lines(
         except ValueError:
             return str(path)
 
-    lines = [f"floors: {len(floors)}, by height (build-maps; names as the live detector gave them)"]
-    for f in floors:
-        index = int(f["index"])
-        visits = int(f.get("visits", 0))
+    lines = [
+        f"floors: {len(floors)}, by height (build-maps; named in order of height, and as the "
+        "live detector named them)"
+    ]
+    for k, f in enumerate(floors):
+        name = f.label(k)
+        live = f.live_name or name
+        visits = f.visits or 0
         lines.append(
-            f"  floor {index}  {float(f['elevation_m']):+6.2f} m  "
-            f"name {names.get(index, '?'):>3s}  {visits} visit{'s' if visits != 1 else ''}  "
-            f"map {rel(out / str(f['image'])) if f.get('image') else '(none)'}"
+            f"  floor {f.index}  {f.elevation_m:+6.2f} m  name {name:>3s}  live name "
+            f"{live:>3s}  {visits} visit{'s' if visits != 1 else ''}  "
+            f"map {rel(out / f.image) if f.image else '(none)'}"
         )
     lines.append(
         f"transitions: {len(events)} decided live (what baromap watch printed), "

@@ -282,7 +282,9 @@ def _print_result(result: Any, name: str) -> None:
     print(_line(name, f"{result.method} post", result.post_run, flushed, delays=False))
     live = result.live
     if live is not None:
-        notes = f"  {live.events} events, {live.corrections} corrections"
+        notes = f"  {live.events} events, {live.corrections} corrections ({live.moves} moving)"
+        if live.retractions:
+            notes += f", {live.retractions} retractions"
         notes += ", = post-run" if live.agrees else f", DIFFERS from post-run: {live.disagreement}"
         print(_line(name, f"{result.method} live", live.score, notes))
 
@@ -305,7 +307,8 @@ def _summary(method: str, totals: Any) -> list[str]:
             f"{100 * live.precision:5.1f} %  ({live.found}/{live.true} found, {live.false} "
             f"false)  storeys right {live.storeys}/{live.found}  live-state accuracy "
             f"{100 * live.mean_accuracy:5.1f} %  {totals.events} events, "
-            f"{totals.corrections} corrections; live = post-run on "
+            f"{totals.corrections} corrections ({totals.moves} moving the robot to another "
+            f"floor), {totals.retractions} retractions; live = post-run on "
             f"{totals.agreeing}/{totals.live_cases} runs"
         )
         lines.append(
@@ -314,7 +317,23 @@ def _summary(method: str, totals: Any) -> list[str]:
             f"{percentile(live.settled_delays, 95):.1f} s; after the car stops p50 "
             f"{percentile(live.delays, 50):.1f} s, p95 {percentile(live.delays, 95):.1f} s"
         )
+        if totals.rides:
+            lines.append(_ride_line(method, totals.rides))
     return lines
+
+
+def _ride_line(method: str, rides: Any) -> str:
+    from baromap.evaluation.floor_live import percentile, ride_delays
+
+    delays, right, total = ride_delays(rides)
+    announced = sum(r.announced for r in rides)
+    withdrawn = sum(r.withdrawn for r in rides)
+    return (
+        f"  {method:6s} rides: ride_started after the car starts p50 "
+        f"{percentile(delays, 50):.1f} s, p95 {percentile(delays, 95):.1f} s "
+        f"(announced the right way for {right}/{total} true rides); {announced} announced, "
+        f"{withdrawn} withdrawn"
+    )
 
 
 def _print_sweep(directory: str) -> None:
@@ -333,8 +352,18 @@ def _result_json(result: Any) -> dict[str, Any]:
             **_score_json(result.live.score),
             "events": result.live.events,
             "corrections": result.live.corrections,
+            "corrections_moving": result.live.moves,
+            "retractions": result.live.retractions,
             "equals_post_run": result.live.agrees,
         }
+        rides = result.live.rides
+        if rides is not None:
+            out["live"]["rides"] = {
+                "started_delays_s": [d for d, _ in rides.started],
+                "started_direction_right": [ok for _, ok in rides.started],
+                "announced": rides.announced,
+                "withdrawn": rides.withdrawn,
+            }
     return out
 
 

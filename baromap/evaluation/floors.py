@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from baromap.errors import ConfigError
-from baromap.evaluation.floor_live import LiveScore, live_score
+from baromap.evaluation.floor_live import LiveScore, RideScore, live_score
 from baromap.floors.config import FloorDetectorConfig
 from baromap.floors.detection import FloorDetection, detect_floors
 from baromap.floors.evaluation import (
@@ -215,8 +215,12 @@ class MethodTotals:
     live: Totals = field(default_factory=Totals)
     events: int = 0
     corrections: int = 0
+    #: corrections that sent the robot to another floor, and transitions withdrawn
+    moves: int = 0
+    retractions: int = 0
     agreeing: int = 0
     live_cases: int = 0
+    rides: list[RideScore] = field(default_factory=list)
 
     def add(self, result: CaseResult) -> None:
         self.post_run.add(result.post_run)
@@ -224,8 +228,12 @@ class MethodTotals:
             self.live.add(result.live.score)
             self.events += result.live.events
             self.corrections += result.live.corrections
+            self.moves += result.live.moves
+            self.retractions += result.live.retractions
             self.agreeing += result.live.agrees
             self.live_cases += 1
+            if result.live.rides is not None:
+                self.rides.append(result.live.rides)
 
 
 @dataclass

@@ -28,6 +28,7 @@ import yaml
 from scipy import ndimage
 
 from baromap.arrays import BoolArray, FloatArray, IntArray
+from baromap.building import read_building
 from baromap.errors import InputFormatError
 from baromap.evaluation.mapping import LOBBY_RADIUS_M, WALL_TOLERANCE_M
 from baromap.evaluation.trajectory import fit_rigid, mean_pose_error
@@ -111,14 +112,10 @@ def read_trajectory(path: Path) -> Trajectory:
 
 def read_outputs(out_dir: Path) -> tuple[list[MapFile], Trajectory]:
     """The floor maps named in ``building.yaml`` and the trajectory of a build-maps directory."""
-    try:
-        model = yaml.safe_load((out_dir / "building.yaml").read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
-        raise InputFormatError(f"{out_dir}: no readable building.yaml: {exc}") from exc
+    building = read_building(out_dir / "building.yaml")
     maps = [
-        read_map(out_dir / str(f["map"]), int(f["index"]), float(f["elevation_m"]))
-        for f in model.get("floors", [])
-        if f.get("map")
+        read_map(out_dir / map_file, index, floor.elevation_m)
+        for index, map_file, floor in building.floor_maps()
     ]
     return maps, read_trajectory(out_dir / "trajectory.tum")
 

@@ -34,6 +34,7 @@ import structlog
 import yaml
 
 from baromap.arrays import FloatArray
+from baromap.building import Building, read_building
 from baromap.errors import InputFormatError
 from baromap.export.map_yaml import read_yaml_mapping
 from baromap.mapping.export import read_pgm, read_tum
@@ -106,8 +107,7 @@ def export_rmf(
     building_yaml = Path(building_yaml)
     out = Path(out_path)
     directory = building_yaml.parent
-    building = read_yaml_mapping(building_yaml)
-    levels = _levels(directory, building)
+    levels = _levels(directory, read_building(building_yaml))
     stem = out.name.removesuffix(".yaml").removesuffix(".building")
     site_name = name or stem
     notes: list[str] = []
@@ -140,24 +140,18 @@ def export_rmf(
     return RmfSite(out, [lvl.name for lvl in levels], lift_name, notes)
 
 
-def _levels(directory: Path, building: dict[str, Any]) -> list[MapLevel]:
-    floors = building.get("floors")
-    if not isinstance(floors, list):
-        raise InputFormatError(f"{directory}/building.yaml has no floors list")
+def _levels(directory: Path, building: Building) -> list[MapLevel]:
     levels = []
-    for floor in floors:
-        if not isinstance(floor, dict) or not floor.get("map"):
-            continue  # a floor too short for a map has no level to draw
-        meta = read_yaml_mapping(directory / str(floor["map"]))
+    for index, map_file, floor in building.floor_maps():
+        meta = read_yaml_mapping(directory / map_file)
+        elevation = floor.elevation_m
         try:
-            index = int(floor["index"])
-            elevation = float(floor["elevation_m"])
             resolution = float(meta["resolution"])
             ox, oy = float(meta["origin"][0]), float(meta["origin"][1])
             yaw = float(meta["origin"][2]) if len(meta["origin"]) > 2 else 0.0
             image_name = str(meta["image"])
         except (KeyError, IndexError, TypeError, ValueError) as exc:
-            raise InputFormatError(f"{directory}: floor {floor!r}: {exc}") from exc
+            raise InputFormatError(f"{directory}: map of floor {index}: {exc}") from exc
         if yaw != 0.0 or not resolution > 0:
             raise InputFormatError(f"{directory}: map of floor {index} is rotated or unscaled")
         levels.append(

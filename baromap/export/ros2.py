@@ -46,6 +46,7 @@ import numpy.typing as npt
 import structlog
 
 from baromap import jsonmsg, messages
+from baromap.building import read_building
 from baromap.errors import ConfigError, InputFormatError
 from baromap.export.map_yaml import read_yaml_mapping
 from baromap.mapping.export import read_pgm
@@ -379,25 +380,19 @@ def _write_start(
 
 def _load_maps(directory: Path) -> list[tuple[int, dict[str, Any]]]:
     """The floors of a build-maps directory as OccupancyGrid fields (map_server's reading)."""
-    building = read_yaml_mapping(directory / "building.yaml")
-    floors = building.get("floors")
-    if not isinstance(floors, list):
-        raise InputFormatError(f"{directory}/building.yaml has no floors list")
+    building = read_building(directory / "building.yaml")
     out = []
-    for floor in floors:
-        if not isinstance(floor, dict) or "map" not in floor:
-            continue
-        meta = read_yaml_mapping(directory / str(floor["map"]))
+    for index, map_file, floor in building.floor_maps():
+        meta = read_yaml_mapping(directory / map_file)
+        elevation = floor.elevation_m
         try:
-            index = int(floor["index"])
-            elevation = float(floor.get("elevation_m") or 0.0)
             resolution = float(meta["resolution"])
             ox, oy, oyaw = (float(v) for v in meta["origin"])
             occupied, free = float(meta["occupied_thresh"]), float(meta["free_thresh"])
             negate = int(meta.get("negate", 0))
             image_name = str(meta["image"])
         except (KeyError, TypeError, ValueError) as exc:
-            raise InputFormatError(f"{directory}: map of floor {floor!r}: {exc}") from exc
+            raise InputFormatError(f"{directory}: map of floor {index}: {exc}") from exc
         image = read_pgm(directory / image_name)
         out.append(
             (

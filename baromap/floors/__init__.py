@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from baromap.floors.building_model import BuildingModel, load_building_model
 from baromap.floors.config import FloorDetectorConfig
-from baromap.floors.events import apply_corrections
+from baromap.floors.events import apply_corrections, decided_at
 from baromap.floors.online import OnlineFloorDetector
 
 if TYPE_CHECKING:
@@ -47,6 +47,7 @@ __all__ = [
     "Segment",
     "Transition",
     "apply_corrections",
+    "decided_at",
     "detect_floors",
     "load_building_model",
 ]

@@ -2,10 +2,11 @@
 
 The live detector can only measure heights relative to where a run started; names ("3",
 "lobby") come from someone who knows the building. ``baromap build-maps`` writes
-``building.yaml`` with each floor's ``index`` (0 = lowest) and ``elevation_m`` above the lowest;
-an optional ``name`` per floor (written by hand, or by a later build) is used as the name, the
-index otherwise. Given which of these floors a run starts on, every floor the robot reaches is
-named after the model floor at its measured height.
+``building.yaml`` (:mod:`baromap.building`) with each floor's ``index`` (0 = lowest),
+``elevation_m`` above the lowest and ``name`` (by order in height); a file written by hand
+needs only the elevations, and a floor without a name is called by its index. Given which
+of these floors a run starts on, every floor the robot reaches is named after the model
+floor at its measured height.
 """
 
 from __future__ import annotations
@@ -14,7 +15,6 @@ import itertools
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from baromap.errors import ConfigError, InputFormatError
 
@@ -59,34 +59,16 @@ class BuildingModel:
 
 
 def load_building_model(path: str | Path) -> BuildingModel:
-    """Read the floors of a ``building.yaml`` (``floors: [{index, elevation_m[, name]}]``)."""
-    import yaml  # here: the daemon imports this module, and reads a model only if configured
+    """Read the floors of a ``building.yaml`` (:class:`baromap.building.Building`: each floor
+    an ``elevation_m`` and a ``name``, else its ``index``, else its place in the list)."""
+    from baromap.building import read_building  # the daemon reads a model only if configured
 
-    try:
-        document = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputFormatError(f"cannot read {path}: {exc}") from exc
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise InputFormatError(f"{path}: not YAML: {exc}") from exc
-    entries = document.get("floors") if isinstance(document, dict) else None
-    if not isinstance(entries, list) or not entries:
-        raise InputFormatError(f"{path}: no 'floors' list (is it a baromap building.yaml?)")
-    floors = []
-    for k, entry in enumerate(entries):
-        floors.append(_floor(path, k, entry))
+    building = read_building(path)
+    floors = [
+        ModelFloor(floor.label(k), float(floor.elevation_m))
+        for k, floor in enumerate(building.floors)
+    ]
     try:
         return BuildingModel(tuple(floors))
     except ConfigError as exc:
         raise InputFormatError(f"{path}: {exc}") from exc
-
-
-def _floor(path: str | Path, k: int, entry: Any) -> ModelFloor:
-    if not isinstance(entry, dict):
-        raise InputFormatError(f"{path}: floor entry {k} is not a mapping")
-    elevation = entry.get("elevation_m")
-    if isinstance(elevation, bool) or not isinstance(elevation, int | float):
-        raise InputFormatError(f"{path}: floor entry {k} has no numeric elevation_m")
-    name = entry.get("name", entry.get("index", k))
-    if isinstance(name, bool) or not isinstance(name, str | int):
-        raise InputFormatError(f"{path}: floor entry {k} has a name that is not text")
-    return ModelFloor(str(name), float(elevation))

@@ -19,6 +19,21 @@ Why the defaults are what they are:
   below that speed (one window, so one lag). An elevator moves at 0.5-2 m/s and stairs at
   0.1-0.3 m/s; the short window keeps the decision within a couple of seconds of the pressure
   settling. A person carrying a phone is never still for long.
+- ``stop_s = 1.5``, ``stop_band_m = 1.0``, ``stop_rate_m_s = 0.35``: when the robot rode a
+  change standing in a car (odometry), the car's stop is decided on this looser test: the
+  smoothed pressure within a metre of itself and the slope of the raw pressure under 0.35 m/s
+  for a second and a half. It leaves room for what follows a car's stop with no vertical
+  motion at all: the doors' seal (a car is kept a few pascals above its shaft while closed)
+  letting go as they open, the barometer's own filter catching up (a BMP280 set for indoor
+  navigation lags about 0.6 s, 0.6 m at 1 m/s), a ventilation spike fading; elevators ride
+  at 0.5 m/s or faster, above the slope. The still test above still decides every change
+  that is no car ride. A pause of the pressure mid-ride (a spike's decay cancelling the
+  car's motion for a second) passes this test too, and the car going on corrects it: a
+  shorter or looser window decides sooner and is fooled more often. These three values were
+  chosen on the simulator (``bench/floors_live.py``, docs/floors.md), not from physics alone.
+- ``ride_m = 0.5``: a ride is announced once the pressure moved half a metre from the floor's
+  level with the smoothed rate the same way (as a change begins at ``start_m``); a car's
+  piston effect and the sensor's filter delay it by a second or so after the car starts.
 - ``level_tau_s = 0.5`` / ``trend_tau_s = 1.5``: the smoothers' time constants. The level
   constant smooths the pressure the settle band is judged on (and the Holt level); the trend
   constant only sets how fast the Holt rate that starts a change reacts. A shorter trend
@@ -37,14 +52,17 @@ Why the defaults are what they are:
   ADA 407.3.4 require, longer for hall calls), closing (3-4 s), about 8-12 s in all; 15 s
   covers that with a margin, as ``landing_s`` covers a stair landing. A stop followed by a leg
   the other way is a visit whatever its length (it was where the trip went).
-- ``leave_m = 1.0``: with odometry, a stop is a visit once the robot moved this far from
-  where it stood when the pressure came to rest, and never before: an elevator car is 1.4-2.1 m
-  deep and a P3-AT 0.63 m long, so about a metre of travel is where staying in the car ends.
+- ``leave_m = 1.0``: an elevator car is 1.4-2.1 m deep and a P3-AT 0.63 m long, so about a
+  metre of travel is where staying in the car ends. With odometry, a robot that moved less
+  than this during a change rode it in a car, and its stop is decided as the car stops; one
+  that moved more (a ramp) is at a stop that becomes a visit once the robot moved this far
+  from where it stood when the pressure came to rest, and never before.
 - ``start_floor = "0"``: the start floor's name (the paper starts on floor 5). With a
   ``building`` model (:mod:`baromap.floors.building_model`) it must be one of its floors, and
   floors are named after the model floor at their measured height; without one, names are
-  counted in storeys of ``storey_m = 3.5`` (floor to floor in offices and public buildings,
-  2.7-3 m in housing) from the nearest named floor.
+  counted in storeys (:mod:`baromap.floors.names`) of ``storey_m = 3.5`` (floor to floor in
+  offices and public buildings, 2.7-3 m in housing) or of the smallest spacing between the
+  floors seen, whichever is less, from the nearest named floor.
 - The paper's constants (``paper_alpha``, ``paper_gamma``, ``paper_sigmas``) are per sample, as
   the paper states them.
 """
@@ -77,6 +95,10 @@ _POSITIVE = (
     "paper_sigmas",
     "leave_m",
     "storey_m",
+    "stop_s",
+    "stop_band_m",
+    "stop_rate_m_s",
+    "ride_m",
 )
 #: Settings that must be finite numbers of at least zero.
 _NOT_NEGATIVE = ("landing_s", "min_visit_s")
@@ -101,6 +123,12 @@ class FloorDetectorConfig:
     trend_tau_s: float = 1.5  # the Holt rate that starts a change
     drift_tau_s: float = 60.0  # the weather, while on a floor
     reference_tau_s: float = 10.0  # a reference station's pressure
+
+    # A car's stop with the robot in it (s, m, m/s), and when a ride is announced (m).
+    stop_s: float = 1.5
+    stop_band_m: float = 1.0
+    stop_rate_m_s: float = 0.35
+    ride_m: float = 0.5
 
     # Trips, stops and visits (s, m); a gap in the data longer than max_gap_s ends a trip.
     landing_s: float = 15.0
@@ -141,6 +169,8 @@ class FloorDetectorConfig:
             raise ConfigError("start_m must be below min_transition_m, or no change could start")
         if self.settle_rate_m_s > self.start_rate_m_s:
             raise ConfigError("settle_rate_m_s must not exceed start_rate_m_s")
+        if self.ride_m >= self.min_transition_m:
+            raise ConfigError("ride_m must be below min_transition_m, or no ride is announced")
         for name in ("paper_alpha", "paper_gamma"):
             if not 0.0 < getattr(self, name) <= 1.0:
                 raise ConfigError(f"{name} must be in (0, 1], not {getattr(self, name)}")

@@ -35,7 +35,7 @@ from baromap.floors.elevation import (
     solve_levels,
 )
 from baromap.floors.height import height_difference_m, pressure_drop_pa
-from baromap.messages import NS_PER_S, FloorEvent
+from baromap.messages import NS_PER_S, FloorEvent, RideEvent
 
 #: Span next to a transition whose median is the level it left or reached (for sharpening).
 SHARPEN_LOCAL_S = 3.0
@@ -94,6 +94,8 @@ class FloorDetection:
     #: in order): the transitions above are these with the corrections applied. Empty for
     #: the paper's method.
     events: tuple[FloorEvent, ...] = ()
+    #: The rides it announced, ended and withdrawn, in order (online method).
+    rides: tuple[RideEvent, ...] = ()
 
     def floor_of(self, t_ns: int) -> int | None:
         """Floor at a time, None between segments (during a transition) or outside the run."""
@@ -268,7 +270,9 @@ def _online(
         config=config,
         names=[registry.name(floor_id) for floor_id in dense],
     )
-    return dataclasses.replace(detection, events=tuple(detector.events))
+    return dataclasses.replace(
+        detection, events=tuple(detector.events), rides=tuple(detector.rides)
+    )
 
 
 def _paper(run: _Run, config: FloorDetectorConfig) -> FloorDetection:

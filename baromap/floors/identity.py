@@ -25,6 +25,8 @@ class _Floor:
     relative_pa: float
     height_m: float
     name: str
+    #: The name was counted in storeys, not read from a building model.
+    estimated: bool = False
     visits: int = 1
     merged_into: int | None = None
 
@@ -51,8 +53,8 @@ class FloorRegistry:
         """Ids of the distinct floors, in order of discovery."""
         return [i for i, f in enumerate(self._floors) if f.merged_into is None]
 
-    def add(self, relative_pa: float, height_m: float, name: str) -> int:
-        self._floors.append(_Floor(relative_pa, height_m, name))
+    def add(self, relative_pa: float, height_m: float, name: str, *, estimated: bool) -> int:
+        self._floors.append(_Floor(relative_pa, height_m, name, estimated))
         return len(self._floors) - 1
 
     def relative_pa(self, floor_id: int) -> float:
@@ -64,12 +66,19 @@ class FloorRegistry:
     def name(self, floor_id: int) -> str:
         return self._floors[floor_id].name
 
+    def estimated(self, floor_id: int) -> bool:
+        return self._floors[floor_id].estimated
+
     def visits(self, floor_id: int) -> int:
         return self._floors[floor_id].visits
 
-    def names(self) -> dict[str, float]:
-        """Names in use, with their floors' heights above the start floor."""
-        return {f.name: f.height_m for f in self._floors if f.merged_into is None}
+    def names(self, exclude: int | None = None) -> dict[str, float]:
+        """Names in use (but ``exclude``'s), with their floors' heights above the start."""
+        return {
+            f.name: f.height_m
+            for floor_id, f in enumerate(self._floors)
+            if f.merged_into is None and floor_id != exclude
+        }
 
     def resolve(self, floor_id: int) -> int:
         """The floor an id stands for now (itself, or the floor it was merged into)."""
@@ -104,6 +113,12 @@ class FloorRegistry:
         floor = self._floors[floor_id]
         floor.relative_pa = relative_pa
         floor.height_m = height_m
+
+    def rename(self, floor_id: int, name: str, estimated: bool) -> None:
+        """A floor first measured before its trip had ended gets the name of where it is."""
+        floor = self._floors[floor_id]
+        floor.name = name
+        floor.estimated = estimated
 
     def merge(self, floor_id: int, into: int) -> None:
         """``floor_id`` was ``into`` all along: its visits go there, its id is retired."""

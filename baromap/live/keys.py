@@ -23,6 +23,7 @@ class Channel(enum.StrEnum):
     """What a node publishes; the value is the key's tail under the node's prefix."""
 
     EVENT = "floor/event"
+    RIDE = "floor/ride"
     STATE = "floor/state"
     PRESSURE = "pressure"
     HEALTH = "health"

@@ -12,11 +12,12 @@ from typing import Any
 from baromap import jsonmsg
 from baromap.errors import InputFormatError
 from baromap.live.keys import Channel
-from baromap.messages import DeviceHealth, FloorEvent, FloorState, PressureSample
+from baromap.messages import DeviceHealth, FloorEvent, FloorState, PressureSample, RideEvent
 
 #: The message type each channel carries (``alive`` carries no payload).
 CHANNEL_TYPES: dict[Channel, type] = {
     Channel.EVENT: FloorEvent,
+    Channel.RIDE: RideEvent,
     Channel.STATE: FloorState,
     Channel.PRESSURE: PressureSample,
     Channel.HEALTH: DeviceHealth,

@@ -2,7 +2,8 @@
 
 The daemon offers every message it has; this decides what goes on the wire:
 
-- floor events at once, as decided (corrections included): they are the point;
+- floor events at once, as decided (corrections included): they are the point; ride events
+  (a ride announced, ended, withdrawn) at once too;
 - floor state when it changes, and at least every ``state_period_s`` for anyone who missed it;
   a change is a change of any field that is not a measurement (floor, name, phase, since,
   floors known), so a drifting level or a ticking stamp does not count;
@@ -24,9 +25,16 @@ from dataclasses import dataclass
 from baromap.jsonmsg import field_names
 from baromap.live.keys import Channel
 from baromap.live.settings import LiveSettings
-from baromap.messages import NS_PER_S, DeviceHealth, FloorEvent, FloorState, PressureSample
+from baromap.messages import (
+    NS_PER_S,
+    DeviceHealth,
+    FloorEvent,
+    FloorState,
+    PressureSample,
+    RideEvent,
+)
 
-PublishedMessage = FloorEvent | FloorState | PressureSample | DeviceHealth
+PublishedMessage = FloorEvent | RideEvent | FloorState | PressureSample | DeviceHealth
 
 
 @dataclass(frozen=True, slots=True)
@@ -104,7 +112,7 @@ class PublishSchedule:
     """
 
     #: Message types that are ever published; anything else can be discarded unqueued.
-    ACCEPTED = (FloorEvent, FloorState, PressureSample, DeviceHealth)
+    ACCEPTED = (FloorEvent, RideEvent, FloorState, PressureSample, DeviceHealth)
 
     def __init__(self, settings: LiveSettings, *, station: bool = False) -> None:
         self.station = station
@@ -142,6 +150,8 @@ class PublishSchedule:
             return []
         if isinstance(message, FloorEvent):
             return [Outgoing(Channel.EVENT, message)]
+        if isinstance(message, RideEvent):
+            return [Outgoing(Channel.RIDE, message)]
         if isinstance(message, FloorState):
             self._state = message
             if _significant(message) != self._state_sent:

@@ -25,7 +25,16 @@ import numpy.typing as npt
 import structlog
 
 from baromap.arrays import FloatArray
+from baromap.building import (
+    Building,
+    BuildingFloor,
+    BuildingRide,
+    LoopClosures,
+    UntiedStretch,
+    write_building,
+)
 from baromap.errors import ConfigError
+from baromap.floors.names import names_by_height
 from baromap.mapping import export, figures
 from baromap.mapping.foxglove_maps import write_maps_mcap
 from baromap.mapping.keyframes import motion_spaced
@@ -345,16 +354,19 @@ def write_outputs(
     """
     seg = result.segmentation
     files: list[Path] = []
-    floor_entries = []
+    floor_entries: list[BuildingFloor] = []
     kf_floor = seg.scan_floor[result.slam.keyframes]
+    names = _names_by_height(seg)
     for info in seg.floors:
         job = _grid_job(
             result.run, seg, result.slam, info.index, resolution=resolution, config=config
         )
         grid = None if job is None else floor_grid(*job)
+        name = names.get(info.index, str(info.index))
         entry: dict[str, Any] = {
             "index": info.index,
-            "name": info.label,
+            "name": name,
+            "live_name": info.name if info.name and info.name != name else None,
             "elevation_m": round(info.elevation_m, 3),
             "mean_pressure_pa": None if info.level_pa is None else round(info.level_pa, 2),
             "visits": info.visits,
@@ -371,7 +383,7 @@ def write_outputs(
             pgm, yml = export.write_map_server(grid, out, stem)
             files += [pgm, yml, png]
             entry.update({"map": yml.name, "image": pgm.name, "png": png.name})
-        floor_entries.append(entry)
+        floor_entries.append(BuildingFloor(**entry))
     order = [f for f in seg.floors if f.index in result.grids]
     # the poses the SLAM estimated: a scan the odometry said nothing about is not mapped, its
     # pose only drawn across the gap (metres off); the trajectory, the paths and the picture
@@ -394,33 +406,25 @@ def write_outputs(
     tum = out / "trajectory.tum"
     export.write_tum(tum, result.run.scans.t_ns[kept], result.slam.scan_poses[kept], z[kept])
     files.append(tum)
-    building = {
-        "source": str(parts[0]),
-        **({"parts": [str(p) for p in parts]} if len(parts) > 1 else {}),
-        "frame": "one frame for all floors: the robot's start pose on its first floor",
-        "resolution_m": resolution,
-        "segmentation": seg.source,
-        "floors": floor_entries,
-        "rides": [
-            {
-                "t_start_ns": r.t_start_ns,
-                "t_end_ns": r.t_end_ns,
-                "from_floor": r.from_floor,
-                "to_floor": r.to_floor,
-            }
-            for r in seg.rides
-        ],
-        "loop_closures": {
-            "within_floors": len(result.slam.loop_edges),
-            "cross_floor": result.cross_floor_closures,
-            "elevator_car": len(result.slam.car_edges),
-        },
-        "untied": _untied_entries(result),
-        "keyframes": len(result.slam.keyframes),
-        "scans": len(result.run.scans),
-    }
+    building = Building(
+        source=str(parts[0]),
+        parts=[str(p) for p in parts] if len(parts) > 1 else None,
+        frame="one frame for all floors: the robot's start pose on its first floor",
+        resolution_m=resolution,
+        segmentation=seg.source,
+        floors=floor_entries,
+        rides=[BuildingRide(r.t_start_ns, r.t_end_ns, r.from_floor, r.to_floor) for r in seg.rides],
+        loop_closures=LoopClosures(
+            within_floors=len(result.slam.loop_edges),
+            cross_floor=result.cross_floor_closures,
+            elevator_car=len(result.slam.car_edges),
+        ),
+        untied=_untied_entries(result),
+        keyframes=len(result.slam.keyframes),
+        scans=len(result.run.scans),
+    )
     building_yaml = out / "building.yaml"
-    export.write_building_yaml(building_yaml, building)
+    write_building(building_yaml, building)
     files.append(building_yaml)
     maps = out / "maps.mcap"
     write_maps_mcap(
@@ -441,7 +445,22 @@ def write_outputs(
     return files
 
 
-def _untied_entries(result: BuildResult) -> list[dict[str, Any]]:
+def _names_by_height(seg: Segmentation) -> dict[int, str]:
+    """``building.yaml``'s floor names: by order in height, counted from the name the live
+    detector gave the start floor (the configured one), so consecutive floors have
+    consecutive names; the index when no floor has a live name (the paper's method)."""
+    detection = seg.detection
+    live = {info.index: info.name for info in seg.floors if info.name}
+    if detection is None or not detection.segments or not live:
+        return {info.index: str(info.index) for info in seg.floors}
+    start = int(detection.segments[0].floor)
+    if start not in live:
+        return {info.index: str(info.index) for info in seg.floors}
+    count = max(info.index for info in seg.floors) + 1
+    return dict(enumerate(names_by_height(count, start, live[start])))
+
+
+def _untied_entries(result: BuildResult) -> list[UntiedStretch]:
     """``building.yaml``'s account of the parts of the run that nothing but odometry across a
     gap places in the building (:attr:`SlamResult.untied`): each stretch of consecutive
     keyframes of such a part, in time order, with the floors it is on. Empty when the whole
@@ -454,15 +473,15 @@ def _untied_entries(result: BuildResult) -> list[dict[str, Any]]:
         for stretch in np.split(part, breaks):
             scans = result.slam.keyframes[stretch]
             entries.append(
-                {
-                    "part": number,
-                    "t_start_ns": int(t_ns[scans[0]]),
-                    "t_end_ns": int(t_ns[scans[-1]]),
-                    "keyframes": len(stretch),
-                    "floors": sorted({int(f) for f in floor[scans] if f != BETWEEN_FLOORS}),
-                }
+                UntiedStretch(
+                    part=number,
+                    t_start_ns=int(t_ns[scans[0]]),
+                    t_end_ns=int(t_ns[scans[-1]]),
+                    keyframes=len(stretch),
+                    floors=sorted({int(f) for f in floor[scans] if f != BETWEEN_FLOORS}),
+                )
             )
-    return sorted(entries, key=lambda e: e["t_start_ns"])
+    return sorted(entries, key=lambda e: e.t_start_ns)
 
 
 def _path_with_gaps(
@@ -538,9 +557,9 @@ def summary_lines(result: BuildResult, out: Path) -> list[str]:
     for stretch in _untied_entries(result):
         lines.append(
             f"  placed by odometry across a gap alone (nothing the scans saw ties it to the "
-            f"rest): {stretch['keyframes']} keyframes from "
-            f"{(stretch['t_start_ns'] - t0) / 1e9:.1f} to {(stretch['t_end_ns'] - t0) / 1e9:.1f} s"
-            f" on floor(s) {', '.join(map(str, stretch['floors'])) or 'none'}"
+            f"rest): {stretch.keyframes} keyframes from "
+            f"{(stretch.t_start_ns - t0) / 1e9:.1f} to {(stretch.t_end_ns - t0) / 1e9:.1f} s"
+            f" on floor(s) {', '.join(map(str, stretch.floors)) or 'none'}"
         )
     total = sum(result.timings_s.values())
     lines.append(

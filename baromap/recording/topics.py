@@ -9,6 +9,7 @@ TF = "/tf"
 #: The base_link -> laser transform; repeated at the start of every chunk (see the writer).
 TF_STATIC = "/tf_static"
 FLOOR_EVENT = "/floor/event"
+FLOOR_RIDE = "/floor/ride"
 FLOOR_STATE = "/floor/state"
 DIAGNOSTICS = "/diagnostics"
 TRUTH_POSE = "/truth/pose"
@@ -30,6 +31,7 @@ __all__ = [
     "BASE_FRAME",
     "DIAGNOSTICS",
     "FLOOR_EVENT",
+    "FLOOR_RIDE",
     "FLOOR_STATE",
     "FORMAT_VERSION",
     "LASER_FRAME",

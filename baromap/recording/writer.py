@@ -57,6 +57,7 @@ DEFAULT_TOPICS: dict[type, str] = {
     messages.LaserScan: topics.SCAN,
     messages.Odometry: topics.ODOM,
     messages.FloorEvent: topics.FLOOR_EVENT,
+    messages.RideEvent: topics.FLOOR_RIDE,
     messages.FloorState: topics.FLOOR_STATE,
     messages.DeviceHealth: topics.DIAGNOSTICS,
     messages.TruthPose: topics.TRUTH_POSE,

@@ -91,8 +91,8 @@ class Daemon:
         self.fanout.subscribe(self.recorder)
         self.floors: FloorTracker | None = None
         if config.barometer is not None:
-            self.floors = FloorTracker(config.floors, self.fanout.publish)
-            self.fanout.subscribe(self.floors)
+            self.floors = FloorTracker(config.floors)
+            self.fanout.attach(self.floors)
         self.live: Consumer | None = self._live_publisher() if live else None
         if self.live is not None:
             self.fanout.subscribe(self.live)
@@ -190,8 +190,7 @@ class Daemon:
         for session in self.sessions:
             session.stop()
         self._publish_health()
-        if self.floors is not None:
-            self.floors.close()
+        self.fanout.finish_stages()
         if self.live is not None:
             self.fanout.unsubscribe(self.live)
             self.live.close()

@@ -1,16 +1,21 @@
 """The one place every message goes through: readers publish, consumers are offered it.
 
-A consumer (the recorder, the floor detector, the live Zenoh publisher) implements
-``offer(message)``, which must never block: the recorder and the publisher each keep their
-own bounded queue and count what they had to drop, so a slow disk or a slow network can never
-stall a device's reader thread. The floor detector is the one consumer that does its work in
-``offer``, on the reader's thread (``daemon/baromapd/floors.py`` says why): a few microseconds of
-arithmetic per sample, where a queue and a thread of its own cost a wake-up per sample.
-A consumer that measures latency from the wire may also implement
-``offer_received(message, received_ns)`` (host monotonic ns at which the frame's last byte
-was read); the fanout then calls that instead. A consumer that wants only some message types
-says so in ``accepts`` (a tuple of types): the fanout then never calls it with others (75
-scans a second go to the recorder only, not through two more calls that would ignore them).
+A consumer (the recorder, the live Zenoh publisher) implements ``offer(message)``, which must
+never block: each keeps its own bounded queue and counts what it had to drop, so a slow disk
+or a slow network can never stall a device's reader thread. A consumer that measures latency
+from the wire may also implement ``offer_received(message, received_ns)`` (host monotonic ns
+at which the frame's last byte was read); the fanout then calls that instead. A consumer that
+wants only some message types says so in ``accepts`` (a tuple of types): the fanout then never
+calls it with others (75 scans a second go to the recorder only, not through two more calls
+that would ignore them).
+
+A *stage* (the floor tracker) turns messages into others: ``process(message)`` returns what
+it made of one (floor events and states), ``finish()`` what it makes of the end of the input.
+The fanout hands a stage's output to the consumers, never to a stage, so the flow is one-way:
+readers -> fanout -> consumers, and readers -> fanout -> stage -> consumers. The floor
+tracker does its work in ``process``, on the reader's thread (``daemon/baromapd/floors.py``
+says why): a few microseconds of arithmetic per sample, where a queue and a thread of its
+own cost a wake-up per sample.
 
 This is the reader threads' hot path, so it is lean: routes per message type are worked out
 once, and the queues are :class:`queue.SimpleQueue` (a put is one C call that never waits;
@@ -42,21 +47,36 @@ class Consumer(Protocol):
         """Finish: process what was offered, release resources."""
 
 
+class Stage(Protocol):
+    #: The message types it takes (the fanout never calls it with others).
+    accepts: tuple[type, ...]
+
+    def process(self, message: Message) -> list[Message]:
+        """What the message makes: handed to the consumers, never back to a stage."""
+
+    def finish(self) -> list[Message]:
+        """What the end of the input makes (a decision in progress)."""
+
+
 @runtime_checkable
 class TimedConsumer(Protocol):
     def offer_received(self, message: Message, received_ns: int) -> None: ...
 
 
-_Route = tuple[tuple[Callable[[Message], None], Callable[[Message, int], None] | None], ...]
+_Offer = Callable[[Message], None]
+_Route = tuple[tuple[_Offer, Callable[[Message, int], None] | None], ...]
 
 
 class Fanout:
     """Hands every published message to every subscribed consumer that accepts its type, in
-    subscription order."""
+    subscription order, then to every attached stage that accepts it, whose output goes to
+    the consumers."""
 
     def __init__(self) -> None:
         self._targets: tuple[Consumer, ...] = ()
-        self._routes: dict[type, _Route] = {}
+        self._stages: tuple[Stage, ...] = ()
+        self._routes: dict[type, tuple[_Route, tuple[Callable[[Message], list[Message]], ...]]]
+        self._routes = {}
         self._lock = threading.Lock()
 
     def subscribe(self, consumer: Consumer) -> None:
@@ -69,24 +89,48 @@ class Fanout:
             self._targets = tuple(t for t in self._targets if t is not consumer)
             self._routes = {}
 
-    def _route(self, cls: type) -> _Route:
-        route = tuple(
+    def attach(self, stage: Stage) -> None:
+        with self._lock:
+            self._stages = (*self._stages, stage)
+            self._routes = {}
+
+    def _route(self, cls: type) -> tuple[_Route, tuple[Callable[[Message], list[Message]], ...]]:
+        consumers = tuple(
             (c.offer, c.offer_received if isinstance(c, TimedConsumer) else None)
             for c in self._targets
             if _accepts(c, cls)
         )
-        self._routes[cls] = route
-        return route
+        stages = tuple(s.process for s in self._stages if _accepts(s, cls))
+        self._routes[cls] = (consumers, stages)
+        return consumers, stages
 
     def publish(self, message: Message, received_ns: int | None = None) -> None:
         route = self._routes.get(type(message))
         if route is None:
             route = self._route(type(message))
-        for offer, timed in route:
+        consumers, stages = route
+        for offer, timed in consumers:
             if timed is not None and received_ns is not None:
                 timed(message, received_ns)
             else:
                 offer(message)
+        for process in stages:
+            for made in process(message):
+                self._to_consumers(made)
+
+    def finish_stages(self) -> None:
+        """The input has ended (the readers stopped): what the stages make of that goes to
+        the consumers."""
+        for stage in self._stages:
+            for made in stage.finish():
+                self._to_consumers(made)
+
+    def _to_consumers(self, message: Message) -> None:
+        route = self._routes.get(type(message))
+        if route is None:
+            route = self._route(type(message))
+        for offer, _ in route[0]:
+            offer(message)
 
 
 def _accepts(consumer: object, cls: type) -> bool:

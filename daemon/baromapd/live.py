@@ -44,6 +44,7 @@ from baromap.messages import (
     FloorEvent,
     FloorState,
     PressureSample,
+    RideEvent,
 )
 from baromapd.osthread import name_os_thread
 
@@ -145,7 +146,7 @@ class LivePublisher:
             if not isinstance(message, self._accepted) or self._thread is None:
                 counters.ignored += 1
                 return
-            if isinstance(message, (FloorEvent, FloorState)):
+            if isinstance(message, (FloorEvent, RideEvent, FloorState)):
                 if len(self._urgent) >= URGENT_QUEUE:
                     counters.dropped_urgent += 1
                     return
@@ -306,13 +307,14 @@ class LivePublisher:
         block, drop = zenoh.CongestionControl.BLOCK, zenoh.CongestionControl.DROP
         qos = {
             Channel.EVENT: (block, zenoh.Priority.INTERACTIVE_HIGH, True),
+            Channel.RIDE: (block, zenoh.Priority.INTERACTIVE_HIGH, True),
             Channel.STATE: (block, zenoh.Priority.DATA_HIGH, False),
             Channel.PRESSURE: (drop, zenoh.Priority.DATA, False),
             Channel.HEALTH: (drop, zenoh.Priority.DATA_LOW, False),
         }
         publishers = {}
         for channel, (congestion, priority, express) in qos.items():
-            if self.keys.station and channel in (Channel.EVENT, Channel.STATE):
+            if self.keys.station and channel in (Channel.EVENT, Channel.RIDE, Channel.STATE):
                 continue
             publishers[channel] = session.declare_publisher(
                 self.keys.key(channel),

@@ -50,7 +50,7 @@ def wait(what: object, timeout: float = 10.0) -> None:
 
 def run_robot(with_station: bool) -> list[Message]:
     published: list[Message] = []
-    tracker = FloorTracker(FloorDetectorConfig(), published.append)
+    tracker = FloorTracker(FloorDetectorConfig())
     station = robot = None
     try:
         station_ep = endpoint(free_port())
@@ -81,13 +81,13 @@ def run_robot(with_station: bool) -> list[Message]:
                     station.offer(sample(i))
                 wait(lambda e=expected: robot.health()["reference_samples"] >= e)
             for i in batch:
-                tracker.offer(sample(i, offset=-50.0))  # the robot stands a few metres higher
+                published += tracker.process(sample(i, offset=-50.0))  # a few metres higher
     finally:
         if robot is not None:
             robot.close()
         if station is not None:
             station.close()
-        tracker.close()
+        published += tracker.finish()
     return published
 
 
