@@ -522,7 +522,10 @@ class OnlineFloorDetector:
         """During a change: announce a ride once it moved ``ride_m`` one way and is still
         moving that way, or withdraw one that turned the other way."""
         step = average - self._floor_level
-        if -self._ride_pa < step < self._ride_pa:
+        # a floor decided as the car stopped has a level good to the stop's band until it
+        # is measured again: what the doors and the sensor do meanwhile is no ride
+        threshold = self._ride_pa + (self._stop_band if self._remeasure else 0.0)
+        if -threshold < step < threshold:
             return
         slope = self._stop_window.slope()
         if step * slope <= 0.0 or -self._settle_rate < slope < self._settle_rate:
