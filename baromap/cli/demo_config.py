@@ -7,7 +7,8 @@ with ``baromapd --check-config`` and run the daemon by hand on the same twins
 laser runs at 500 kbaud as on its RS-422 adapter, the base at the host speed the twins are set
 to, retries are quick (the twins appear a moment after the daemon starts), Zenoh listens on
 a free loopback port so a baromapd already running on the machine is left alone, and so does
-the live view (the usual 8765 when it is free).
+the live view (the usual 8765 when it is free). What the ``[floors]`` table says about the
+building (:func:`floor_naming`) is what a user would say.
 """
 
 from __future__ import annotations
@@ -21,6 +22,18 @@ import tomli_w
 
 #: The twins' link names (``baromap sim --link-dir``) by daemon device.
 TWIN_LINKS = {"laser": "lms200", "base": "p3at", "barometer": "baro"}
+
+
+#: Floor to floor in the demo's building, as its user would give it: the simulated building's
+#: ground storey is 5.6 m and floors 1 and 2 are 6.9 m apart (over a mezzanine the robot does
+#: not visit), so "about 6 m".
+DEMO_STOREY_M = 6.0
+
+
+def floor_naming(start_floor: int) -> dict[str, object]:
+    """The ``[floors]`` keys a user sets so the live floors get the building's names: the
+    floor the robot starts on, and how tall a storey is."""
+    return {"start_floor": str(start_floor), "storey_m": DEMO_STOREY_M}
 
 
 def free_loopback_port() -> int:

@@ -26,6 +26,7 @@ from pathlib import Path
 from baromap.cli.demo_children import Child, ChildFailed, Children, Line, command
 from baromap.cli.demo_config import (
     daemon_config,
+    floor_naming,
     free_loopback_port,
     port_is_free,
     twin_ports,
@@ -178,8 +179,12 @@ def _write_settings(
 ) -> tuple[Path, Path]:
     """baromapd.toml and twins.toml in ``out``."""
     extra = {table: dict(values) for table, values in additions.config.items()}
-    if additions.scale_detector:
-        extra["floors"] = {**mission.floor_settings(), **extra.get("floors", {})}
+    scaled = mission.floor_settings() if additions.scale_detector else {}
+    extra["floors"] = {
+        **floor_naming(mission.route[0]),
+        **scaled,
+        **extra.get("floors", {}),
+    }
     config = out / "baromapd.toml"
     text = daemon_config(
         mission.robot,

@@ -212,7 +212,6 @@ class OnlineFloorDetector:
         self._calm_ns = 0  # last time the pressure was quiet where the robot is
         self._window = StillWindow(self._settle_ns, MIN_WINDOW_SAMPLES)
         self._stop_window = StillWindow(self._stop_ns, MIN_WINDOW_SAMPLES)
-        self._late_window = StillWindow(self._stop_ns // 2, MIN_WINDOW_SAMPLES)
         # Where the robot is: the tracked level there, and the current floor's level.
         self._anchor = math.nan
         self._drift = 0.0  # Pa/s
@@ -335,7 +334,6 @@ class OnlineFloorDetector:
         window.push(t, p, average)
         stop = self._stop_window
         stop.push(t, p, average)
-        self._late_window.push(t, p, average)
         if self._floor >= 0:
             self._announce(t, average)
             if self._car_stopped(t, average):
@@ -652,14 +650,12 @@ class OnlineFloorDetector:
                 self._floor_level += self._drift * elapsed
             self._window.clear()  # what came before the gap says nothing about now
             self._stop_window.clear()
-            self._late_window.clear()
         self._window.push(t, p, p)
         self._stop_window.push(t, p, p)
 
     def _begin_change(self) -> None:
         self._window.clear()  # stillness is judged on what came after the change began
         self._stop_window.clear()
-        self._late_window.clear()
         self._phase = _CHANGING
         self._since = self._t
         self._change_start = self._calm_ns
