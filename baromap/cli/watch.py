@@ -33,6 +33,9 @@ def register(subparsers: Any) -> None:
     watch.add_argument(
         "--zenoh-config", metavar="FILE", help="Zenoh JSON5 configuration (TLS, credentials)"
     )
+    watch.add_argument(
+        "--rides", action="store_true", help="also print rides as they start and end"
+    )
     watch.add_argument("--states", action="store_true", help="also print every state published")
     watch.add_argument("--pressure", action="store_true", help="also print decimated pressure")
     watch.add_argument("--health", action="store_true", help="also print device health")
@@ -71,6 +74,7 @@ def run_watch(args: argparse.Namespace) -> int:
         raise ConfigError(message.replace("zenoh.connect", "--connect")) from None
     channels = [Channel.EVENT]
     for flag, channel in (
+        (args.rides, Channel.RIDE),
         (args.states, Channel.STATE),
         (args.pressure, Channel.PRESSURE),
         (args.health, Channel.HEALTH),
@@ -100,7 +104,7 @@ def _clock(t_ns: int) -> str:
 
 def _text_line(report: Any, connect: tuple[str, ...]) -> str:
     from baromap.live import watch as w
-    from baromap.messages import FloorEventKind, FloorPhase
+    from baromap.messages import FloorEventKind, FloorPhase, RideEventKind
 
     now = _clock(time.time_ns())
     match report:
@@ -129,6 +133,12 @@ def _text_line(report: Any, connect: tuple[str, ...]) -> str:
             elif s.phase is FloorPhase.CHANGING:
                 line += f"; moving, now at {s.level_m:+.2f} m"
             return line
+        case w.EventReport(robot=robot, event=e) if e.kind is FloorEventKind.RETRACTION:
+            return (
+                f"{now} {robot}: retraction of event {e.replaces}: floor {e.from_name} -> "
+                f"{e.to_name} did not happen (the car brought the robot back), decided "
+                f"{_clock(e.t_ns)} [event {e.event_id}]"
+            )
         case w.EventReport(robot=robot, event=e):
             what = (
                 f"correction of event {e.replaces}: " if e.kind is FloorEventKind.CORRECTION else ""
@@ -140,6 +150,14 @@ def _text_line(report: Any, connect: tuple[str, ...]) -> str:
                 f"{_clock(e.t_start_ns)} to {_clock(e.t_end_ns)}, decided {_clock(e.t_ns)}{end} "
                 f"[event {e.event_id}]"
             )
+        case w.RideReport(robot=robot, ride=r):
+            if r.kind is RideEventKind.STARTED:
+                told = f"{r.direction.value} from floor {r.from_name}"
+            elif r.kind is RideEventKind.ENDED:
+                told = f"ended on floor {r.to_name} (event {r.floor_event_id})"
+            else:
+                told = f"withdrawn: {r.reason}"
+            return f"{now} {robot}: ride {r.ride_id} {told} at {_clock(r.t_ns)}"
         case w.PressureReport(robot=robot, sample=p):
             return f"{now} {robot}: pressure {p.pressure_pa:.2f} Pa at {_clock(p.t_ns)}"
         case w.HealthReport(robot=robot, health=h):
@@ -167,6 +185,8 @@ def _json_line(report: Any, _connect: tuple[str, ...]) -> str:
             out |= {"report": kind, "robot": robot, "state": jsonmsg.to_dict(s)}
         case w.EventReport(robot=robot, event=e):
             out |= {"report": "event", "robot": robot, "event": jsonmsg.to_dict(e)}
+        case w.RideReport(robot=robot, ride=r):
+            out |= {"report": "ride", "robot": robot, "ride": jsonmsg.to_dict(r)}
         case w.PressureReport(robot=robot, sample=p):
             out |= {"report": "pressure", "robot": robot, "pressure": jsonmsg.to_dict(p)}
         case w.HealthReport(robot=robot, health=h):

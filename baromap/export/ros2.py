@@ -14,6 +14,7 @@ laser mount (metadata)    ``/tf_static`` (once, latched)  ``tf2_msgs/msg/TFMessa
                                                           ``sensor_msgs/msg/Temperature``
 ``/reference/pressure``   same, ``.../temperature``       same
 ``/floor/event``,         same                            ``std_msgs/msg/String``: the JSON of
+``/floor/ride``,
 ``/floor/state``                                          :mod:`baromap.jsonmsg` (``schema``
                                                           versioned), NaN as null
 ``/diagnostics``          ``/diagnostics``                ``diagnostic_msgs/msg/DiagnosticArray``
@@ -55,6 +56,14 @@ from baromap.recording import read_messages, read_metadata, topics
 from baromap.recording.run_parts import Recording, run_parts
 
 log = structlog.get_logger(__name__)
+
+#: Messages exported as their JSON in a ``std_msgs/msg/String``.
+_JSON_AS_STRING = (
+    messages.FloorEvent,
+    messages.RideEvent,
+    messages.FloorState,
+    messages.TruthFloor,
+)
 
 DISTRO_STORE = "ROS2_JAZZY"
 BARO_FRAME = topics.BASE_FRAME  # the barometer rides on the base
@@ -330,7 +339,7 @@ def export_ros2(
             elif isinstance(msg, messages.PressureSample):
                 frame = BARO_FRAME if rec.topic == topics.BARO else REFERENCE_FRAME
                 _pressure(bag, rec.topic, msg, frame)
-            elif isinstance(msg, messages.FloorEvent | messages.FloorState | messages.TruthFloor):
+            elif isinstance(msg, _JSON_AS_STRING):
                 bag.write(rec.topic, "std_msgs/msg/String", msg.t_ns, _json(bag, msg))
             elif type(msg) in by_message:
                 bag.write(rec.topic, types[type(msg)], msg.t_ns, by_message[type(msg)](bag, msg))

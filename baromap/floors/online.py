@@ -184,6 +184,7 @@ class OnlineFloorDetector:
         )
         self._motion = StopWatch()  # since the stop began
         self._ride_motion = StopWatch()  # since the change began
+        self._moved_before_leg = 0.0
         self._settle_ns = round(c.settle_s * NS_PER_S)
         self._stop_ns = round(c.stop_s * NS_PER_S)
         self._gap_ns = round(c.max_gap_s * NS_PER_S)
@@ -437,8 +438,8 @@ class OnlineFloorDetector:
         return self._ride_motion.live(t) and self._ride_motion.moved_m < self.config.leave_m
 
     def _car_stopped(self, t: int, average: float) -> bool:
-        """The short test of a car's stop: still for ``stop_s`` at a storey from the floor,
-        the robot in the car."""
+        """The short test of a car's stop: still for ``stop_s`` at a storey from the floor
+        (or half a storey on from a stop decided in the car), the robot in the car."""
         stop = self._stop_window
         if (
             t - stop.start_ns < self._stop_ns
@@ -449,7 +450,11 @@ class OnlineFloorDetector:
         if not -self._stop_rate < stop.slope() < self._stop_rate:
             return False
         step = average - self._floor_level
-        return (step >= self._storey_pa or step <= -self._storey_pa) and self._in_car(t)
+        least = self._storey_pa
+        visit = self._visit
+        if visit is not None and visit.in_car and self._trip_start < 0:
+            least /= 2  # the car going on from a stop decided in it: a leg corrects that
+        return (step >= least or step <= -least) and self._in_car(t)
 
     def _on_stop(self, t: int, dt: float, smoothed: float, rate: float) -> None:
         """Stopped at a storey's height during a ride: a visit yet?"""
@@ -660,6 +665,9 @@ class OnlineFloorDetector:
         self._since = self._t
         self._change_start = self._calm_ns
         self._ride_motion.watch(self._calm_ns)
+        # where the robot had got to from its last stop when this leg began (it may drive
+        # off at the leg's end before the pressure is known to have settled there)
+        self._moved_before_leg = self._motion.moved_m
 
     def _settled(self, t: int, settled: float, t_end: int, *, at_end: bool) -> None:
         """The pressure came to rest (or the input ended): where does that leave the robot?"""
@@ -801,8 +809,8 @@ class OnlineFloorDetector:
         if -leg_pa < step < leg_pa:
             return False
         if self._motion.live(t):
-            if self._motion.moved_m >= self.config.leave_m:
-                return False  # the robot drove off: it visited that floor
+            if self._moved_before_leg >= self.config.leave_m:
+                return False  # the robot drove off before this leg: it visited that floor
             if visit.in_car and self._in_car(t):
                 return True  # it never left the car, however long the car stood there
         if self._change_start - visit.stop_ns >= self._landing_ns:

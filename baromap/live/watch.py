@@ -25,7 +25,7 @@ from baromap.live.keys import Channel, robot_of, robot_selector
 from baromap.live.payloads import decode
 from baromap.live.session import close_session, open_session
 from baromap.live.settings import LiveSettings
-from baromap.messages import DeviceHealth, FloorEvent, FloorState, PressureSample
+from baromap.messages import DeviceHealth, FloorEvent, FloorState, PressureSample, RideEvent
 
 if TYPE_CHECKING:
     import zenoh
@@ -65,6 +65,12 @@ class EventReport:
 
 
 @dataclass(frozen=True, slots=True)
+class RideReport:
+    robot: str
+    ride: RideEvent
+
+
+@dataclass(frozen=True, slots=True)
 class PressureReport:
     robot: str
     sample: PressureSample
@@ -96,6 +102,7 @@ WatchReport = (
     | RobotGone
     | StateReport
     | EventReport
+    | RideReport
     | PressureReport
     | HealthReport
     | QueryDone
@@ -110,6 +117,7 @@ def _published_state(robot: str, state: FloorState) -> StateReport:
 #: The report of each published channel, from (robot, message).
 _PUBLISHED: dict[Channel, Callable[[str, Any], WatchReport]] = {
     Channel.EVENT: EventReport,
+    Channel.RIDE: RideReport,
     Channel.STATE: _published_state,
     Channel.PRESSURE: PressureReport,
     Channel.HEALTH: HealthReport,
@@ -120,8 +128,9 @@ class FloorWatch:
     """Live floor reports of one robot (``robot``) or of all of them.
 
     ``channels`` are the published channels to follow besides liveliness and the state
-    question at start: events by default; add ``Channel.STATE`` for every state publication,
-    ``Channel.PRESSURE`` and ``Channel.HEALTH`` for those.
+    question at start: events by default; add ``Channel.RIDE`` for rides as they start and
+    end, ``Channel.STATE`` for every state publication, ``Channel.PRESSURE`` and
+    ``Channel.HEALTH`` for those.
     """
 
     def __init__(

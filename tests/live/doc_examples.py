@@ -1,7 +1,7 @@
 """Print the payload examples of ``docs/zenoh.md`` as they come off the wire.
 
 A simulated run goes through the online floor detector into the daemon's publisher; a Zenoh
-subscriber in this process keeps the first sample of every key (the last floor event) and
+subscriber in this process keeps the first sample of every key (the last floor event and ride) and
 asks the state queryable, and what it received is printed as Markdown. Paste it between the
 markers in the doc; ``test_zenoh_doc.py`` checks the doc's examples are still real payloads.
 
@@ -40,7 +40,7 @@ def main() -> None:
 
     def keep(sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
-        if key not in seen or key.endswith("/floor/event"):
+        if key not in seen or key.endswith(("/floor/event", "/floor/ride")):
             seen[key] = (str(sample.encoding), sample.payload.to_bytes())
 
     session = open_session(LiveSettings.client((endpoint,)))

@@ -26,7 +26,7 @@ from collections.abc import Sequence
 from baromap import jsonmsg, logs
 from baromap.live.session import close_session, open_session
 from baromap.live.settings import LiveSettings, ZenohMode
-from baromap.messages import DeviceHealth, DeviceState, PressureSample
+from baromap.messages import DeviceHealth, DeviceState, FloorEvent, PressureSample
 
 #: Samples between two state offers (the publisher decides what changed).
 STATE_EVERY = 5
@@ -111,7 +111,7 @@ def run_robot(args: argparse.Namespace) -> int:
         decided = detector.update(sample)
         for event in decided:
             publisher.offer(event)
-        events.extend(decided)
+        events.extend(e for e in decided if isinstance(e, FloorEvent))  # rides go out too
         if decided or i % STATE_EVERY == 0:
             publisher.offer(detector.state())
         if i % 25 == 0:
@@ -119,7 +119,7 @@ def run_robot(args: argparse.Namespace) -> int:
     last = detector.finish()
     for event in last:
         publisher.offer(event)
-    events.extend(last)
+    events.extend(e for e in last if isinstance(e, FloorEvent))
     publisher.offer(detector.state())
     time.sleep(0.2)  # let the worker drain before the counters are read
     say(

@@ -17,6 +17,7 @@ from baromap.live.payloads import decode
 DOC = REPO / "docs" / "zenoh.md"
 CHANNEL_OF_SCHEMA = {
     "baromap.FloorEvent": Channel.EVENT,
+    "baromap.RideEvent": Channel.RIDE,
     "baromap.FloorState": Channel.STATE,
     "baromap.PressureSample": Channel.PRESSURE,
     "baromap.DeviceHealth": Channel.HEALTH,
