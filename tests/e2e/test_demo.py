@@ -168,12 +168,17 @@ def test_live_floor_events_match_the_truth(
         event_s = timeline.sim_s_at([event.t_start_ns, event.t_end_ns, event.t_ns])
         assert event_s[0] <= ride_s[1] + EDGE_TOLERANCE_S
         assert event_s[1] >= ride_s[0] - EDGE_TOLERANCE_S
-        assert 0 < event_s[2] - ride_s[1] < LIVE_DECISION_S
+        # decided as the car stops (the robot rode in it), a moment before it stands at the
+        # latest: the barometer's lag is of the car's motion too
+        assert -EDGE_TOLERANCE_S < event_s[2] - ride_s[1] < LIVE_DECISION_S
         true_delta = floor_truth.heights_m[ride.to_floor] - floor_truth.heights_m[ride.from_floor]
         assert abs(event.delta_m - true_delta) < LIVE_HEIGHT_TOLERANCE_M
         for floor, name in ((ride.from_floor, event.from_name), (ride.to_floor, event.to_name)):
             assert names.setdefault(floor, name) == name
     assert len(set(names.values())) == len(names)
+    # the demo configures its start floor and storey height as a user would: the live names
+    # are the building's own (its floors 0, 1, 2: consecutive, whatever their heights)
+    assert names == {floor: str(floor) for floor in names}
 
 
 def test_post_run_floors_match_the_truth(
