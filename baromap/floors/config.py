@@ -19,18 +19,20 @@ Why the defaults are what they are:
   below that speed (one window, so one lag). An elevator moves at 0.5-2 m/s and stairs at
   0.1-0.3 m/s; the short window keeps the decision within a couple of seconds of the pressure
   settling. A person carrying a phone is never still for long.
-- ``stop_s = 1.5``, ``stop_band_m = 1.0``, ``stop_rate_m_s = 0.35``: when the robot rode a
+- ``stop_s = 1.5``, ``stop_band_m = 1.0``, ``stop_rate_m_s = 0.4``: when the robot rode a
   change standing in a car (odometry), the car's stop is decided on this looser test: the
-  smoothed pressure within a metre of itself and the slope of the raw pressure under 0.35 m/s
-  for a second and a half. It leaves room for what follows a car's stop with no vertical
-  motion at all: the doors' seal (a car is kept a few pascals above its shaft while closed)
-  letting go as they open, the barometer's own filter catching up (a BMP280 set for indoor
-  navigation lags about 0.6 s, 0.6 m at 1 m/s), a ventilation spike fading; elevators ride
-  at 0.5 m/s or faster, above the slope. The still test above still decides every change
-  that is no car ride. A pause of the pressure mid-ride (a spike's decay cancelling the
-  car's motion for a second) passes this test too, and the car going on corrects it: a
-  shorter or looser window decides sooner and is fooled more often. These three values were
-  chosen on the simulator (``bench/floors_live.py``, docs/floors.md), not from physics alone.
+  smoothed pressure within a metre of itself and the slope of the raw pressure under 0.4 m/s
+  for a second and a half, after a ride no faster than a car can make it (from rest to rest
+  with at most 1.5 m/s² of acceleration: two spikes in a row rise as far in a second). It
+  leaves room for what follows a car's stop with no vertical motion at all: the doors' seal
+  (a car is kept a few pascals above its shaft while closed) letting go as they open, the
+  barometer's own filter catching up (a BMP280 set for indoor navigation lags about 0.6 s,
+  0.6 m at 1 m/s), a ventilation spike fading; elevators ride at 0.5 m/s or faster, above the
+  slope. The still test above still decides every change that is no car ride. A pause of the
+  pressure mid-ride (a spike's decay cancelling the car's motion for a second) can pass this
+  test, and the car going on corrects it: a shorter or looser window decides sooner and is
+  fooled more often. These three values were chosen on the simulator
+  (``bench/floors_live.py``, docs/floors.md), not from physics alone.
 - ``ride_m = 0.5``: a ride is announced once the pressure moved half a metre from the floor's
   level with the smoothed rate the same way (as a change begins at ``start_m``); a car's
   piston effect and the sensor's filter delay it by a second or so after the car starts.
@@ -127,7 +129,7 @@ class FloorDetectorConfig:
     # A car's stop with the robot in it (s, m, m/s), and when a ride is announced (m).
     stop_s: float = 1.5
     stop_band_m: float = 1.0
-    stop_rate_m_s: float = 0.35
+    stop_rate_m_s: float = 0.4
     ride_m: float = 0.5
 
     # Trips, stops and visits (s, m); a gap in the data longer than max_gap_s ends a trip.

@@ -104,6 +104,10 @@ MAX_WEATHER_RATE_PA_S = 0.2
 #: 1.5 s) has the window stretched past ``settle_s`` to hold this many; a window of
 #: ``settle_s`` alone would never hold three, and such a run would never settle on a floor.
 MIN_WINDOW_SAMPLES = 3
+#: Fastest a lift car speeds up or slows down, m/s² (passenger lifts keep to 1-1.5 for
+#: comfort; the simulated car does 0.6): a step of d metres from rest to rest takes at least
+#: 2 sqrt(d / this).
+MAX_CAR_ACCEL_M_S2 = 1.5
 
 _UNKNOWN, _SETTLED, _CHANGING, _STOPPED = 0, 1, 2, 3
 _PHASES = (FloorPhase.UNKNOWN, FloorPhase.SETTLED, FloorPhase.CHANGING, FloorPhase.STOPPED)
@@ -202,6 +206,7 @@ class OnlineFloorDetector:
         self._stop_band = 0.0
         self._ride_pa = 0.0
         self._storey_pa = 0.0  # min_transition_m
+        self._pa_per_m = 0.0
         self._temperature = c.default_temperature_c
         self._n = 0
         self._t = 0
@@ -231,8 +236,8 @@ class OnlineFloorDetector:
         self._dwell_level = math.nan
         self._held: _Held | None = None
         self._visit: _Visit | None = None
-        # A floor decided as the car stopped, whose level is measured again once still.
-        self._remeasure = False
+        # Until when the level of a floor decided as the car stopped is measured again (0: not)
+        self._measure_until = 0
         # Reference station.
         self._ref_level = math.nan
         self._ref_origin = math.nan
@@ -323,7 +328,7 @@ class OnlineFloorDetector:
                 self._calm_ns = t
             self._anchor = anchor
             self._floor_level = anchor - self._offset
-            if self._remeasure:
+            if t <= self._measure_until:
                 self._measure_again(t, p, average)
             return []
         if phase == _STOPPED:
@@ -451,10 +456,30 @@ class OnlineFloorDetector:
             return False
         step = average - self._floor_level
         least = self._storey_pa
+        began = self._change_start
+        if self._trip_start >= 0:
+            began = self._trip_start
+        elif self._departed_ns >= 0:
+            began = self._departed_ns  # the car paused short of a storey on the way
         visit = self._visit
-        if visit is not None and visit.in_car and self._trip_start < 0:
-            least /= 2  # the car going on from a stop decided in it: a leg corrects that
-        return (step >= least or step <= -least) and self._in_car(t)
+        if (
+            visit is not None
+            and visit.in_car
+            and self._trip_start < 0
+            and self._moved_before_leg < self.config.leave_m
+        ):
+            # the car going on from a stop decided in it: a leg corrects that decision, and
+            # the car's trip began with the decided one
+            least /= 2
+            began = self._current[visit.position].t_start_ns
+            step += visit.delta_pa
+        if -least < average - self._floor_level < least or not self._in_car(t):
+            return False
+        # A car starts from rest and stops at rest: it covers a step no faster than its
+        # acceleration allows. A spike (or two) rises as far in a second, and is no ride.
+        metres = abs(step) / self._pa_per_m
+        rode_s = (stop.start_ns - began) / NS_PER_S
+        return rode_s >= 2.0 * math.sqrt(metres / MAX_CAR_ACCEL_M_S2)
 
     def _on_stop(self, t: int, dt: float, smoothed: float, rate: float) -> None:
         """Stopped at a storey's height during a ride: a visit yet?"""
@@ -491,10 +516,13 @@ class OnlineFloorDetector:
         return level + 2.0 * dt / tau * error
 
     def _measure_again(self, t: int, p: float, average: float) -> None:
-        """On a floor decided as the car stopped: once the pressure has been still for
-        ``settle_s`` (the doors open, the sensor caught up), that is the floor's level."""
+        """On a floor decided as the car stopped, until the robot drives off or ``landing_s``
+        passed: whenever the pressure has been still for ``settle_s`` (the doors open, a
+        spike faded, the sensor caught up), that is the floor's level."""
         window = self._window
         window.push(t, p, average)
+        if self._motion.live(t) and self._motion.moved_m >= self.config.leave_m:
+            self._measure_until = 0  # out of the car: what it measured last stands
         if (
             t - window.start_ns < self._settle_ns
             or window.count < MIN_WINDOW_SAMPLES
@@ -502,7 +530,6 @@ class OnlineFloorDetector:
             or not -self._settle_rate < window.slope() < self._settle_rate
         ):
             return
-        self._remeasure = False
         self._rebase(average - self._offset)
 
     def _rebase(self, level: float) -> None:
@@ -527,7 +554,7 @@ class OnlineFloorDetector:
         step = average - self._floor_level
         # a floor decided as the car stopped has a level good to the stop's band until it
         # is measured again: what the doors and the sensor do meanwhile is no ride
-        threshold = self._ride_pa + (self._stop_band if self._remeasure else 0.0)
+        threshold = self._ride_pa + (self._stop_band if self._t <= self._measure_until else 0.0)
         if -threshold < step < threshold:
             return
         slope = self._stop_window.slope()
@@ -630,6 +657,7 @@ class OnlineFloorDetector:
         self._stop_band = c.stop_band_m * gradient
         self._ride_pa = c.ride_m * gradient
         self._storey_pa = c.min_transition_m * gradient
+        self._pa_per_m = gradient
 
     def _gap(self, t: int, p: float) -> None:
         """No data for longer than ``max_gap_s``: the robot may have moved meanwhile."""
@@ -640,7 +668,7 @@ class OnlineFloorDetector:
         self._t = t
         self.level = self.smoothed = p
         self.rate = 0.0
-        self._remeasure = False
+        self._measure_until = 0
         if self._phase in (_SETTLED, _STOPPED):
             self._floor_level += self._drift * elapsed
             if self._phase == _SETTLED:
@@ -733,7 +761,7 @@ class OnlineFloorDetector:
         self._calm_ns = t
         self._anchor = self._stop_level = settled
         self._stop_start = t_end
-        self._remeasure = False
+        self._measure_until = 0
         if held is not None and -min_pa < settled - held.dwell_level < min_pa:
             # Still within a storey of where the trip first came to rest (the end of a
             # staircase, a floor that slopes): the same stop for the dwell and for odometry.
@@ -796,8 +824,8 @@ class OnlineFloorDetector:
         self._trip_start = -1
         self._departed_ns = -1
         self._enter(t, level, 0.0)
-        # decided on the car's stop: the level is measured again once the doors are open
-        self._remeasure = in_car and not at_end
+        # decided on the car's stop: the level is measured again while the robot is in it
+        self._measure_until = t + self._landing_ns if in_car and not at_end else 0
         self._window.clear()
 
     def _continues(self, t: int, settled: float, leg_pa: float) -> bool:
@@ -865,7 +893,7 @@ class OnlineFloorDetector:
         self._floor = to_id
         self._departed_ns = -1
         self._enter(t, settled, 0.0)
-        self._remeasure = in_car
+        self._measure_until = t + self._landing_ns if in_car else 0
         self._window.clear()
 
     def _retract(self, t: int, old: FloorEvent, visit: _Visit, settled: float) -> None:
@@ -887,7 +915,7 @@ class OnlineFloorDetector:
         self._floor = old.from_id
         self._departed_ns = -1
         self._enter(t, settled, 0.0)
-        self._remeasure = False
+        self._measure_until = 0
 
     def _measured_again(self, t: int, settled: float) -> None:
         """The current floor is at ``settled``: take it as its level, with no event."""
@@ -899,7 +927,7 @@ class OnlineFloorDetector:
         self._rebase(settled)
         self._offset = 0.0
         self._anchor = settled
-        self._remeasure = False
+        self._window.clear()
 
     def _sub_threshold(self, t: int, t_end: int, settled: float, step: float) -> None:
         """Settled short of a floor change: a landing, a ramp, or a spike that went away."""
@@ -919,9 +947,9 @@ class OnlineFloorDetector:
             # landing (the robot stayed at the old offset; that was no part of this trip)
             self._departed_ns = self._change_start
         self._landed_ns = t_end
-        if self._remeasure:
-            # the doors' seal or the sensor's lag moved the pressure after the decision:
-            # this is the floor's level
+        if t <= self._measure_until:
+            # the doors' seal, a spike or the sensor's lag moved the pressure after the
+            # decision: this is the floor's level
             self._measured_again(t, settled)
             return
         self._enter(t, settled, step)
