@@ -461,6 +461,24 @@ def test_a_ride_that_comes_to_rest_short_of_a_floor_is_withdrawn_with_a_reason()
     assert withdrawn.reason == "came to rest 1.2 m from floor 0: no ride"
 
 
+def test_a_step_faster_than_a_car_can_ride_is_no_stop_in_the_car() -> None:
+    # Standing in the car, doors shut: 2 m of pressure in half a second, held 4 s, gone again
+    # (two spikes in a row, a door slammed). A car needs 2.3 s at 1.5 m/s² for 2 m from rest
+    # to rest, so this is no ride, however still it held.
+    tr = trace([Stay(0.0, 120)])
+    s = tr.seconds()
+    bump = np.interp(s, [60.0, 60.5, 64.5, 65.0], [0.0, 24.0, 24.0, 0.0], left=0.0, right=0.0)
+    bumped = Trace(tr.t_ns, tr.pressure_pa + bump, tr.temperature_c, tr.odometry, ())
+    detector = live(bumped)
+    assert detector.events == []
+    # the same 2 m over 3 s, as a slow car rides it, is a ride decided at its stop
+    ride = np.interp(s, [60.0, 63.0], [0.0, 24.0], left=0.0, right=24.0)
+    rode = live(Trace(tr.t_ns, tr.pressure_pa + ride, tr.temperature_c, tr.odometry, ()))
+    (event,) = rode.events
+    assert event.delta_m == pytest.approx(-24.0 / 11.9, abs=0.2)
+    assert secs(event.t_ns) - 63.0 < 2.5
+
+
 def test_rides_with_a_halt_are_each_a_ride() -> None:
     # The robot stays in the car through a halt: two rides, the second ends with the
     # correction of what the first decided.

@@ -475,11 +475,13 @@ class OnlineFloorDetector:
             step += visit.delta_pa
         if -least < average - self._floor_level < least or not self._in_car(t):
             return False
-        # A car starts from rest and stops at rest: it covers a step no faster than its
-        # acceleration allows. A spike (or two) rises as far in a second, and is no ride.
-        metres = abs(step) / self._pa_per_m
-        rode_s = (stop.start_ns - began) / NS_PER_S
-        return rode_s >= 2.0 * math.sqrt(metres / MAX_CAR_ACCEL_M_S2)
+        return self._like_a_car(began, stop.start_ns, step)
+
+    def _like_a_car(self, began: int, stopped: int, step_pa: float) -> bool:
+        """A car starts from rest and stops at rest: it covers a step no faster than its
+        acceleration allows. A spike (or two) rises as far in a second, and is no ride."""
+        metres = abs(step_pa) / self._pa_per_m
+        return (stopped - began) / NS_PER_S >= 2.0 * math.sqrt(metres / MAX_CAR_ACCEL_M_S2)
 
     def _on_stop(self, t: int, dt: float, smoothed: float, rate: float) -> None:
         """Stopped at a storey's height during a ride: a visit yet?"""
@@ -783,10 +785,15 @@ class OnlineFloorDetector:
         self._dwell_start, self._dwell_level = held.dwell_ns, held.dwell_level
 
     def _due(self, t: int, at_end: bool) -> None:
-        """A stop just began or went on: is it a visit already?"""
+        """A stop just began or went on: is it a visit already? (At once when the robot
+        rode to it in a car, as a car rides.)"""
+        began = self._trip_start if self._trip_start >= 0 else self._change_start
+        in_car = self._in_car(t) and self._like_a_car(
+            began, self._stop_start, self._stop_level - self._floor_level
+        )
         if (
             at_end
-            or self._in_car(t)
+            or in_car
             or (self._motion.live(t) and self._motion.moved_m >= self.config.leave_m)
         ):
             self._confirm(t, at_end=at_end)
