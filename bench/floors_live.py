@@ -76,8 +76,8 @@ def _row(name: str, totals: MethodTotals) -> str:
     delays, right, total = ride_delays(totals.rides)
     return (
         f"{name:38s} {totals.live_cases:5d} {live.found:4d}/{live.true:<4d} {live.false:5d} "
-        f"{live.storeys:5d} {percentile(live.delays, 50):6.1f} {percentile(live.delays, 95):6.1f}"
-        f" {percentile(delays, 50):6.1f} {percentile(delays, 95):6.1f} {right:4d}/{total:<4d}"
+        f"{live.storeys:5d} {percentile(live.delays, 50):6.2f} {percentile(live.delays, 95):6.2f}"
+        f" {percentile(delays, 50):6.2f} {percentile(delays, 95):6.2f} {right:4d}/{total:<4d}"
         f" {totals.corrections:4d} ({totals.moves:3d}) {totals.retractions:5d} "
         f"{sum(r.announced for r in totals.rides):6d} {sum(r.withdrawn for r in totals.rides):6d}"
     )

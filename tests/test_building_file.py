@@ -92,3 +92,23 @@ def test_floors_are_named_in_order_of_height_from_the_start_floor() -> None:
     assert names_by_height(4, 0, "5") == ["5", "6", "7", "8"]
     assert names_by_height(3, 1, "G") == ["G-1", "G", "G+1"]
     assert counted_name("-1", -2) == "-3"
+
+
+def test_the_demos_summary_shows_each_floors_name_and_live_name(tmp_path: Path) -> None:
+    from baromap.cli.demo_summary import summary_lines
+
+    building = read_building(_written(tmp_path))
+    lines = summary_lines(
+        out=tmp_path,
+        recording=tmp_path / "run.mcap",
+        building=building,
+        events=[],
+        t0_ns=0,
+        post_run_transitions=0,
+        truth=None,
+        files=[],
+    )
+    floors = [line for line in lines if line.startswith("  floor ")]
+    assert len(floors) == 2
+    assert "name   0  live name  -1" in floors[0]  # named by height, the live name beside it
+    assert "name   1  live name   1" in floors[1]  # the same where they agree
