@@ -7,6 +7,7 @@ The hardware options themselves are declared by the ``pytest_baromap`` plugin (r
 from __future__ import annotations
 
 import os
+import resource
 import subprocess
 import threading
 import time
@@ -14,6 +15,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import structlog
 from hypothesis import settings
 
 REPO = Path(__file__).resolve().parent.parent
@@ -150,3 +152,39 @@ def shared_data() -> Path:
     if SHARED_DATA is None:
         pytest.skip("shared data not found: set BAROMAP_SHARED_DATA to the shared/data folder")
     return SHARED_DATA
+
+
+@pytest.fixture(autouse=True)
+def default_logging() -> Iterator[None]:
+    """Each test starts from structlog's defaults (every level reaches ``capture_logs``).
+
+    An entry point called by an earlier test on the same worker configures an INFO filter; a
+    test reading debug events would then pass or fail by the order tests ran in.
+    """
+    structlog.reset_defaults()
+    yield
+    structlog.reset_defaults()
+
+
+#: Where each test's cost is appended when set: ``BAROMAP_TEST_COST=cost.tsv make test`` (then
+#: ``sort -t$'\t' -k2 -rn cost.tsv | head``). CPU seconds are the worker's and its children's,
+#: so they hold on a loaded machine, where wall times do not.
+COST_FILE = os.environ.get("BAROMAP_TEST_COST")
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[object]:
+    if not COST_FILE:
+        return (yield)
+
+    def cpu() -> float:
+        own, kids = (
+            resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
+        )
+        return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+    cpu0, wall0 = cpu(), time.monotonic()
+    result = yield
+    with open(COST_FILE, "a") as out:
+        out.write(f"{item.nodeid}\t{cpu() - cpu0:.2f}\t{time.monotonic() - wall0:.2f}\n")
+    return result
