@@ -42,8 +42,21 @@ def test_parse_time_is_exact(text: str, ns: int) -> None:
     assert parse_time_ns(text) == ns
 
 
-@pytest.mark.parametrize("text", ["1.08e-42", "abc", "1.2.3", "1.x"])
-def test_parse_time_rejects_non_decimal(text: str) -> None:
+@pytest.mark.parametrize(
+    ("text", "ns"),
+    [
+        ("1.01893e+09", 1_018_930_000 * 10**9),  # CARMEN's %g, as three public logs print
+        ("4.29497e+09", 4_294_970_000 * 10**9),
+        ("2.5E-3", 2_500_000),
+        ("1.08e-42", 0),
+    ],
+)
+def test_parse_time_reads_exponent_notation_exactly(text: str, ns: int) -> None:
+    assert parse_time_ns(text) == ns
+
+
+@pytest.mark.parametrize("text", ["abc", "1.2.3", "1.x", "nan", "inf", "1_0", "9" * 30])
+def test_parse_time_rejects_what_is_no_time(text: str) -> None:
     with pytest.raises(ValueError):
         parse_time_ns(text)
 
@@ -83,11 +96,9 @@ def test_odom_fields() -> None:
         "FLASER 99999 1 2",  # beam count out of bounds
         "FLASER x",
         "ODOM 1 2",
-        "ODOM 1 2 3 0 0 0 1.08e-42 host 1.08e-42",
         "ROBOTLASER1 0 -1.5 3.1 0.01 81 0.01 0 2 1 2 1",
         ROBOTLASER1.replace("0.0174533", "0"),  # no angular step
         FLASER.replace("1.1 2.1 0.5", "nan 2.1 0.5"),  # a pose that would poison odometry
-        FLASER.replace("976052890.244111", "9" * 30),  # beyond int64 nanoseconds
         "ODOM 1.5 inf 0.25 0.3 0.1 0 10.000001 host 10.000001",
     ],
 )
@@ -191,8 +202,94 @@ def test_the_declared_front_laser_maximum_limits_the_ranges() -> None:
 def test_file_without_laser_is_an_input_error(tmp_path: Path) -> None:
     path = tmp_path / "odom.log"
     path.write_text(ODOM + "\n")
-    with pytest.raises(InputFormatError):
+    with pytest.raises(InputFormatError, match="no FLASER or ROBOTLASER1 line"):
         read_carmen(path)
+
+
+def test_a_file_whose_laser_lines_are_all_malformed_says_which_line_and_why(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "short.log"
+    path.write_text("# a comment\n" + ODOM + "\n" + "\n".join(["FLASER 180 1 2 3"] * 3) + "\n")
+    with pytest.raises(
+        InputFormatError,
+        match=r"no usable laser line; 3 FLASER lines malformed, the first at line 3: line "
+        r"shorter than its beam count",
+    ):
+        read_carmen(path)
+
+
+def _line(kind: str, k: int, stamp: str) -> str:
+    """Line ``k`` of a small log: an FLASER a metre on from the last, or an ODOM."""
+    pose = f"{k:.1f} 0.0 0.0"
+    if kind == "FLASER":
+        return f"FLASER 3 1.0 2.0 3.0 {pose} {pose} {stamp} host {stamp}"
+    return f"ODOM {pose} 0 0 0 {stamp} host {stamp}"
+
+
+@pytest.mark.parametrize(
+    "stamp",
+    ["1.01893e+09", "0", "4.29497e+09", "-1.5", "3.65796e-86"],
+    ids=["one value", "zeros", "wrapped", "negative", "denormal"],
+)
+def test_stamps_that_cannot_order_the_scans_are_replaced_by_the_scan_order(stamp: str) -> None:
+    """Three public logs of one collection: every stamp one value, zeros, or negative and then
+    wrapped at 32 bits. Each line is timed by its place in the file, a scan a second, the
+    odometry between its scans; the repair says what it found."""
+    lines = []
+    for k in range(6):
+        lines += [_line("ODOM", k, stamp), _line("ODOM", k, stamp), _line("FLASER", k, stamp)]
+    log = parse_lines(lines)
+    assert log.scan_times_ns().tolist() == [(k + 1) * 10**9 for k in range(6)]
+    odom = [o.t_ns for o in log.odometry]
+    assert odom[:4] == [333_333_333, 666_666_667, 1_333_333_333, 1_666_666_667]
+    assert log.stamps is not None and log.stamps.from_order
+    assert (log.stamps.scans, log.stamps.odometry) == (6, 12)
+    assert sum(log.stamps.faults.values()) == 18
+    assert log.stamps.summary()["timed_by"] == "scan order, a scan every 1 s"
+
+
+def test_a_few_broken_stamps_take_times_between_their_neighbours() -> None:
+    """Acapulco's kind: a zero, a negative and a stray stamp among good ones. Those lines are
+    timed between their neighbours in the file; the good ones keep theirs, an odometry line a
+    little behind the one before it too (a clock's jitter, sorted afterwards)."""
+    stamps = ["10.0", "10.1", "0", "10.3", "-18.77", "999.5", "10.6", "10.7", "10.65", "10.9"]
+    lines = [_line("FLASER" if k % 3 == 0 else "ODOM", k, t) for k, t in enumerate(stamps)]
+    log = parse_lines(lines)
+    scans = [10_000_000_000, 10_300_000_000, 10_600_000_000, 10_900_000_000]
+    assert log.scan_times_ns().tolist() == scans
+    odom = [o.t_ns for o in log.odometry]
+    assert odom == [10_100_000_000, 10_200_000_000, 10_400_000_000, 10_500_000_000,
+                    10_650_000_000, 10_700_000_000]  # fmt: skip
+    assert log.stamps is not None and not log.stamps.from_order
+    assert log.stamps.faults == {"zero": 1, "negative": 1, "out of order": 1}
+    assert (log.stamps.scans, log.stamps.odometry) == (0, 3)
+
+
+def test_a_stamp_broken_in_one_field_is_read_from_the_other() -> None:
+    line = FLASER.replace("976052890.244111 pippo", "0 pippo")
+    (scan,) = parse_lines([line]).scans
+    assert scan.t_ns == 976052890_244111000
+
+
+def test_good_stamps_are_left_as_they_are(shared_data: Path) -> None:
+    assert parse_lines([FLASER, ODOM]).stamps is None
+
+
+def test_the_public_logs_with_broken_stamps_are_read_whole(shared_data: Path) -> None:
+    """Belgioioso (one stamp for the whole log), the Infinite Corridor (negative, then
+    wrapped at 32 bits) and the Freiburg campus (zeros): every scan read, in file order, a
+    second apart."""
+    for name, scans in (
+        ("belgioioso", 395),
+        ("infinite-corridor", 1941),
+        ("freiburg-campus", 2008),
+    ):
+        log = read_carmen(shared_data / "laser" / f"{name}-corrected.log.gz")
+        assert len(log.scans) == scans, name
+        assert not {k for k in log.skipped if k.startswith("malformed")}, name
+        assert np.array_equal(np.diff(log.scan_times_ns()), np.full(scans - 1, 10**9))
+        assert log.stamps is not None and log.stamps.from_order
 
 
 def test_broken_gzip_is_an_input_error(tmp_path: Path) -> None:
@@ -281,6 +378,32 @@ def test_import_writes_scans_and_odometry(tmp_path: Path) -> None:
     assert len(odom) == 5
     assert odom[-1].x_m == pytest.approx(4 * 1.05, abs=0.3)
     assert read_metadata(out)["baromap.carmen"]["odometry"] == "synthesised"
+
+
+def test_a_failed_import_leaves_nothing_and_an_existing_output_is_refused(
+    tmp_path: Path,
+) -> None:
+    log = _moving_log(tmp_path / "run.log", "{k} 0 0")
+    out = tmp_path / "run.mcap"
+    with pytest.raises(ConfigError):
+        import_carmen(log, out)  # no odometry and none asked for
+    assert list(tmp_path.iterdir()) == [log]
+    import_carmen(log, out, synth_seed=1)
+    assert sorted(tmp_path.iterdir()) == [log, out]
+    with pytest.raises(ConfigError, match="exists"):
+        import_carmen(log, out, synth_seed=1)
+
+
+def test_import_records_where_the_times_came_from(tmp_path: Path) -> None:
+    log = tmp_path / "broken.log"
+    log.write_text("\n".join(_line("FLASER", k, "0") for k in range(5)) + "\n")
+    counts = import_carmen(log, tmp_path / "run.mcap", synth_seed=0)
+    assert counts["stamps"]["scans"] == 5
+    header = read_metadata(tmp_path / "run.mcap")["baromap.carmen"]
+    assert header["stamps"] == "scan order" and header["stamps_replaced"] == "5"
+    good = _moving_log(tmp_path / "good.log", "{k} 0 0")
+    assert import_carmen(good, tmp_path / "good.mcap", synth_seed=0)["stamps"] is None
+    assert read_metadata(tmp_path / "good.mcap")["baromap.carmen"]["stamps"] == "logged"
 
 
 def test_a_raw_log_s_laser_lines_are_its_odometry_when_asked(tmp_path: Path) -> None:

@@ -25,10 +25,13 @@ from __future__ import annotations
 
 import gzip
 import math
+import warnings
 import zlib
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
+from decimal import Decimal, InvalidOperation
+from itertools import pairwise
 from pathlib import Path
 from typing import TextIO
 
@@ -61,6 +64,18 @@ NO_RETURN_CODE_MIN_SCANS = 10
 NO_RETURN_CODE_BIN_M = 0.005
 #: Stamps are Unix seconds; int64 nanoseconds hold about 292 years either side of 1970.
 MAX_ABS_TIME_S = 9_200_000_000
+#: A stamp at or past this (the year 2101) is a small negative time printed as an unsigned
+#: 32-bit number: 4.29497e+09 is -1 s or so, wrapped.
+WRAPPED_FROM_S = 2**32 - 2**27
+#: A stamp under this (a millisecond after the log's clock began) is a zero, printed as a
+#: denormal or left unset.
+ZERO_BELOW_S = Decimal("0.001")
+#: Where a log's stamps cannot order its scans (fewer than ORDERED_SHARE of the steps from one
+#: scan to the next go forward: one value for the whole log, zeros, negative then wrapped),
+#: every line is timed by its place in the file instead, a scan every ORDER_INTERVAL_S: the
+#: corrected logs of the public collections keep about a scan per metre, driven at 0.5-1 m/s.
+ORDERED_SHARE = 0.5
+ORDER_INTERVAL_S = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,6 +112,10 @@ class CarmenLog:
     #: Set when a no-return code or ``robot_front_laser_max`` limits the ranges (see
     #: :func:`no_return_code`); ``None`` when the lines' own limits stand.
     range_limit_m: float | None = None
+    #: What was done to stamps that could not time their lines (see :func:`line_times`).
+    stamps: StampRepair | None = None
+    #: The first malformed line of each kind: ``line N: what is wrong``.
+    problems: dict[str, str] = field(default_factory=dict)
 
     def reference_poses(self) -> FloatArray:
         """(N, 3) robot poses attached to the scans."""
@@ -111,17 +130,186 @@ class CarmenLog:
 
 
 def parse_time_ns(text: str) -> int:
-    """Decimal seconds to integer ns without float rounding (stamps must match relations)."""
-    sign = -1 if text.startswith("-") else 1
-    whole, _, frac = text.lstrip("+-").partition(".")
-    if not whole.isdigit() and whole != "":
+    """Seconds as printed (decimal or exponent notation) to integer ns without float rounding
+    (stamps must match relations); digits past the nanosecond are cut."""
+    try:
+        value = Decimal(text)
+    except InvalidOperation:
+        raise ValueError(f"bad time {text!r}") from None
+    if not value.is_finite() or "_" in text:
         raise ValueError(f"bad time {text!r}")
-    if frac and not frac.isdigit():
-        raise ValueError(f"bad time {text!r}")
-    frac_ns = int((frac + "000000000")[:9]) if frac else 0
-    if len(whole) > 10 or int(whole or "0") > MAX_ABS_TIME_S:
+    if abs(value) > MAX_ABS_TIME_S:
         raise ValueError(f"time {text!r} out of range")
-    return sign * (int(whole or "0") * NS_PER_S + frac_ns)
+    return int(value * NS_PER_S)
+
+
+@dataclass(frozen=True, slots=True)
+class StampRepair:
+    """Stamps that could not time their lines, and what timed them instead.
+
+    ``from_order``: the stamps could not order the scans at all, and every line was timed
+    by its place in the file, a scan every ``interval_s``; otherwise each line whose stamp
+    was broken took a time between its neighbours' in the file. ``faults`` counts the broken
+    stamps by what was wrong with them; ``other_field`` the lines timed by the second stamp
+    field of the line, their first being broken."""
+
+    from_order: bool
+    interval_s: float
+    scans: int  # laser lines not timed by their own stamp
+    odometry: int  # ODOM lines not timed by their own stamp
+    faults: Counter[str]
+    other_field: int
+
+    def summary(self) -> dict[str, object]:
+        """The counts, for one log line or a recording's metadata."""
+        how = (
+            f"scan order, a scan every {self.interval_s:g} s"
+            if self.from_order
+            else "their neighbours in the file"
+        )
+        return {
+            "timed_by": how,
+            "scans": self.scans,
+            "odometry": self.odometry,
+            **{k.replace(" ", "_"): v for k, v in sorted(self.faults.items())},
+            "other_field": self.other_field,
+        }
+
+
+def _stamp_fault(text: str | None) -> tuple[int | None, str]:
+    """A stamp's time, or None and what is wrong with it."""
+    if text is None:
+        return None, "missing"
+    try:
+        value = Decimal(text)
+        t_ns = parse_time_ns(text)
+    except (ValueError, InvalidOperation):
+        return None, "unreadable"
+    if value < 0:
+        return None, "negative"
+    if value < ZERO_BELOW_S:
+        return None, "zero"
+    if value >= WRAPPED_FROM_S:
+        return None, "wrapped"
+    return t_ns, ""
+
+
+#: A stamp further than this behind the stamps before it in the file (their median, of
+#: STRAY_WINDOW of them), or ahead of those after it, is out of order: a line written with
+#: another line's field, not a clock's jitter.
+STRAY_S = 5.0
+STRAY_WINDOW = 10
+
+
+def _strays(t_ns: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
+    """Stamps (in file order) further than :data:`STRAY_S` behind the median of those before
+    them, or ahead of the median of those after them."""
+    n = len(t_ns)
+    if n < 3:
+        return np.zeros(n, dtype=bool)
+    t = (t_ns - t_ns[0]).astype(np.float64)
+    pad = np.full(STRAY_WINDOW, np.nan)
+    windows = np.lib.stride_tricks.sliding_window_view(np.concatenate([pad, t, pad]), STRAY_WINDOW)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN window at the log's ends
+        before = np.nanmedian(windows[:n], axis=1)
+        after = np.nanmedian(windows[STRAY_WINDOW + 1 : STRAY_WINDOW + 1 + n], axis=1)
+    # time goes forward: not far behind what came before it, nor far ahead of what follows
+    return np.asarray((t < before - STRAY_S * NS_PER_S) | (t > after + STRAY_S * NS_PER_S))
+
+
+def line_times(
+    is_scan: list[bool], stamps: list[tuple[str | None, str | None]]
+) -> tuple[npt.NDArray[np.int64], StampRepair | None]:
+    """The time of every timed line (in file order), and what was repaired, if anything.
+
+    Each line is timed by its first stamp field (CARMEN's ``ipc_timestamp``), or its last
+    (``logger_timestamp``) where the first is broken: zero, negative, wrapped at 32 bits,
+    unreadable. Where the stamps cannot order the scans (see :data:`ORDERED_SHARE`) every line
+    is timed by its place in the file instead; otherwise the lines whose stamps are broken,
+    or stray from the stamps around them (:data:`STRAY_S`), take a time between their
+    neighbours' (by their place in the file), and a scan stamped like another comes a
+    microsecond after it. A clock's jitter (an odometry line a little behind the one before
+    it) is left alone: the lines are sorted by time afterwards."""
+    n = len(stamps)
+    times: list[int | None] = []
+    faults: Counter[str] = Counter()
+    other_field = 0
+    fault_of: list[str] = []
+    for first, last in stamps:
+        t, fault = _stamp_fault(first)
+        if t is None and last is not None:
+            t2, _ = _stamp_fault(last)
+            if t2 is not None:
+                t, other_field = t2, other_field + 1
+        times.append(t)
+        fault_of.append(fault if t is None else "")
+    scan_idx = [i for i in range(n) if is_scan[i]]
+    scan_t = [times[i] for i in scan_idx]
+    forward = sum(1 for a, b in pairwise(scan_t) if a is not None and b is not None and b > a)
+    out = np.zeros(n, dtype=np.int64)
+    if n == 0:
+        return out, None
+    if all(t is None for t in times) or (
+        scan_idx
+        and (forward < ORDERED_SHARE * (len(scan_idx) - 1) or all(t is None for t in scan_t))
+    ):
+        # positions: scan k at k; the lines between scans k and k + 1 spread evenly between
+        scan = np.array(is_scan, dtype=bool)
+        scan_no = np.cumsum(scan) - 1  # the scan at or before each line, -1 before any
+        position = scan_no.astype(np.float64)
+        others = np.flatnonzero(~scan)
+        if len(others):
+            group = scan_no[others]
+            lead = np.searchsorted(group, group, side="left")
+            size = np.searchsorted(group, group, side="right") - lead
+            position[others] = group + (np.arange(len(others)) - lead + 1) / (size + 1)
+        interval = round(ORDER_INTERVAL_S * NS_PER_S)
+        out[:] = np.round((position + 1.0) * interval).astype(np.int64)
+        for i in range(n):
+            faults[fault_of[i] or "repeated"] += 1
+        repaired_scans, repaired_odom = len(scan_idx), n - len(scan_idx)
+        return out, StampRepair(
+            True, ORDER_INTERVAL_S, repaired_scans, repaired_odom, faults, other_field
+        )
+    sane = np.array([i for i in range(n) if times[i] is not None], dtype=np.int64)
+    sane_t = np.array([times[i] for i in sane], dtype=np.int64)
+    stray = _strays(sane_t)
+    good, exact = sane[~stray], sane_t[~stray]
+    # interpolated about the first good stamp: float64 holds Unix nanoseconds to 128 ns only
+    base = int(exact[0])
+    good_t = (exact - base).astype(np.float64)
+    bad = np.ones(n, dtype=bool)
+    bad[good] = False
+    for line in np.flatnonzero(bad).tolist():
+        faults[fault_of[line] or "out of order"] += 1
+    rel = np.interp(np.arange(n), good, good_t)
+    if len(good) > 1:
+        # before the first good stamp and after the last: the usual time per line
+        step = float(np.median(np.diff(good_t) / np.diff(good)))
+        head, tail = np.arange(n) < good[0], np.arange(n) > good[-1]
+        rel[head] = good_t[0] - (good[0] - np.flatnonzero(head)) * step
+        rel[tail] = good_t[-1] + (np.flatnonzero(tail) - good[-1]) * step
+    out[:] = base + np.round(rel).astype(np.int64)
+    out[good] = exact
+    out[:] = np.maximum(out, 0)
+    # two scans of one stamp: the later (in time, then in the file) a microsecond on
+    scans = np.array(scan_idx, dtype=np.int64)
+    order = scans[np.argsort(out[scans], kind="stable")]
+    previous = -1
+    for i in order.tolist():
+        if out[i] <= previous:
+            out[i] = previous + 1000
+            if not bad[i]:
+                bad[i] = True
+                faults["repeated"] += 1
+        previous = int(out[i])
+    if not bad.any() and not other_field:
+        return out, None
+    scans_fixed = int(bad[scan_idx].sum())
+    return out, StampRepair(
+        False, ORDER_INTERVAL_S, scans_fixed, int(bad.sum()) - scans_fixed, faults, other_field
+    )
 
 
 #: Start angle and increment CARMEN's reader gives a SICK by an FLASER line's beam count
@@ -229,15 +417,28 @@ def _pose(tokens: list[str], start: int) -> tuple[float, float, float]:
     return pose
 
 
-def _parse_flaser(tokens: list[str]) -> CarmenScan:
+#: A line's two stamp fields (``ipc_timestamp``, ``logger_timestamp``), None where absent.
+Stamps = tuple[str | None, str | None]
+
+
+def _stamps(tokens: list[str], at: int) -> Stamps:
+    """The stamp fields from ``tokens[at]`` on: ``ipc_timestamp ipc_hostname
+    logger_timestamp``."""
+    return (
+        tokens[at] if len(tokens) > at else None,
+        tokens[at + 2] if len(tokens) > at + 2 else None,
+    )
+
+
+def _parse_flaser(tokens: list[str]) -> tuple[CarmenScan, Stamps]:
     n = int(tokens[1])
     ranges = _ranges(tokens, 2, n)
     rest = 2 + n
-    if len(tokens) < rest + 7:
-        raise ValueError("FLASER line too short")
+    if len(tokens) < rest + 6:
+        raise ValueError(f"FLASER line too short for its {n} ranges and two poses")
     angle_min, increment = flaser_geometry(n)
-    return CarmenScan(
-        t_ns=parse_time_ns(tokens[rest + 6]),
+    scan = CarmenScan(
+        t_ns=0,
         angle_min_rad=angle_min,
         angle_increment_rad=increment,
         range_max_m=NO_RETURN_M,
@@ -245,9 +446,10 @@ def _parse_flaser(tokens: list[str]) -> CarmenScan:
         laser_pose=_pose(tokens, rest),
         robot_pose=_pose(tokens, rest + 3),
     )
+    return scan, _stamps(tokens, rest + 6)
 
 
-def _parse_robotlaser1(tokens: list[str]) -> CarmenScan:
+def _parse_robotlaser1(tokens: list[str]) -> tuple[CarmenScan, Stamps]:
     start_angle, _fov, resolution, max_range = (float(v) for v in tokens[2:6])
     if not (math.isfinite(start_angle) and 0.0 < resolution < math.pi):
         raise ValueError("ROBOTLASER1 geometry out of range")
@@ -258,10 +460,10 @@ def _parse_robotlaser1(tokens: list[str]) -> CarmenScan:
     if not 0 <= m <= MAX_BEAMS:
         raise ValueError(f"remission count {m} outside 0..{MAX_BEAMS}")
     k += 1 + m
-    if len(tokens) < k + 12:
-        raise ValueError("ROBOTLASER1 line too short")
-    return CarmenScan(
-        t_ns=parse_time_ns(tokens[k + 11]),
+    if len(tokens) < k + 11:
+        raise ValueError("ROBOTLASER1 line too short for its poses and velocities")
+    scan = CarmenScan(
+        t_ns=0,
         angle_min_rad=start_angle,
         angle_increment_rad=resolution,
         range_max_m=min(max_range, NO_RETURN_M) if max_range > 0 else NO_RETURN_M,
@@ -269,14 +471,15 @@ def _parse_robotlaser1(tokens: list[str]) -> CarmenScan:
         laser_pose=_pose(tokens, k),
         robot_pose=_pose(tokens, k + 3),
     )
+    return scan, _stamps(tokens, k + 11)
 
 
-def _parse_odom(tokens: list[str]) -> CarmenOdom:
-    if len(tokens) < 8:
-        raise ValueError("ODOM line too short")
+def _parse_odom(tokens: list[str]) -> tuple[CarmenOdom, Stamps]:
+    if len(tokens) < 7:
+        raise ValueError("ODOM line too short for a pose and three velocities")
     x, y, theta = _pose(tokens, 1)
     tv, rv = float(tokens[4]), float(tokens[5])
-    return CarmenOdom(parse_time_ns(tokens[7]), x, y, theta, tv, rv)
+    return CarmenOdom(0, x, y, theta, tv, rv), _stamps(tokens, 7)
 
 
 def _open_text(path: Path) -> TextIO:
@@ -286,34 +489,48 @@ def _open_text(path: Path) -> TextIO:
 
 
 def parse_lines(lines: Iterator[str] | list[str]) -> CarmenLog:
-    """Parse CARMEN text lines; unknown messages and malformed lines are counted, not fatal."""
+    """Parse CARMEN text lines; unknown messages and malformed lines are counted, not fatal.
+
+    Lines are timed by :func:`line_times`: a stamp that cannot time its line is replaced
+    (what was done is in :attr:`CarmenLog.stamps`), never a reason to drop the line."""
     result = CarmenLog()
-    robot_lasers: list[CarmenScan] = []
-    for line in lines:
+    # (kind, record, stamps) of every line that carries a time, in file order
+    timed: list[tuple[str, CarmenScan | CarmenOdom, Stamps]] = []
+    for number, line in enumerate(lines, 1):
         tokens = line.split()
         if not tokens or tokens[0].startswith("#"):
             continue
         kind = tokens[0]
         try:
             if kind == "FLASER":
-                result.scans.append(_parse_flaser(tokens))
+                timed.append((kind, *_parse_flaser(tokens)))
             elif kind == "ROBOTLASER1":
-                robot_lasers.append(_parse_robotlaser1(tokens))
+                timed.append((kind, *_parse_robotlaser1(tokens)))
             elif kind == "ODOM":
-                result.odometry.append(_parse_odom(tokens))
+                timed.append((kind, *_parse_odom(tokens)))
             elif kind == "PARAM" and len(tokens) >= 3:
                 result.params[tokens[1]] = tokens[2]
             else:
                 result.skipped[f"unused {kind}"] += 1
-        except (ValueError, IndexError):
+        except (ValueError, IndexError) as exc:
             result.skipped[f"malformed {kind}"] += 1
-    if robot_lasers:
+            result.problems.setdefault(kind, f"line {number}: {exc or 'a field is missing'}")
+    if any(kind == "ROBOTLASER1" for kind, _, _ in timed):
         # a logger that writes both prints every front-laser scan twice; ROBOTLASER1 says
         # its own geometry, FLASER leaves it to a guess from the beam count
-        if result.scans:
-            result.skipped["FLASER beside ROBOTLASER1"] += len(result.scans)
-        result.scans = robot_lasers
-    else:
+        flaser = sum(kind == "FLASER" for kind, _, _ in timed)
+        if flaser:
+            result.skipped["FLASER beside ROBOTLASER1"] += flaser
+        timed = [t for t in timed if t[0] != "FLASER"]
+    times, result.stamps = line_times(
+        [kind != "ODOM" for kind, _, _ in timed], [stamps for _, _, stamps in timed]
+    )
+    for (_, record, _), t_ns in zip(timed, times.tolist(), strict=True):
+        if isinstance(record, CarmenScan):
+            result.scans.append(replace(record, t_ns=t_ns))
+        else:
+            result.odometry.append(replace(record, t_ns=t_ns))
+    if not any(kind == "ROBOTLASER1" for kind, _, _ in timed):
         _apply_declared_resolution(result)
     result.scans.sort(key=lambda s: s.t_ns)
     result.odometry.sort(key=lambda o: o.t_ns)
@@ -330,7 +547,19 @@ def read_carmen(path: str | Path) -> CarmenLog:
     except (OSError, EOFError, zlib.error) as exc:  # a truncated or corrupt .gz too
         raise InputFormatError(f"cannot read CARMEN log {path}: {exc}") from exc
     if not result.scans:
-        raise InputFormatError(f"{path}: no FLASER or ROBOTLASER1 line")
+        bad = {k: v for k, v in result.problems.items() if k in ("FLASER", "ROBOTLASER1")}
+        if not bad:
+            raise InputFormatError(f"{path}: no FLASER or ROBOTLASER1 line")
+        raise InputFormatError(
+            f"{path}: no usable laser line; "
+            + "; ".join(
+                f"{result.skipped[f'malformed {kind}']} {kind} lines malformed, the first at "
+                f"{where}"
+                for kind, where in bad.items()
+            )
+        )
+    if result.stamps is not None:
+        log.warning("stamps replaced", path=str(path), **result.stamps.summary())
     log.info(
         "carmen log read",
         path=str(path),

@@ -7,6 +7,7 @@ The log's reference poses become odometry only through the seeded error model of
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +35,16 @@ def to_laser_scan(scan: CarmenScan, index: int) -> LaserScan:
         scan_index=index,
     )
 
+
+#: The recording's metadata record of what the importer did, and its key saying where the
+#: times came from: the log's stamps, the stamps with broken ones replaced by their
+#: neighbours', or the scan order (the stamps could not order the scans: the times are no
+#: clock, and a speed worked out from them means nothing).
+METADATA_NAME = "baromap.carmen"
+STAMPS_KEY = "stamps"
+STAMPS_LOGGED = "logged"
+STAMPS_REPAIRED = "repaired"
+STAMPS_FROM_ORDER = "scan order"
 
 #: Where a log's odometry is read from: its ``ODOM`` lines, or the robot pose its laser lines
 #: print (in a raw log that pose is the wheels' own; in a "corrected" one it is a SLAM solution).
@@ -110,31 +121,53 @@ def import_carmen(
 ) -> dict[str, Any]:
     """Write a CARMEN log as a baromap recording; returns counts for the caller to print.
     ``odometry_from`` is one of :data:`ODOMETRY_SOURCES`; ``synth_seed`` degrades the laser
-    lines' poses instead (a corrected log)."""
+    lines' poses instead (a corrected log).
+
+    The recording is written under a temporary name beside ``out_path`` and renamed when
+    whole: a failed import leaves nothing behind that a second try would refuse to replace.
+    An existing ``out_path`` is refused before the log is read."""
     from baromap.recording import RecordingWriter
 
     if synth_seed is not None and odometry_from != "odom":
         raise ConfigError("synthesised odometry replaces the log's own: give one or the other")
+    out = Path(out_path)
+    if out.exists():
+        raise ConfigError(f"{out} exists: remove it or give another output")
     carmen = read_carmen(log_path)
     odometry = odometry_messages(carmen, synth_seed, odometry_from)
     offset = laser_offset(carmen)
+    repair = carmen.stamps
     metadata = {
         "source": str(log_path),
         "odometry": "synthesised" if synth_seed is not None else _SOURCE_LABEL[odometry_from],
         "synth_seed": "" if synth_seed is None else str(synth_seed),
         "laser_offset": " ".join(f"{v:.6f}" for v in offset),
         "range_limit_m": "" if carmen.range_limit_m is None else f"{carmen.range_limit_m:.3f}",
+        STAMPS_KEY: (
+            STAMPS_LOGGED
+            if repair is None
+            else STAMPS_FROM_ORDER
+            if repair.from_order
+            else STAMPS_REPAIRED
+        ),
+        "stamps_replaced": "0" if repair is None else str(repair.scans + repair.odometry),
     }
     scans = [to_laser_scan(s, i) for i, s in enumerate(carmen.scans)]
     merged: list[LaserScan | Odometry] = [*scans, *odometry]
     merged.sort(key=lambda m: (m.t_ns, 0 if isinstance(m, Odometry) else 1))
-    with RecordingWriter(out_path, robot="carmen") as writer:
-        writer.write_metadata("baromap.carmen", metadata)
-        for message in merged:
-            writer.write(message)
+    partial = out.with_name(f".{out.name}.{os.getpid()}.partial")
+    try:
+        with RecordingWriter(partial, robot="carmen", allow_overwrite=True) as writer:
+            writer.write_metadata(METADATA_NAME, metadata)
+            for message in merged:
+                writer.write(message)
+        partial.replace(out)
+    finally:
+        partial.unlink(missing_ok=True)
     return {
         "scans": len(scans),
         "odometry": len(odometry),
         "skipped": dict(carmen.skipped),
         "range_limit_m": carmen.range_limit_m,
+        "stamps": None if repair is None else repair.summary(),
     }
