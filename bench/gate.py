@@ -4,7 +4,7 @@ them, compared with a baseline kept in the repository.
 
     .venv/bin/python bench/gate.py [--quick] [--cases REGEX] [--seeds 0,1,2] [--workers N]
                                    [--tree PATH] [--baseline FILE] [--write-baseline FILE]
-                                   [--keep DIR] [--list]
+                                   [--runs K] [--keep DIR] [--list]
 
 A case is a log, a part and stride of it, an odometry error model and a way of timing and
 stamping its lines (baromap.evaluation.log_variants): ``intel``, ``fr079/10:slip``,
@@ -155,9 +155,10 @@ def _load() -> str:
 # ---------------------------------------------------------------- one case, in its own process
 
 
-def run_commands(case_dir: Path, tree: str | None) -> None:
+def run_commands(case_dir: Path, tree: str | None, runs: int = 1) -> None:
     """Import the case's log and build its maps with the CLI of ``tree`` (this checkout when
-    None); write what they said and their CPU into ``result.json``."""
+    None), ``--runs runs`` where it is not 1; write what they said and their CPU into
+    ``result.json``."""
     # run from the case's directory: python -m puts the working directory first on the path
     env = dict(os.environ)
     env["PYTHONPATH"] = (tree or str(REPO)) + os.pathsep + env.get("PYTHONPATH", "")
@@ -167,6 +168,8 @@ def run_commands(case_dir: Path, tree: str | None) -> None:
         ("import", [*base, "import", "carmen", log, "-o", run]),
         ("build", [*base, "build-maps", run, "-o", out, "--no-progress"]),
     ]
+    if runs != 1:
+        steps[1][1].extend(["--runs", str(runs)])
     result: dict[str, object] = {"failed": None, "warnings": {}, "import_said": ""}
     warnings: dict[str, int] = {}
     for label, argv in steps:
@@ -362,7 +365,11 @@ def _cost(spec: CaseSpec) -> float:
 
 
 def run_gate(
-    cases: list[tuple[CaseSpec, int]], workers: int, tree: str | None, keep: Path | None
+    cases: list[tuple[CaseSpec, int]],
+    workers: int,
+    tree: str | None,
+    keep: Path | None,
+    runs: int = 1,
 ) -> list[Outcome]:
     sources = Sources()
     root = keep or Path(tempfile.mkdtemp(prefix="baromap-gate-"))
@@ -381,6 +388,8 @@ def run_gate(
         argv = [sys.executable, __file__, "--run-case", str(case_dir)]
         if tree:
             argv += ["--tree", tree]
+        if runs != 1:
+            argv += ["--runs", str(runs)]
         subprocess.run(argv, check=True)
         outcome = score(spec, seed, case_dir, made)
         if keep is None:
@@ -476,11 +485,18 @@ def main() -> int:
     parser.add_argument("--baseline", type=Path, default=BASELINE)
     parser.add_argument("--write-baseline", type=Path, default=None, metavar="FILE")
     parser.add_argument("--keep", type=Path, default=None, help="keep each case's files here")
+    parser.add_argument(
+        "--runs",
+        type=int,
+        default=1,
+        metavar="K",
+        help="build-maps --runs K (default 1, build-maps' own default)",
+    )
     parser.add_argument("--list", action="store_true", help="list the cases and exit")
     parser.add_argument("--run-case", type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.run_case is not None:
-        run_commands(args.run_case, args.tree)
+        run_commands(args.run_case, args.tree, args.runs)
         return 0
     chosen = [
         (parse_case(name), seeds)
@@ -502,7 +518,7 @@ def main() -> int:
         print(f"gate: the laser logs are not at {LASER} (set BAROMAP_SHARED_DATA)")
         return 2
     start = time.perf_counter()
-    outcomes = run_gate(cases, args.workers, args.tree, args.keep)
+    outcomes = run_gate(cases, args.workers, args.tree, args.keep, args.runs)
     wall = time.perf_counter() - start
     baseline = read_baseline(args.baseline)
     lines, worse = compare([s.name for s, _ in chosen], outcomes, baseline)
