@@ -71,6 +71,9 @@ class UntiedStretch(msgspec.Struct, frozen=True):
     t_end_ns: int
     keyframes: int
     floors: list[int]
+    #: The evidence of the gap that cut its part off (an odometry silence, a break, a drive
+    #: with no scan); empty in files written before it was said.
+    cut_by: str = ""
 
 
 class Building(msgspec.Struct, kw_only=True, omit_defaults=True, frozen=True):

@@ -655,6 +655,69 @@ def test_a_recording_whose_recorder_joined_the_tracks_keeps_its_odometry_as_reco
     assert foreign.odometry_poses[-1, 0] < x[-1] - 4.0  # taken for a restart
 
 
+def _sparse_run(
+    gaps_s: list[float], poses: np.ndarray, metadata: dict[str, dict[str, str]] | None = None
+):  # type: ignore[no-untyped-def]
+    """A run logged as many public logs are: one odometry pose with each scan, the scans
+    ``gaps_s`` apart, ``poses`` the odometry at each."""
+    from baromap.mapping.run_data import RunSeries, run_data
+    from baromap.messages import LaserScan
+    from baromap.recording import OdometrySeries, PressureSeries
+
+    t = (np.concatenate([[0.0], np.cumsum(gaps_s)]) * 1e9).astype(np.int64) + 10**9
+    zero = np.zeros(len(t))
+    counts = np.zeros(len(t), dtype=np.int64)
+    x, y, theta = poses.T
+    odometry = OdometrySeries(t, x, y, theta, zero, zero, counts, counts, counts)
+    none = PressureSeries(np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0))
+    ranges = np.full(181, 5.0, dtype=np.float32)
+    flags = np.zeros(181, dtype=np.uint16)
+    scans = ScanBlock.from_messages(
+        [LaserScan(int(s), -np.pi / 2, np.pi / 180, 30.0, ranges, flags) for s in t], np.zeros(3)
+    )
+    return run_data(scans, metadata or {}, RunSeries(none, odometry, none))
+
+
+def test_a_pause_is_not_a_break() -> None:
+    """Scans 2-3 s apart with the odometry logged at each, and pauses of 20-40 s where the
+    robot waited (a throttled logger, a lift): odometry is cumulative, so no scan is one it
+    said nothing about, nothing is joined, and no step is a break."""
+    from structlog.testing import capture_logs
+
+    gaps = [2.5] * 30
+    gaps[5], gaps[12], gaps[20] = 40.0, 25.0, 38.0
+    x = np.concatenate([[0.0], np.cumsum(np.full(30, 0.8))])
+    poses = np.stack([x, 0.1 * x, np.zeros(31)], axis=1)
+    with capture_logs() as logs:
+        run = _sparse_run(gaps, poses)
+    assert not run.blind.any() and not run.breaks.any()
+    assert np.allclose(run.odom, poses)
+    assert not [e for e in logs if e["log_level"] == "warning"]
+
+
+def test_a_base_that_counts_from_zero_again_after_a_pause_is_a_break() -> None:
+    """The same log with the base power-cycled in the 40 s pause: back at the origin is the
+    evidence (a pause alone is none). The step to the next scan is a break; the odometry after
+    it goes on from the pose before. A move no base drives in the time is one too, unless the
+    times are no clock (stamps made from the scan order)."""
+    gaps = [2.5] * 30
+    gaps[5] = 40.0
+    x = np.concatenate([[0.0], np.cumsum(np.full(30, 0.8))])
+    poses = np.stack([x, np.zeros(31), np.zeros(31)], axis=1)
+    reset = poses.copy()
+    reset[6:, 0] -= reset[6, 0]
+    run = _sparse_run(gaps, reset)
+    assert np.flatnonzero(run.breaks).tolist() == [6]
+    assert not run.blind.any()
+    assert run.odom[6, 0] == pytest.approx(poses[5, 0])
+    jump = poses.copy()
+    jump[20:, 0] += 30.0  # 30 m in 2.5 s
+    assert np.flatnonzero(_sparse_run(gaps, jump).breaks).tolist() == [20]
+    no_clock = {"baromap.carmen": {"stamps": "scan order"}}
+    assert not _sparse_run(gaps, jump, no_clock).breaks.any()
+    assert np.flatnonzero(_sparse_run(gaps, reset, no_clock).breaks).tolist() == [6]
+
+
 def test_odometry_calibration_learns_the_systematic_errors_where_scans_pin_the_motion() -> None:
     """Steps read 3 % long, turns 4 % long and creeping 1 deg/m; matches measure the true
     step with 1 cm / 0.2 deg noise, except in a corridor, where the match only repeats

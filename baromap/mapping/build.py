@@ -120,6 +120,7 @@ def _slam(
             progress=update,
             travel=run.travel(),
             blind=run.blind,
+            breaks=run.breaks,
         )
     finally:
         if bar is not None:
@@ -468,6 +469,7 @@ def _untied_entries(result: BuildResult) -> list[UntiedStretch]:
     t_ns = result.run.scans.t_ns
     floor = result.segmentation.scan_floor
     entries = []
+    evidence = result.slam.untied_evidence
     for number, part in enumerate(result.slam.untied, start=1):
         breaks = np.flatnonzero(np.diff(part) > 1) + 1
         for stretch in np.split(part, breaks):
@@ -479,6 +481,7 @@ def _untied_entries(result: BuildResult) -> list[UntiedStretch]:
                     t_end_ns=int(t_ns[scans[-1]]),
                     keyframes=len(stretch),
                     floors=sorted({int(f) for f in floor[scans] if f != BETWEEN_FLOORS}),
+                    cut_by=evidence[number - 1] if number <= len(evidence) else "",
                 )
             )
     return sorted(entries, key=lambda e: e.t_start_ns)
@@ -556,8 +559,8 @@ def summary_lines(result: BuildResult, out: Path) -> list[str]:
     t0 = int(result.run.scans.t_ns[0])
     for stretch in _untied_entries(result):
         lines.append(
-            f"  placed by odometry across a gap alone (nothing the scans saw ties it to the "
-            f"rest): {stretch.keyframes} keyframes from "
+            f"  placed by odometry across a gap alone ({stretch.cut_by}; nothing the scans "
+            f"saw ties it to the rest): {stretch.keyframes} keyframes from "
             f"{(stretch.t_start_ns - t0) / 1e9:.1f} to {(stretch.t_end_ns - t0) / 1e9:.1f} s"
             f" on floor(s) {', '.join(map(str, stretch.floors)) or 'none'}"
         )

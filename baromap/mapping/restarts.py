@@ -92,6 +92,7 @@ class _Inputs:
     config: SlamConfig | None
     travel: FloatArray | None
     blind: BoolArray | None
+    breaks: BoolArray | None
 
     def run(self, run: int, progress: Callable[[int], None] | None = None) -> SlamResult:
         """Run ``run`` (0-based) of the SLAM on these inputs."""
@@ -104,6 +105,7 @@ class _Inputs:
             progress=progress,
             travel=self.travel,
             blind=self.blind,
+            breaks=self.breaks,
         )
 
 
@@ -198,6 +200,7 @@ def run_slam_best_of(
     workers: int = 1,
     travel: FloatArray | None = None,
     blind: BoolArray | None = None,
+    breaks: BoolArray | None = None,
 ) -> SlamResult:
     """:func:`run_slam` ``runs`` times, the odometry of runs 2.. jittered by
     :data:`RESTART_JITTER`; the run whose revisits agree best with the scans is returned, the
@@ -209,14 +212,14 @@ def run_slam_best_of(
     ``geometry``: ``scans`` prepared for scoring, by a caller that holds them already (a log
     mapped for several seeds); made here otherwise. ``workers``: processes to make the runs
     in, this one among them (runs 2.. go to the others; the result does not depend on it).
-    ``travel``, ``blind``: the odometry's drive up to each scan and the scans it said nothing
-    about, for every run (see :func:`run_slam`).
+    ``travel``, ``blind``, ``breaks``: the odometry's drive up to each scan, the scans it said
+    nothing about and where it broke, for every run (see :func:`run_slam`).
     """
     check_runs(runs, workers)
     later = list(range(1, runs))
     # runs 2.. start in other processes before the first is made here, and are stopped
     # unread if nothing can be scored
-    inputs = _Inputs(scans, odom, floor, visit, config, travel, blind)
+    inputs = _Inputs(scans, odom, floor, visit, config, travel, blind, breaks)
     pool = _Workers(workers - 1, later, inputs) if workers > 1 and later else None
     try:
         first = inputs.run(0, progress)

@@ -25,6 +25,7 @@ from baromap.recording import (
     LaserMount,
     OdometrySeries,
     PressureSeries,
+    carmen_import,
     load_pressures_and_odometry,
     read_messages,
     read_metadata,
@@ -44,14 +45,22 @@ LASER_SILENCE_S = 1.0
 SILENCE_INTERVALS = 10.0
 SILENCE_MOVED_M = 2.0
 #: The odometry is silent over a gap between its samples longer than this and this many of
-#: its usual intervals (a base at 10 Hz: a second).
+#: its usual intervals (a base at 10 Hz: a second). A scan inside such a gap and further from
+#: every sample than the stream's usual interval is one the odometry said nothing about; a
+#: log that records the odometry with each scan has a sample at every scan, however long the
+#: pause after it.
 ODOMETRY_GAP_S = 1.0
 ODOMETRY_GAP_INTERVALS = 10.0
-#: Across such a gap, a move further than this speed times the gap plus TRACK_SLACK_M is no
-#: drive (indoor bases top out at 1-1.5 m/s): the base counts from zero again in a frame of
-#: its own (power-cycled, under a recorder that does not join its tracks as baromapd does).
-#: So is, however near, a pose at the odometry's origin (within the integrator's ORIGIN_M
-#: and ORIGIN_RAD, the test baromapd makes) after one that was not.
+#: A break in the odometry needs evidence, never a pause alone (odometry is cumulative: a
+#: robot waiting at a lift for minutes, or a logger writing a pose with each scan 2-40 s
+#: apart, goes on counting from where it was). Evidence: a move further than this speed times
+#: the time between two samples plus TRACK_SLACK_M, which no base drives (indoor bases top
+#: out at 1-1.5 m/s); or a pose at the odometry's origin (within the integrator's ORIGIN_M and
+#: ORIGIN_RAD, the test baromapd makes) after one that was not, with at least
+#: ODOMETRY_GAP_S between them (a power cycle takes seconds). Either way the base counts from
+#: zero again in a frame of its own (power-cycled, under a recorder that does not join its
+#: tracks as baromapd does). Where the times are no clock (a log whose stamps were replaced by
+#: its scan order) a speed means nothing, and only the origin tells.
 TRACK_SPEED_M_S = 2.0
 TRACK_SLACK_M = 0.5
 
@@ -68,8 +77,12 @@ class RunData:
     reference_pa: FloatArray
     odometry_t_ns: IntArray  # the recording's odometry as it came (for the floor detector)
     odometry_poses: FloatArray  # (N, 3)
-    #: (S,): scans the odometry said nothing about (see :func:`odometry_blind`)
+    #: (S,): scans the odometry said nothing about (see :func:`odometry_blind`), and those
+    #: inside the silence of a break
     blind: BoolArray
+    #: (S,): the odometry broke (counted from zero again; see :data:`TRACK_SPEED_M_S`) after
+    #: the scan before this one: the step to it is not measured
+    breaks: BoolArray
 
     def travel(self) -> FloatArray:
         """(S, 2): the odometry's path (m) and its turning, every turn counted (rad), from
@@ -99,7 +112,8 @@ def odometry_blind(t_src: IntArray, t_query: IntArray) -> BoolArray:
         blind[:] = len(t_src) == 0
         return blind
     t = np.sort(t_src)
-    limit = _gap_limit_ns(np.diff(t))
+    gaps = np.diff(t)
+    limit = _gap_limit_ns(gaps)
     after = np.searchsorted(t, t_query, side="right")
     inside = (after > 0) & (after < len(t))
     prev_t = t[np.clip(after - 1, 0, len(t) - 1)]
@@ -107,37 +121,58 @@ def odometry_blind(t_src: IntArray, t_query: IntArray) -> BoolArray:
     blind |= inside & (next_t - prev_t > limit)
     blind |= (after == 0) & (t[0] - t_query > limit)
     blind |= (after == len(t)) & (t_query - t[-1] > limit)
+    # a scan as near a sample as the samples are to each other is spoken for by it
+    nearest = np.minimum(np.abs(t_query - prev_t), np.abs(next_t - t_query))
+    blind &= ~(nearest < float(np.median(gaps)))
     return blind
 
 
-def join_odometry_tracks(t_src: IntArray, poses: FloatArray) -> tuple[FloatArray, int]:
+def join_odometry_tracks(
+    t_src: IntArray, poses: FloatArray, *, clock: bool = True
+) -> tuple[FloatArray, int]:
     """The odometry in one frame, and how many times it had to be joined.
 
-    After a gap (as in :func:`odometry_blind`) across which the pose moved further than any
-    base drives in the time, or came back to the origin, the base counts from zero again,
-    in a frame of its own; the rest of the stream is moved rigidly so that it goes on from
-    the pose before the gap.
-    The motion across the gap is lost either way; what the join saves is every pose after it
-    (a jump of metres is a step the SLAM would take for a drive). ``baromapd`` joins its
-    tracks as it records (:class:`~baromap.odometry.integrator.OdometryIntegrator`); this is
-    for recordings made without it."""
+    Where there is evidence that the base counted from zero again, in a frame of its own (a
+    move no base drives in the time, or a return to the origin after a silence: see
+    :data:`TRACK_SPEED_M_S`), the rest of the stream is moved rigidly so that it goes on
+    from the pose before. The motion across the break is lost either way; what the join
+    saves is every pose after it (a jump of metres is a step the SLAM would take for a
+    drive). ``clock``: the times are a clock (see :func:`stamps_are_a_clock`). ``baromapd``
+    joins its tracks as it records
+    (:class:`~baromap.odometry.integrator.OdometryIntegrator`); this is for recordings made
+    without it."""
+    joined, breaks = _join_tracks(t_src, poses, clock)
+    return joined, len(breaks)
+
+
+def _join_tracks(
+    t_src: IntArray, poses: FloatArray, clock: bool
+) -> tuple[FloatArray, list[tuple[int, int]]]:
+    """:func:`join_odometry_tracks`, and each break as the times of the samples either side."""
     if len(t_src) < 2:
-        return poses, 0
+        return poses, []
     order = np.argsort(t_src, kind="stable")
     t = t_src[order]
     p = poses[order].astype(np.float64)
     gaps = np.diff(t)
-    limit = _gap_limit_ns(gaps)
     moved = np.hypot(*np.diff(p[:, :2], axis=0).T)
-    reach = TRACK_SPEED_M_S * gaps / 1e9 + TRACK_SLACK_M
     origin = (np.hypot(p[:, 0], p[:, 1]) <= ORIGIN_M) & (np.abs(se2.wrap(p[:, 2])) <= ORIGIN_RAD)
-    restarted = (moved > reach) | (origin[1:] & ~origin[:-1])
-    starts = np.flatnonzero((gaps > limit) & restarted) + 1
+    restarted = origin[1:] & ~origin[:-1] & (gaps > ODOMETRY_GAP_S * 1e9)
+    if clock:
+        restarted |= moved > TRACK_SPEED_M_S * gaps / 1e9 + TRACK_SLACK_M
+    starts = np.flatnonzero(restarted) + 1
     for b in starts:
         p[b:] = se2.compose(se2.compose(p[b - 1], se2.inverse(p[b])), p[b:])
     out = np.empty_like(p)
     out[order] = p
-    return out, len(starts)
+    return out, [(int(t[b - 1]), int(t[b])) for b in starts]
+
+
+def stamps_are_a_clock(metadata: dict[str, dict[str, str]]) -> bool:
+    """False where the recording says its times were made from the scan order (a CARMEN log
+    whose stamps could not order its scans): a speed worked out from them means nothing."""
+    header = metadata.get(carmen_import.METADATA_NAME, {})
+    return header.get(carmen_import.STAMPS_KEY) != carmen_import.STAMPS_FROM_ORDER
 
 
 def recorder_joined_tracks(metadata: dict[str, dict[str, str]]) -> bool:
@@ -329,18 +364,32 @@ def run_data(block: ScanBlock, metadata: dict[str, dict[str, str]], series: RunS
     """The run from its scans and series: odometry interpolated at every scan's stamp."""
     pressure, odometry, reference = series.pressure, series.odometry, series.reference
     odometry_poses = odometry.poses()
+    t = block.t_ns
+    breaks = np.zeros(len(t), dtype=bool)
+    blind = odometry_blind(odometry.t_ns, t)
     if recorder_joined_tracks(metadata):
         # a stall of the recorder with the robot driving on is no restart: left to odometry
         log.debug("odometry in one frame as recorded: its recorder joined the base's restarts")
     else:
-        odometry_poses, joined = join_odometry_tracks(odometry.t_ns, odometry_poses)
-        if joined:
-            log.warning("odometry counted from zero again: joined at the pose before", times=joined)
-    odom = interpolate_poses(odometry.t_ns, odometry_poses, block.t_ns)
+        odometry_poses, joins = _join_tracks(
+            odometry.t_ns, odometry_poses, stamps_are_a_clock(metadata)
+        )
+        for before, after in joins:
+            # the scans between the samples either side of the break are nobody's
+            blind |= (t > before) & (t < after)
+            first = int(np.searchsorted(t, after, side="left"))
+            if 0 < first < len(t):
+                breaks[first] = True
+        if joins:
+            log.warning(
+                "odometry counted from zero again: joined at the pose before",
+                times=len(joins),
+                first_after_s=round(float(joins[0][1] - t[0]) / 1e9, 1),
+            )
+    odom = interpolate_poses(odometry.t_ns, odometry_poses, t)
     log.info("run loaded", scans=len(block), odometry=len(odometry), pressure=len(pressure.t_ns))
-    _say_silences(block.t_ns, odom)
-    blind = odometry_blind(odometry.t_ns, block.t_ns)
-    _say_odometry_silences(block.t_ns, blind)
+    _say_silences(t, odom)
+    _say_odometry_silences(t, blind)
     return RunData(
         scans=block,
         odom=odom,
@@ -353,4 +402,5 @@ def run_data(block: ScanBlock, metadata: dict[str, dict[str, str]], series: RunS
         odometry_t_ns=odometry.t_ns,
         odometry_poses=odometry_poses,
         blind=blind,
+        breaks=breaks,
     )

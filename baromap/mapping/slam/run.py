@@ -59,6 +59,8 @@ class SlamResult:
     #: keyframes placed against the start's part of the map by odometry across a gap alone,
     #: one array per part (:meth:`_Slam._untied`); empty when every part is tied
     untied: list[IntArray] = field(default_factory=list)
+    #: for each of ``untied``, what cut it from the rest: the evidence of the break
+    untied_evidence: list[str] = field(default_factory=list)
 
 
 def select_keyframes(
@@ -170,7 +172,7 @@ class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
         self.stats["loops"] = len(self.loops)
         self.stats["submaps"] = len(self.finished)
         self.stats["submap_releases"] = self.cache.releases
-        untied = self._untied()
+        untied, evidence = self._untied()
         self.stats["untied_keyframes"] = sum(len(part) for part in untied)
         poses = self.graph.poses.copy()
         return SlamResult(
@@ -183,9 +185,10 @@ class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
             {k: float(v) for k, v in self.stats.items()},
             (scale, turn, creep),
             untied,
+            evidence,
         )
 
-    def _untied(self) -> list[IntArray]:
+    def _untied(self) -> tuple[list[IntArray], list[str]]:
         """The keyframes that nothing but odometry across a gap places against the part of
         the map where the run began, one array per part.
 
@@ -198,16 +201,18 @@ class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
         building's is not."""
         across = self.silent_steps | set(np.flatnonzero(self.blind_step | self.unmeasured_step))
         if not across:
-            return []
+            return [], []
         gaps = np.array(
             [e.kind == "odometry" and e.j in across for e in self.graph.edges], dtype=bool
         )
         if not gaps.any():
-            return []
+            return [], []
         part = self.graph.parts(gaps)
         untied = [np.flatnonzero(part == p) for p in range(1, int(part.max()) + 1)]
         if not untied:
-            return []
+            return [], []
+        # a part's first keyframe is reached by a step across a gap: what made it one
+        evidence = [self._gap_evidence(int(p[0])) for p in untied]
         t = self.t_ns[self.kf_scan]
         log.warning(
             "part of the run is placed by odometry across a gap alone",
@@ -215,8 +220,26 @@ class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
             keyframes=sum(len(p) for p in untied),
             first_after_s=[round(float(t[p[0]] - t[0]) / 1e9, 1) for p in untied],
             floors=sorted({int(f) for p in untied for f in self.kf_floor[p] if f >= 0}),
+            evidence=evidence,
         )
-        return untied
+        return untied, evidence
+
+    def _gap_evidence(self, k: int) -> str:
+        """What made the step to keyframe ``k`` a gap, in words: scans the odometry said
+        nothing about, a break in the odometry, or a drive with no scan further than the front
+        end searches."""
+        a, b = int(self.kf_scan[k - 1]), int(self.kf_scan[k])
+        silent = np.flatnonzero(self.blind[a + 1 : b + 1]) + a + 1
+        if len(silent):
+            seconds = float(self.t_ns[silent[-1]] - self.t_ns[silent[0]]) / 1e9
+            return f"odometry silent for {seconds:.0f} s while the laser went on"
+        if self.unmeasured_step[k]:
+            return "odometry counted from zero again"
+        step = se2.between(self.odom[a], self.odom[b])
+        return (
+            f"laser silent while the robot drove {math.hypot(step[0], step[1]):.1f} m and "
+            f"turned {math.degrees(abs(step[2])):.0f} deg"
+        )
 
     def _end_visit(self) -> None:
         self._settle_deferred()
@@ -302,6 +325,7 @@ def run_slam(
     progress: Callable[[int], None] | None = None,
     travel: FloatArray | None = None,
     blind: BoolArray | None = None,
+    breaks: BoolArray | None = None,
 ) -> SlamResult:
     """SLAM over a run: scans, odometry poses at the scan times, floor and visit per scan.
 
@@ -316,7 +340,11 @@ def run_slam(
     (the sim's blind minute, matched scan by scan with a constant-velocity guess, drifted
     metres while the robot sped up along one), and the step across them is taken as a laser
     silence is, begun again in new submaps and tied back by loop closure and the car. Their
-    poses are drawn across the gap, for the record only."""
+    poses are drawn across the gap, for the record only.
+
+    ``breaks``: the scans after which the odometry broke (:attr:`RunData.breaks
+    <baromap.mapping.run_data.RunData.breaks>`): the step across is not measured, and the
+    chain is looked for again as after a power-cycled base."""
     config = config or SlamConfig()
     if blind is not None and blind.any():
         floor = np.where(blind, BETWEEN_FLOORS, floor)
@@ -332,6 +360,7 @@ def run_slam(
         config=config,
         travel=travel,
         blind=blind,
+        breaks=breaks,
     )
     for k in range(len(kf_scan)):
         slam.add(k)

@@ -137,6 +137,7 @@ class SlamState:
         config: SlamConfig,
         travel: FloatArray | None = None,
         blind: BoolArray | None = None,
+        breaks: BoolArray | None = None,
     ) -> None:
         self.config = config
         self.odom = odom
@@ -157,6 +158,15 @@ class SlamState:
                 self.unmeasured_step[k] = (
                     len(inside) >= 2 and float(np.ptp(odom[inside], axis=0).max()) < 1e-6
                 )
+        if breaks is not None and breaks.any() and len(kf_scan) > 1:
+            # a break in the odometry (it counted from zero again, joined at the pose before)
+            # between a keyframe's scan and the next's: that step is not measured at all
+            counted = np.concatenate([[0], np.cumsum(breaks)])
+            ends = np.asarray(kf_scan)
+            broken = np.zeros(len(kf_scan), dtype=bool)
+            broken[1:] = counted[ends[1:] + 1] - counted[ends[:-1] + 1] > 0
+            self.blind_step |= broken
+            self.unmeasured_step |= broken
         self.t_ns = scans.t_ns
         self.scans = scans
         self.blind = np.zeros(len(odom), dtype=bool) if blind is None else blind
