@@ -34,6 +34,7 @@ from baromap.mapping.slam.settings import (
     REFINE_ODOMETRY_INFLATION,
     REFINE_PASSES,
     REGISTER_BEAMS,
+    REGISTER_CHUNK,
     TURN_AS_M,
     WINDOW_SIGMAS,
     Int8Array,
@@ -300,18 +301,21 @@ class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
                 [se2.transform_points(kf_poses[k], self.clouds.surfaces[k]) for k in ids]
             )
             fld = finished_map_field(world, config.resolution_m)
-            points, owner = scans.sampled_endpoints(todo, config.max_range_m, REGISTER_BEAMS)
-            d = to_kf[todo]
-            if self.noise is not None:
-                pull = Pull(*self.noise.sigmas_many(d, turn_to_kf[todo]))
-            else:
-                pull = Pull(
-                    ODOMETRY_SIGMA_M + config.odometry_sigma_m_per_m * d,
-                    ODOMETRY_SIGMA_RAD + math.radians(config.odometry_sigma_deg_per_m) * d,
-                )
-            out = refine_batch(fld, points, owner, poses[todo], pull)
-            poses[todo[out.usable]] = out.poses[out.usable]
-            self.stats["registered"] += int(out.usable.sum())
+            # a few thousand scans at a time: each is fitted on its own, and every beam of a
+            # long run's scans at once would hold gigabytes
+            for part in np.array_split(todo, -(-len(todo) // REGISTER_CHUNK)):
+                points, owner = scans.sampled_endpoints(part, config.max_range_m, REGISTER_BEAMS)
+                d = to_kf[part]
+                if self.noise is not None:
+                    pull = Pull(*self.noise.sigmas_many(d, turn_to_kf[part]))
+                else:
+                    pull = Pull(
+                        ODOMETRY_SIGMA_M + config.odometry_sigma_m_per_m * d,
+                        ODOMETRY_SIGMA_RAD + math.radians(config.odometry_sigma_deg_per_m) * d,
+                    )
+                out = refine_batch(fld, points, owner, poses[part], pull)
+                poses[part[out.usable]] = out.poses[out.usable]
+                self.stats["registered"] += int(out.usable.sum())
         return poses
 
 
