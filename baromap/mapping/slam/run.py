@@ -226,16 +226,16 @@ class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
         return untied, evidence
 
     def _gap_evidence(self, k: int) -> str:
-        """What made the step to keyframe ``k`` a gap, in words: scans the odometry said
-        nothing about, a break in the odometry, or a drive with no scan further than the front
-        end searches."""
+        """What made the step to keyframe ``k`` a gap, in words: a break in the odometry (the
+        scans either side of it are blind too, so it is said first), scans the odometry said
+        nothing about, or a drive with no scan further than the front end searches."""
         a, b = int(self.kf_scan[k - 1]), int(self.kf_scan[k])
+        if self.unmeasured_step[k]:
+            return "odometry counted from zero again"
         silent = np.flatnonzero(self.blind[a + 1 : b + 1]) + a + 1
         if len(silent):
             seconds = float(self.t_ns[silent[-1]] - self.t_ns[silent[0]]) / 1e9
             return f"odometry silent for {seconds:.0f} s while the laser went on"
-        if self.unmeasured_step[k]:
-            return "odometry counted from zero again"
         step = se2.between(self.odom[a], self.odom[b])
         return (
             f"laser silent while the robot drove {math.hypot(step[0], step[1]):.1f} m and "
