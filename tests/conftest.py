@@ -54,9 +54,10 @@ SHARED_DATA = find_shared_data()
 #: nature, so ``make check`` (``-m "not slow"``) leaves them to ``make test``. A test elsewhere
 #: that takes more than a few seconds of CPU carries ``@pytest.mark.slow`` itself.
 INTEGRATION_DIRS = ("daemon", "e2e", "firmware", "hardware", "live", "liveview")
-#: Fixtures of these scopes are made once per worker: their tests stay on one worker
-#: (pytest-xdist's ``--dist loadgroup``), or every worker would make them again.
-SHARED_SCOPES = ("module", "package")
+#: Tests that run a whole real log or the 46-minute simulated run through the SLAM (tens of
+#: seconds of CPU each): ``make test`` leaves them to ``make test-heavy``, as it leaves the
+#: mapping's quality over every log and variant to bench/gate.py.
+HEAVY = "heavy"
 
 
 def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool | None:
@@ -76,18 +77,33 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         relative = item.path.resolve().relative_to(tests_dir)
         if len(relative.parts) > 1 and relative.parts[0] in INTEGRATION_DIRS:
             item.add_marker(pytest.mark.slow)
-        fixture_info = getattr(item, "_fixtureinfo", None)
-        if fixture_info is None:
-            continue
-        scopes = {
-            definition.scope
-            for definitions in fixture_info.name2fixturedefs.values()
-            for definition in definitions
-            if definition.baseid  # the suite's own fixtures, not plugins'
-        }
-        if scopes & set(SHARED_SCOPES):
-            group = relative.parts[0] if len(relative.parts) > 1 else str(relative)
+        if item.get_closest_marker(HEAVY):
+            item.add_marker(pytest.mark.slow)
+        group = _shared_fixture_group(item, tests_dir)
+        if group:
             item.add_marker(pytest.mark.xdist_group(group))
+
+
+def _shared_fixture_group(item: pytest.Item, tests_dir: Path) -> str | None:
+    """The pytest-xdist group that keeps a test with the others sharing its costly fixtures.
+
+    A fixture of the suite's own made once per session or package (the demo's run, the
+    firmware's build) puts every test using it on one worker: the other worker goes on with
+    the rest instead of waiting on the same lock or building the same thing again. One made
+    once per module keeps only that module's tests together.
+    """
+    fixture_info = getattr(item, "_fixtureinfo", None)
+    if fixture_info is None:
+        return None
+    module_scoped = False
+    for definitions in fixture_info.name2fixturedefs.values():
+        for definition in definitions:
+            if not definition.baseid:  # a plugin's, not the suite's
+                continue
+            if definition.scope in ("session", "package"):
+                return f"shared:{definition.baseid.split('::')[0]}"
+            module_scoped = module_scoped or definition.scope == "module"
+    return str(item.path.resolve().relative_to(tests_dir)) if module_scoped else None
 
 
 #: Files libraries keep open on purpose for the life of the process (caches, not leaks).

@@ -1113,6 +1113,7 @@ def _check_thinned_log_run(
 
 
 @pytest.mark.slow
+@pytest.mark.heavy  # half of Acapulco's scans, with every loop closure it finds
 def test_a_sparse_scan_that_fits_along_a_ridge_is_matched_not_left_to_odometry(
     shared_data: Path,
 ) -> None:

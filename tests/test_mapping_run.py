@@ -14,9 +14,10 @@ from baromap.evaluation.laser_logs import run_log
 from baromap.evaluation.mapping import evaluate_recording
 from baromap.evaluation.recording_cuts import split_like_baromapd
 from baromap.evaluation.silences import score_silence, without
-from baromap.mapping.build import build_maps, summary_lines
+from baromap.mapping.build import BuildResult, build_maps, summary_lines
 from baromap.mapping.export import read_pgm
 from baromap.recording import read_messages
+from baromap.recording.run_parts import run_parts
 from baromap.sim.building import make_building
 from baromap.sim.record import record_run
 from baromap.sim.scenario import SIM_EPOCH_NS
@@ -45,6 +46,15 @@ def short_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
+def short_maps(
+    short_run: Path, tmp_path_factory: pytest.TempPathFactory
+) -> tuple[Path, BuildResult]:
+    """The short run's maps, built once for the tests that read them (a build is seconds)."""
+    out = tmp_path_factory.mktemp("short-maps")
+    return out, build_maps(short_run, out)
+
+
+@pytest.fixture(scope="module")
 def full_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The simulated 46-minute run, seed 0, recorded once for the tests that silence a
     device in copies of it."""
@@ -53,9 +63,8 @@ def full_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def test_build_maps_files_and_model(short_run: Path, tmp_path: Path) -> None:
-    out = tmp_path / "maps"
-    assert cli.main(["--log-level", "WARNING", "build-maps", str(short_run), "-o", str(out)]) == 0
+def test_build_maps_files_and_model(short_run: Path, short_maps: tuple[Path, BuildResult]) -> None:
+    out = short_maps[0]
     building = yaml.safe_load((out / "building.yaml").read_text())
     floors = building["floors"]
     assert [f["index"] for f in floors] == [0, 1, 2]
@@ -94,7 +103,9 @@ def test_build_maps_files_and_model(short_run: Path, tmp_path: Path) -> None:
     assert {"/map/floor_0", "/map/floor_1", "/map/floor_2", "/path"} <= topics
 
 
-def test_a_run_in_several_files_is_mapped_as_one(short_run: Path, tmp_path: Path) -> None:
+def test_a_run_in_several_files_is_mapped_as_one(
+    short_run: Path, short_maps: tuple[Path, BuildResult], tmp_path: Path
+) -> None:
     """baromapd rotates a long run into several files (by the hour, by size): build-maps
     takes them all, or their directory, in the order of their parts, and maps the run as it
     would one file, scan for scan. Files of different runs are refused, unless they are
@@ -106,15 +117,14 @@ def test_a_run_in_several_files_is_mapped_as_one(short_run: Path, tmp_path: Path
     from baromap.recording import topics
 
     parts = split_like_baromapd(short_run, tmp_path / "rec", 200.0, ("r1", "r1"))
-    whole, split, folder = tmp_path / "whole", tmp_path / "split", tmp_path / "folder"
+    split = tmp_path / "split"
     quiet = ["--log-level", "WARNING", "build-maps", "--no-progress"]
-    assert cli.main([*quiet, str(short_run), "-o", str(whole)]) == 0
     assert cli.main([*quiet, str(parts[1]), str(parts[0]), "-o", str(split)]) == 0
-    assert cli.main([*quiet, str(tmp_path / "rec"), "-o", str(folder)]) == 0
-    expected = (whole / "trajectory.tum").read_text()
+    expected = (short_maps[0] / "trajectory.tum").read_text()
     assert len(expected.splitlines()) > 1000
     assert (split / "trajectory.tum").read_text() == expected
-    assert (folder / "trajectory.tum").read_text() == expected
+    # the folder is the same parts in the same order: the same input, so the same maps
+    assert run_parts(tmp_path / "rec") == run_parts([parts[1], parts[0]]) == tuple(parts)
     building = yaml.safe_load((split / "building.yaml").read_text())
     assert building["parts"] == [str(p) for p in parts]
     header = load_scans(parts)[1][topics.METADATA_NAME]
@@ -172,8 +182,10 @@ def test_a_part_of_the_run_nothing_ties_to_the_rest_is_said(tmp_path: Path) -> N
     assert "(odometry counted from zero again;" in line
 
 
-def test_short_run_meets_the_geometry_bars(short_run: Path, tmp_path: Path) -> None:
-    result = build_maps(short_run, tmp_path)
+def test_short_run_meets_the_geometry_bars(
+    short_run: Path, short_maps: tuple[Path, BuildResult]
+) -> None:
+    result = short_maps[1]
     report = evaluate_recording(result, short_run)
     assert len(report.floors) == 3
     assert report.cross_floor_closures == 0
@@ -191,6 +203,7 @@ def test_short_run_meets_the_geometry_bars(short_run: Path, tmp_path: Path) -> N
         assert floor.free_iou >= 0.85
 
 
+@pytest.mark.heavy  # the 46-minute run
 def test_a_laser_silent_for_a_minute_twice_is_driven_through(
     full_run: Path, tmp_path: Path
 ) -> None:
@@ -227,6 +240,7 @@ def test_a_laser_silent_for_a_minute_twice_is_driven_through(
     assert max(f.lobby_error_m for f in report.floors) < 0.1
 
 
+@pytest.mark.heavy  # the 46-minute run
 def test_odometry_silent_or_counting_from_zero_is_found_again(
     full_run: Path, tmp_path: Path
 ) -> None:

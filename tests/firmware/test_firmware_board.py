@@ -20,7 +20,9 @@ from firmware_board import (
 
 from baromap.protocols import baro
 
-pytestmark = pytest.mark.firmware
+# The boards take the simulator harness through ``request.getfixturevalue`` (a real board needs
+# none), so the suite's grouping cannot see it: named here, one worker builds it once.
+pytestmark = [pytest.mark.firmware, pytest.mark.xdist_group("shared:tests/firmware")]
 
 SimBoardFactory = Callable[..., SimulatedBoard]
 PA_PER_M = 12.0
