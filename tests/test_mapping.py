@@ -912,6 +912,7 @@ def _robot_behind_the_laser(source: Path, target: Path, mount: tuple[float, floa
 
 
 @pytest.mark.slow
+@pytest.mark.heavy
 def test_a_log_whose_laser_sits_off_the_robot_centre_maps_the_robot(
     shared_data: Path, tmp_path: Path
 ) -> None:
@@ -938,6 +939,7 @@ def test_a_log_whose_laser_sits_off_the_robot_centre_maps_the_robot(
 
 
 @pytest.mark.slow
+@pytest.mark.heavy
 def test_a_log_of_a_short_range_laser_maps_without_its_no_return_code_as_walls(
     shared_data: Path, tmp_path: Path
 ) -> None:
@@ -1113,7 +1115,7 @@ def _check_thinned_log_run(
 
 
 @pytest.mark.slow
-@pytest.mark.heavy  # half of Acapulco's scans, with every loop closure it finds
+@pytest.mark.heavy
 def test_a_sparse_scan_that_fits_along_a_ridge_is_matched_not_left_to_odometry(
     shared_data: Path,
 ) -> None:
@@ -1131,6 +1133,7 @@ def test_a_sparse_scan_that_fits_along_a_ridge_is_matched_not_left_to_odometry(
 
 
 @pytest.mark.slow
+@pytest.mark.heavy
 def test_a_closure_beyond_the_drift_model_puts_a_wrong_front_end_turn_right(
     shared_data: Path,
 ) -> None:
@@ -1150,6 +1153,7 @@ def test_a_closure_beyond_the_drift_model_puts_a_wrong_front_end_turn_right(
 
 
 @pytest.mark.slow
+@pytest.mark.heavy
 def test_one_scan_matching_two_submaps_beyond_the_drift_model_confirms_itself(
     shared_data: Path,
 ) -> None:
@@ -1172,6 +1176,7 @@ def test_one_scan_matching_two_submaps_beyond_the_drift_model_confirms_itself(
 
 
 @pytest.mark.slow
+@pytest.mark.heavy
 def test_a_closure_beyond_the_drift_model_is_looked_for_again_where_it_puts_the_robot(
     shared_data: Path,
 ) -> None:
@@ -1186,6 +1191,7 @@ def test_a_closure_beyond_the_drift_model_is_looked_for_again_where_it_puts_the_
 
 
 @pytest.mark.slow
+@pytest.mark.heavy
 def test_a_front_end_match_odometry_cannot_explain_yields_in_the_last_solve(
     shared_data: Path,
 ) -> None:
@@ -1427,12 +1433,12 @@ def test_a_log_read_once_scores_every_seed_as_a_log_read_for_each(shared_data: P
     from baromap.evaluation.laser_logs import PreparedLog, run_log, run_prepared
 
     laser = shared_data / "laser"
-    part = slice(0, 150)
+    part = slice(0, 60)
     prepared = PreparedLog(laser, "acapulco", scans=part, stride=2)
     first = run_prepared(prepared, 1, score_consistency=True)
     second = run_prepared(prepared, 2, score_consistency=True)
     alone = run_log(laser, "acapulco", 2, scans=part, stride=2, score_consistency=True)
-    assert second.scans == alone.scans == 75
+    assert second.scans == alone.scans == 30
     assert second.result.scan_poses == pytest.approx(alone.result.scan_poses, abs=1e-12)
     assert second.slam_ate.rms_m == pytest.approx(alone.slam_ate.rms_m, abs=1e-12)
     assert first.slam_consistency is not None and second.slam_consistency is not None

@@ -203,7 +203,7 @@ def test_short_run_meets_the_geometry_bars(
         assert floor.free_iou >= 0.85
 
 
-@pytest.mark.heavy  # the 46-minute run
+@pytest.mark.heavy
 def test_a_laser_silent_for_a_minute_twice_is_driven_through(
     full_run: Path, tmp_path: Path
 ) -> None:
@@ -240,7 +240,7 @@ def test_a_laser_silent_for_a_minute_twice_is_driven_through(
     assert max(f.lobby_error_m for f in report.floors) < 0.1
 
 
-@pytest.mark.heavy  # the 46-minute run
+@pytest.mark.heavy
 def test_odometry_silent_or_counting_from_zero_is_found_again(
     full_run: Path, tmp_path: Path
 ) -> None:

@@ -27,7 +27,7 @@ def _processes() -> int:
     return 2 if threading.active_count() == 1 else 1
 
 
-@pytest.mark.heavy  # three SLAM runs of a real log
+@pytest.mark.heavy
 def test_a_run_gone_wrong_is_replaced_by_one_whose_revisits_agree_better(
     shared_data: Path,
 ) -> None:
