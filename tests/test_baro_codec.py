@@ -411,6 +411,15 @@ def test_command_helpers_lead_with_a_flushing_delimiter() -> None:
     ]
 
 
+def test_commands_are_numbered_zero_at_time_zero_unless_told() -> None:
+    stream = baro.set_rate(10) + baro.set_oversampling(2, 1, 4) + baro.identify()
+    assert baro.Decoder().feed(stream) == [
+        baro.SetRateCommand(0, 0, 10),
+        baro.SetOversamplingCommand(0, 0, 2, 1, 4),
+        baro.IdentifyCommand(0, 0),
+    ]
+
+
 def test_to_pressure_sample() -> None:
     frame = baro.SampleFrame(7, 123456, 25767233, -1234)
     sample = baro.to_pressure_sample(frame, t_ns=42)
@@ -421,6 +430,7 @@ def test_to_pressure_sample() -> None:
 
 def test_from_values_rounds_to_wire_resolution() -> None:
     frame = baro.SampleFrame.from_values(1, 2, 101325.126, 21.456)
+    assert (frame.seq, frame.time_us) == (1, 2)
     assert frame.pressure_q24_8 == round(101325.126 * 256)
     assert frame.temperature_centi_c == 2146
 

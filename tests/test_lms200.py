@@ -93,16 +93,16 @@ def test_table_crc_every_length() -> None:
 def test_crc_table_rows_are_each_bytes_contribution() -> None:
     """The table :func:`L.crc16` reads is built once at import; built again here (any number
     of rows), XOR of its entries for each byte at its distance from the end is SICK's CRC."""
-    rows = 40
-    table = L._crc_table(rows)
-    assert table.shape == (rows, 256) and table.dtype == np.uint16
     rng = random.Random(11)
-    for n in range(rows + 1):
-        data = rng.randbytes(n)
-        crc = 0
-        for j, byte in enumerate(data):
-            crc ^= int(table[n - 1 - j][byte])
-        assert crc == L.crc16_bitwise(data), n
+    for rows in (1, 5, 40):
+        table = L._crc_table(rows)
+        assert table.shape == (rows, 256) and table.dtype == np.uint16
+        for n in range(rows + 1):
+            data = rng.randbytes(n)
+            crc = 0
+            for j, byte in enumerate(data):
+                crc ^= int(table[n - 1 - j][byte])
+            assert crc == L.crc16_bitwise(data), (rows, n)
 
 
 # -- round trips -------------------------------------------------------------------------------
@@ -228,9 +228,10 @@ def test_config_status_variant_type_replies_round_trip() -> None:
 
 
 def test_status_reply_fields_sit_at_sicktoolboxs_offsets() -> None:
-    """Every field a B1 reply carries, each a value no other field has, at its data offset."""
+    """Every field a B1 reply carries, each a value no other field has, at its data offset;
+    the two version strings padded or cut to their seven bytes."""
     report = L.StatusReport(
-        software_version="V03.21X",
+        software_version="V3.2",
         operating_mode=0x24,
         device_status=3,
         variant=4,
@@ -238,19 +239,20 @@ def test_status_reply_fields_sit_at_sicktoolboxs_offsets() -> None:
         angle_deg=100,
         resolution_cdeg=25,
         address=6,
-        units=0,
+        units=1,
         laser_on=7,
-        prom_version="P1",
+        prom_version="P0123456X",
     )
     (telegram,) = decode(L.status_reply(report, status=0x11))
     assert telegram.status == 0x11 and len(telegram.data) == L.STATUS_FULL_BYTES
     data = telegram.data
-    assert data[0:7] == b"V03.21X" and data[123:130] == b"P1     "
+    assert data[0:7] == b"V3.2   " and data[123:130] == b"P012345"
     assert (data[7], data[8], data[17], data[101]) == (0x24, 3, 4, 5)
     assert data[106:110] == bytes((100, 0, 25, 0))
-    assert (data[119], data[121], data[122]) == (6, 0, 7)
-    assert sum(data) == sum(b"V03.21XP1     ") + 0x24 + 3 + 4 + 5 + 100 + 25 + 6 + 7
-    assert L.parse_status_reply(telegram) == dataclasses.replace(report, prom_version="P1     ")
+    assert (data[119], data[121], data[122]) == (6, 1, 7)
+    assert sum(data) == sum(b"V3.2   P012345") + 0x24 + 3 + 4 + 5 + 100 + 25 + 6 + 1 + 7
+    parsed = L.parse_status_reply(telegram)
+    assert parsed == dataclasses.replace(report, software_version="V3.2   ", prom_version="P012345")
     # the shortest reply that holds every field; a longer version string is cut to 7
     shortest = L.status_reply(dataclasses.replace(report, software_version="V03.21XYZ"), size=130)
     (telegram,) = decode(shortest)
@@ -363,6 +365,82 @@ def test_encoders_refuse_what_the_wire_cannot_carry(call, args) -> None:
         call(*args)
 
 
+_FIELD_REFUSALS = [
+    (L.set_mode, (256,), "mode 256 does not fit in a byte"),
+    (L.mode_reply, (256,), "result 256 does not fit in a byte"),
+    *(
+        (
+            L.status_reply,
+            (L.StatusReport(**{field: 256}),),
+            f"{field.replace('_', ' ')} 256 does not fit in a byte",
+        )
+        for field in (
+            "operating_mode",
+            "device_status",
+            "variant",
+            "measuring_mode",
+            "address",
+            "units",
+            "laser_on",
+        )
+    ),
+]
+
+
+@pytest.mark.parametrize(
+    ("call", "args", "message"),
+    [
+        (L.switch_baud, (57600,), "LMS200 speaks [9600, 19200, 38400, 500000] baud, not 57600"),
+        (L.start_mean, (1,), "mean values take 2..250 scans, not 1"),
+        (L.start_mean_subrange, (251, 1, 10), "mean values take 2..250 scans, not 251"),
+        (L.start_subrange, (0, 10), "subrange 0..10 is not 1 <= first <= last"),
+        (L.installation_mode, (b"SICK",), "the installation password is 8 bytes"),
+        (L.set_variant, (180, 25), "no LMS200 variant 180 deg at 0.25 deg"),
+        (L.LmsConfig(contours=(0,) * 14).pack, (), "contours hold 3 x 5 bytes"),
+        (
+            L.LmsConfig(blanking=70000).pack,
+            (),
+            "configuration field out of range: ushort format requires 0 <= number <= 65535",
+        ),
+        *_FIELD_REFUSALS,
+    ],
+)
+def test_refusals_name_the_value_and_what_the_sensor_takes(call, args, message) -> None:
+    """The message is what a user reads when a configuration asks for the impossible."""
+    with pytest.raises(EncodeError) as refused:
+        call(*args)
+    assert str(refused.value) == message
+
+
+def test_replies_keep_their_status_byte_and_parsers_their_command() -> None:
+    config = L.LmsConfig(blanking=7)
+    accepted = L.VariantReply(True, 180, 50)
+    stream = (
+        L.config_reply(config, status=0x12)
+        + L.config_write_reply(False, config, status=0x13)
+        + L.variant_reply(accepted, status=0x14)
+        + L.mode_reply(status=0x15)
+        + L.type_reply("LMS200", status=0x16)
+    )
+    read, written, variant, mode, kind = decode(stream)
+    statuses = [t.status for t in (read, written, variant, mode, kind)]
+    assert statuses == [0x12, 0x13, 0x14, 0x15, 0x16]
+    assert L.parse_config_write_reply(written) == (False, config)
+    assert L.parse_variant_reply(variant) == accepted
+    # a telegram of another command is none of these, whatever its data
+    other = L.Telegram(L.SENSOR_ADDRESS, L.Reply.MODE, variant.data, 0x10)
+    assert L.parse_variant_reply(other) is None
+    assert L.parse_config_write_reply(other) is None
+
+
+def test_type_reply_text_loses_only_trailing_padding() -> None:
+    def kind(data: bytes) -> str | None:
+        return L.parse_type_reply(L.Telegram(L.SENSOR_ADDRESS, L.Reply.TYPE, data, 0x10))
+
+    assert kind(b" LMS200;30106 \x00\x00") == " LMS200;30106"
+    assert kind(b"LMS\xc3\xa9\xff") == "LMS\ufffd\ufffd\ufffd"  # not ASCII: never an error
+
+
 def test_scan_telegram_checks_its_count() -> None:
     with pytest.raises(EncodeError):
         L.ScanTelegram(L.scan_count_word(3), np.zeros(2, dtype=np.uint16))
@@ -463,6 +541,18 @@ def test_long_garbage_is_reported_in_bounded_runs() -> None:
     assert sizes == [MAX_DISCARD_RUN] * 3 + [5]
     assert len(decoder._buf) == 0
     assert decoder.stats.as_dict()["bad_garbage"] == 4
+
+
+def test_decoder_counters_are_named_for_health_messages() -> None:
+    decoder = L.Decoder()
+    decoder.feed(b"\x55\x55" + REPLY)
+    decoder.flush()
+    assert decoder.stats.as_dict() == {
+        "frames": 1,
+        "bytes_in": 2 + len(REPLY),
+        "bytes_discarded": 2,
+        "bad_garbage": 1,
+    }
 
 
 def test_format_errors_for_self_contradicting_scans() -> None:

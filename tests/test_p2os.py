@@ -119,6 +119,26 @@ def test_a_config_packet_keeps_its_trailing_bytes() -> None:
     assert config.extra == b"\xfe" and config.encode() == raw
 
 
+@pytest.mark.parametrize(
+    ("call", "args", "message"),
+    [
+        (P.sync, (3,), "there is no SYNC3"),
+        (P.encode_sync_echo, (3,), "there is no SYNC3 echo"),
+        (P.host_baud, (4800,), "P2OS speaks [9600, 19200, 38400, 57600, 115200] baud, not 4800"),
+    ],
+)
+def test_refusals_name_the_value_and_what_the_robot_takes(call, args, message) -> None:
+    with pytest.raises(EncodeError) as refused:
+        call(*args)
+    assert str(refused.value) == message
+
+
+def test_sync_echoes_are_the_step_byte_alone() -> None:
+    echoes = [P.encode_sync_echo(step) for step in (0, 1)]
+    assert echoes == [P.encode_packet(b"\x00"), P.encode_packet(b"\x01")]
+    assert decode(b"".join(echoes)) == [P.SyncEcho(0), P.SyncEcho(1)]
+
+
 def test_other_commands() -> None:
     assert decode(
         P.stop() + P.reset_odometry() + P.config_request() + P.host_baud(38400), "host"
@@ -447,8 +467,13 @@ def test_the_reported_subclass_chooses_the_model() -> None:
     assert select_model("p3at-sh") is P3AT_SH
     assert select_model("p3at") is P3AT
     assert select_model("P3AT-SH", "p3at-sh") is P3AT_SH
-    with pytest.raises(ConfigError, match=r"'p3at-xx'.*configure"):
+    with pytest.raises(ConfigError) as unknown:
         select_model("p3at-xx")
+    assert str(unknown.value) == (
+        "the robot reports subclass 'p3at-xx', which has no known parameter set (known: p2at, "
+        "p2at8, p2dx, p3at, p3at-sh, p3atiw-sh, p3dx, p3dx-sh); configure the robot model to "
+        "use one"
+    )
     # A robot whose subclass has no parameter set runs only with a model pinned on purpose.
     assert select_model("p3at-xx", "p3at-sh", allow_mismatch=True) is P3AT_SH
 
@@ -456,7 +481,11 @@ def test_the_reported_subclass_chooses_the_model() -> None:
 def test_a_configured_model_the_robot_contradicts_is_refused_naming_both() -> None:
     with pytest.raises(ModelMismatchError) as refused:
         select_model("p3at-sh", "p3at")
-    assert "'p3at'" in str(refused.value) and "'p3at-sh'" in str(refused.value)
+    assert str(refused.value) == (
+        "configured robot model 'p3at' does not match the subclass 'p3at-sh' the robot reports; "
+        "fix the configuration, or allow the mismatch if the robot's firmware reports the wrong "
+        "subclass"
+    )
     assert isinstance(refused.value, ConfigError)
     assert select_model("p3at-sh", "p3at", allow_mismatch=True) is P3AT
     with pytest.raises(ConfigError, match="unknown robot model"):
