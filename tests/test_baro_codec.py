@@ -420,6 +420,25 @@ def test_commands_are_numbered_zero_at_time_zero_unless_told() -> None:
     ]
 
 
+def test_flush_counts_lone_delimiters_into_the_truncated_frame() -> None:
+    decoder = baro.Decoder()
+    partial = baro.encode(baro.IdentifyCommand(1, 2))[:-3]
+    assert decoder.feed(b"\x00\x00" + partial) == []
+    (truncated,) = decoder.flush()
+    assert truncated.reason == "truncated" and truncated.size == len(partial)
+    assert truncated.wire_size == len(partial) + 2 and decoder.idle == 0
+
+
+def test_a_frame_that_ends_an_oversized_run_without_its_delimiter_is_lost_on_flush() -> None:
+    """With no delimiter after it, a whole frame at the end of line noise is no frame yet."""
+    frame = baro.encode(baro.IdentifyCommand(1, 2))[:-1]  # without its delimiter
+    stream = b"\x55" * (baro.MAX_ENCODED + 10) + frame
+    decoder = baro.Decoder()
+    out = decoder.feed(stream) + decoder.flush()
+    assert all(isinstance(m, BadFrame) and m.reason == "oversized" for m in out)
+    assert sum(m.wire_size for m in out) == len(stream)
+
+
 def test_to_pressure_sample() -> None:
     frame = baro.SampleFrame(7, 123456, 25767233, -1234)
     sample = baro.to_pressure_sample(frame, t_ns=42)

@@ -402,6 +402,13 @@ _FIELD_REFUSALS = [
             (),
             "configuration field out of range: ushort format requires 0 <= number <= 65535",
         ),
+        (
+            lambda: L.range_words([1.0], bits=12),
+            (),
+            "value words have 13 to 16 range bits, not 12",
+        ),
+        (lambda: L.range_words([[1.0]]), (), "ranges must be a 1-D sequence"),
+        (lambda: L.range_words([1.0, 2.0], [0]), (), "flags must have one entry per range"),
         *_FIELD_REFUSALS,
     ],
 )
@@ -620,11 +627,12 @@ def test_laser_scans_carry_the_scan_index_and_the_range_of_the_mode() -> None:
     (single,) = decode(L.encode_scan([100]))  # one beam: its field is its step
     step = single.to_laser_scan(0, field_deg=10.0).angle_increment_rad
     assert math.isclose(step, math.radians(10.0))
+    assert laser.flags.dtype == np.uint16 and laser.ranges_m.dtype == np.float32
 
 
 def test_unknown_beam_count_needs_the_configured_field() -> None:
     (scan,) = decode(L.encode_scan(np.full(180, 100), units="cm"))
-    with pytest.raises(ConfigError):
+    with pytest.raises(ConfigError, match=r"^180 beams has no documented field; pass field_deg$"):
         scan.to_laser_scan(0)
     laser = scan.to_laser_scan(0, field_deg=179.0)
     assert math.isclose(laser.angle_increment_rad, math.radians(1.0))

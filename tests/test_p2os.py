@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 
@@ -125,6 +126,29 @@ def test_a_config_packet_keeps_its_trailing_bytes() -> None:
         (P.sync, (3,), "there is no SYNC3"),
         (P.encode_sync_echo, (3,), "there is no SYNC3 echo"),
         (P.host_baud, (4800,), "P2OS speaks [9600, 19200, 38400, 57600, 115200] baud, not 4800"),
+        (P.encode_command, (256,), "command 256 does not fit in a byte"),
+        (P.Sync2Info("a\x00", "b", "c").encode, (), "SYNC2 strings cannot contain NUL"),
+        (P.encode_config, ({"bogus": 1},), "unknown CONFIG fields ['bogus']"),
+        (
+            P.encode_config,
+            ({"robot_type": "a\x00"},),
+            "CONFIG robot_type must be a string without NUL",
+        ),
+        (
+            P.encode_config,
+            ({"robot_type": "a", "subtype": "b", "serial_number": "c", "four_mots": "x"},),
+            "CONFIG four_mots must be an integer",
+        ),
+        (
+            P.encode_config,
+            ({"robot_type": "a", "subtype": "b", "serial_number": "c", "four_mots": 300},),
+            "CONFIG four_mots=300 out of range",
+        ),
+        (
+            P.encode_config,
+            ({"robot_type": "a", "subtype": "b", "serial_number": "c", "rot_vel_top": 1},),
+            "CONFIG fields must be a leading run of CONFIG_FIELDS, no gaps",
+        ),
     ],
 )
 def test_refusals_name_the_value_and_what_the_robot_takes(call, args, message) -> None:
@@ -365,6 +389,49 @@ def test_truncated_packets_and_self_contradicting_sips() -> None:
     ] == ["format"]
 
 
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"x": 0x8000}, "SIP positions are 15-bit counters (0..0x7FFF)"),
+        ({"y": 0x8000}, "SIP positions are 15-bit counters (0..0x7FFF)"),
+        ({"y": -1}, "SIP positions are 15-bit counters (0..0x7FFF)"),
+        ({"sonars": ((0, 1),) * 256}, "at most 255 sonar readings per SIP"),
+        ({"sonars": ((0, 1),) * 255}, "P2OS packets carry 1..198 data bytes, not 785"),
+        ({"battery_dv": 256}, "SIP field out of range: ubyte format requires 0 <= number <= 255"),
+        ({"timer": 1}, "SIP fields ('timer', 'analog', 'digital_in', 'digital_out') go together"),
+        ({"battery_x10": 120}, "SIP field battery_x10 needs timer before it"),
+    ],
+)
+def test_sip_refusals_name_what_is_wrong(changes, message) -> None:
+    with pytest.raises(EncodeError) as refused:
+        dataclasses.replace(SIP, **changes).encode()
+    assert str(refused.value) == message
+
+
+def test_sip_positions_take_the_whole_15_bits() -> None:
+    corner = dataclasses.replace(SIP, x=P.POSITION_MASK, y=P.POSITION_MASK)
+    assert decode(corner.encode()) == [corner]
+
+
+def test_host_commands_with_a_malformed_argument_are_format_errors() -> None:
+    """An argument type byte the length contradicts is no command (a string's length byte
+    must match, an integer takes two bytes, other type bytes take none)."""
+    malformed = [
+        bytes((8, P.ArgType.STRING)),  # string without its length byte
+        bytes((8, P.ArgType.INT, 0)),  # integer one byte short
+        bytes((8, 0x99, 0)),  # no such argument type
+        bytes((8, P.ArgType.STRING, 5, 0x41)),  # length says 5, one byte follows
+    ]
+    stream = b"".join(P.encode_packet(data) for data in malformed)
+    assert [getattr(m, "reason", None) for m in decode(stream, "host")] == ["format"] * 4
+
+
+def test_decoded_commands_carry_their_wire_size() -> None:
+    packets = [P.encode_command(4), P.encode_command(11, -300), P.encode_command(28, b"abc")]
+    decoded = decode(b"".join(packets), "host")
+    assert [m.wire_size for m in decoded] == [len(p) for p in packets]
+
+
 def test_sip_fields_and_partial_tail() -> None:
     sip = P.StandardSip(
         True,
@@ -488,8 +555,12 @@ def test_a_configured_model_the_robot_contradicts_is_refused_naming_both() -> No
     )
     assert isinstance(refused.value, ConfigError)
     assert select_model("p3at-sh", "p3at", allow_mismatch=True) is P3AT
-    with pytest.raises(ConfigError, match="unknown robot model"):
+    with pytest.raises(ConfigError) as unknown:
         select_model("p3at-sh", "p9xx", allow_mismatch=True)
+    assert str(unknown.value) == (
+        "unknown robot model 'p9xx'; known: p2at, p2at8, p2dx, p3at, p3at-sh, p3atiw-sh, p3dx, "
+        "p3dx-sh"
+    )
 
 
 def test_a_p3at_sh_read_as_p3at_shrinks_distances_to_465_per_mille() -> None:
