@@ -439,6 +439,46 @@ def test_a_frame_that_ends_an_oversized_run_without_its_delimiter_is_lost_on_flu
     assert sum(m.wire_size for m in out) == len(stream)
 
 
+def test_every_item_of_a_hostile_stream_has_its_wire_size_and_sample() -> None:
+    """A lone delimiter, noise glued to a frame, over-long runs with and without a frame at
+    their end, two lone delimiters before a corrupted frame, a cut frame: each item's wire
+    size counts its delimiter and the lone ones before it, and all of them add up to the
+    stream; each discarded run keeps its first bytes as its sample."""
+    frames = [baro.IdentifyCommand(i, 10 * i) for i in range(1, 6)]
+    wire = [baro.encode(frame) for frame in frames]  # 12 bytes each, the delimiter included
+    corrupted = bytearray(wire[4])
+    corrupted[-3] ^= 0x40
+    long_run = baro.MAX_ENCODED + 10
+    stream = b"".join(
+        (
+            b"\x00" + wire[0],
+            b"\x55\x55" + wire[1],
+            b"\x01" * long_run + wire[2],
+            b"\x02" * (baro.MAX_ENCODED + 5) + b"\x00",
+            b"\x00\x00" + bytes(corrupted),
+            wire[3][:-2],
+        )
+    )
+    decoder = baro.Decoder()
+    out = decoder.feed(stream) + decoder.flush()
+    assert [m for m in out if not isinstance(m, BadFrame)] == frames[:3]
+    items = [
+        (getattr(m, "reason", "frame"), getattr(m, "sample", b"")[:2], m.wire_size) for m in out
+    ]
+    assert items == [
+        ("frame", b"", 13),
+        ("garbage", b"\x55\x55", 2),
+        ("frame", b"", 12),
+        ("oversized", b"\x01\x01", long_run),
+        ("frame", b"", 12),
+        ("oversized", b"\x02\x02", baro.MAX_ENCODED + 5 + 1),
+        ("crc", bytes(corrupted[:2]), 11 + 1 + 2),
+        ("truncated", wire[3][:2], 10),
+    ]
+    assert sum(m.wire_size for m in out) == len(stream) and decoder.idle == 0
+    assert decoder.stats.frames == 3
+
+
 def test_to_pressure_sample() -> None:
     frame = baro.SampleFrame(7, 123456, 25767233, -1234)
     sample = baro.to_pressure_sample(frame, t_ns=42)

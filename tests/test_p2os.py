@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from baromap.errors import ConfigError, EncodeError
 from baromap.odometry.integrator import BREAK_S, OdometryIntegrator, position_delta
 from baromap.protocols import p2os as P
-from baromap.protocols.framing import BadFrame
+from baromap.protocols.framing import BAD_FRAME_SAMPLE_BYTES, MAX_DISCARD_RUN, BadFrame
 from baromap.protocols.robot_models import (
     MODELS,
     P2AT,
@@ -360,6 +360,50 @@ def test_garbage_is_counted_and_the_next_packet_decodes(garbage: bytes, where: s
         out = decode(stream, chunk=chunk)
         assert [m for m in out if not isinstance(m, BadFrame)] == [ECHO, SIP]
         assert sum(m.size for m in out if isinstance(m, BadFrame)) == len(garbage)
+
+
+def test_one_feed_returns_every_complete_packet_and_accounts_for_every_byte() -> None:
+    """Long garbage, a bad COUNT, a bad checksum and a format error between packets: one feed
+    returns each packet whole and each run of discarded bytes with its reason, the items'
+    wire sizes add up to every byte but a trailing FA (a header may start there)."""
+    bad_sum = bytearray(SIP.encode())
+    bad_sum[-1] ^= 1
+    short_sip = P.encode_packet(b"\x32" + b"\x00" * 10)
+    stream = b"".join(
+        (
+            b"\x55" * (2 * MAX_DISCARD_RUN + 3),
+            ECHO.encode(),
+            b"\xfa\xfb\xff",
+            SIP.encode(),
+            bytes(bad_sum),
+            short_sip,
+            SIP.encode(),
+            b"\xfa",
+        )
+    )
+    decoder = P.Decoder()
+    out = decoder.feed(stream)
+    assert out[3] == ECHO and out[5] == SIP and out[8] == SIP
+    bad = [(m.reason, m.size, m.sample, m.wire_size) for m in out if isinstance(m, BadFrame)]
+    assert bad == [
+        ("garbage", MAX_DISCARD_RUN, b"\x55" * BAD_FRAME_SAMPLE_BYTES, MAX_DISCARD_RUN),
+        ("garbage", MAX_DISCARD_RUN, b"\x55" * BAD_FRAME_SAMPLE_BYTES, MAX_DISCARD_RUN),
+        ("garbage", 3, b"\x55" * 3, 3),
+        ("length", 3, b"\xfa\xfb\xff", 3),
+        ("checksum", len(bad_sum), bytes(bad_sum[:BAD_FRAME_SAMPLE_BYTES]), len(bad_sum)),
+        ("format", len(short_sip), short_sip[:BAD_FRAME_SAMPLE_BYTES], len(short_sip)),
+    ]
+    assert [m.wire_size for m in out if not isinstance(m, BadFrame)] == [6, 31, 31]
+    assert sum(m.wire_size for m in out) == len(stream) - 1
+    assert decoder.stats.as_dict() == {
+        "frames": 3,
+        "bytes_in": len(stream),
+        "bytes_discarded": 2 * MAX_DISCARD_RUN + 3 + 3 + len(bad_sum) + len(short_sip),
+        "bad_checksum": 1,
+        "bad_format": 1,
+        "bad_garbage": 3,
+        "bad_length": 1,
+    }
 
 
 def test_bad_checksum_resyncs_at_the_byte_after_fa() -> None:
