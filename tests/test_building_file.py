@@ -112,3 +112,47 @@ def test_the_demos_summary_shows_each_floors_name_and_live_name(tmp_path: Path) 
     assert len(floors) == 2
     assert "name   0  live name  -1" in floors[0]  # named by height, the live name beside it
     assert "name   1  live name   1" in floors[1]  # the same where they agree
+
+
+def test_floors_get_the_names_the_daemon_published_not_the_replays() -> None:
+    """A floor of the replay is named as the live account named the robot's floor during its
+    stays: the daemon's configured names, a correction applied, a lost stream none."""
+    from baromap.floors.detection import Segment
+    from baromap.mapping.live_names import live_floor_names
+    from baromap.messages import FloorEvent, FloorEventKind
+
+    def event(event_id: int, t: int, to: str, replaces: int | None = None) -> FloorEvent:
+        kind = FloorEventKind.TRANSITION if replaces is None else FloorEventKind.CORRECTION
+        return FloorEvent(
+            t + 1, event_id, kind, replaces, t - 5, t, 0, 1, "1", to, 6.0, -70.0, 6.0, 1e5
+        )
+
+    # the replay's floor 1 is the start (named "1" live), floor 2 its upper neighbour, which
+    # the live account first took for "3" and corrected to "2"; floor 0 below
+    segments = [Segment(0, 90, 1), Segment(110, 190, 2), Segment(210, 290, 0), Segment(310, 400, 1)]
+    events = [
+        event(1, 100, "3"),
+        event(2, 150, "2", replaces=1),
+        FloorEvent(
+            201,
+            3,
+            FloorEventKind.TRANSITION,
+            None,
+            195,
+            200,
+            1,
+            2,
+            "2",
+            "0",
+            -5.5,
+            65.0,
+            -11.5,
+            1e5,
+        ),
+        FloorEvent(
+            301, 4, FloorEventKind.TRANSITION, None, 295, 300, 2, 0, "0", "1", 0.0, -65.0, 5.5, 1e5
+        ),
+    ]
+    assert live_floor_names(events, segments) == {1: "1", 2: "2", 0: "0"}
+    assert live_floor_names([], segments) == {}
+    assert live_floor_names(events[1:], segments) == {}  # a correction of an event never seen

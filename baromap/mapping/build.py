@@ -38,6 +38,7 @@ from baromap.floors.names import names_by_height
 from baromap.mapping import export, figures
 from baromap.mapping.foxglove_maps import write_maps_mcap
 from baromap.mapping.keyframes import motion_spaced
+from baromap.mapping.live_names import live_floor_names, recorded_floor_events
 from baromap.mapping.occupancy import OccupancyGrid, build_grid
 from baromap.mapping.restarts import check_runs, run_slam_best_of
 from baromap.mapping.run_data import RunData, load_scans, load_series, run_data
@@ -357,7 +358,11 @@ def write_outputs(
     files: list[Path] = []
     floor_entries: list[BuildingFloor] = []
     kf_floor = seg.scan_floor[result.slam.keyframes]
-    names = _names_by_height(seg)
+    # the names the daemon published (its [floors] settings), else the replay's own
+    live = {info.index: info.name for info in seg.floors if info.name}
+    if seg.detection is not None:
+        live |= live_floor_names(recorded_floor_events(parts), seg.detection.segments)
+    names = _names_by_height(seg, live)
     for info in seg.floors:
         job = _grid_job(
             result.run, seg, result.slam, info.index, resolution=resolution, config=config
@@ -367,7 +372,7 @@ def write_outputs(
         entry: dict[str, Any] = {
             "index": info.index,
             "name": name,
-            "live_name": info.name if info.name and info.name != name else None,
+            "live_name": live.get(info.index) if live.get(info.index) != name else None,
             "elevation_m": round(info.elevation_m, 3),
             "mean_pressure_pa": None if info.level_pa is None else round(info.level_pa, 2),
             "visits": info.visits,
@@ -446,12 +451,11 @@ def write_outputs(
     return files
 
 
-def _names_by_height(seg: Segmentation) -> dict[int, str]:
+def _names_by_height(seg: Segmentation, live: dict[int, str]) -> dict[int, str]:
     """``building.yaml``'s floor names: by order in height, counted from the name the live
     detector gave the start floor (the configured one), so consecutive floors have
     consecutive names; the index when no floor has a live name (the paper's method)."""
     detection = seg.detection
-    live = {info.index: info.name for info in seg.floors if info.name}
     if detection is None or not detection.segments or not live:
         return {info.index: str(info.index) for info in seg.floors}
     start = int(detection.segments[0].floor)

@@ -203,6 +203,10 @@ def test_post_run_floors_match_the_truth(
     visits = {f: route.count(f) for f in route}
     by_height = {z: f for f, z in floor_truth.heights_m.items()}
     assert [f["visits"] for f in floors] == [visits[by_height[z]] for z in true_heights]
+    # named as the daemon named them live (its configured start floor and storey), which are
+    # the building's own names in order of height: no live name differs
+    assert [f["name"] for f in floors] == [str(by_height[z]) for z in true_heights]
+    assert [f.get("live_name") for f in floors] == [None] * len(floors)
     # the trajectory's z is its scan's floor: compare with where the robot really was
     _, trajectory = read_outputs(demo.maps)
     idx = np.clip(np.searchsorted(truth.t_ns, trajectory.t_ns), 0, len(truth.t_ns) - 1)
