@@ -15,6 +15,7 @@ from baromap.mapping import se2
 from baromap.messages import (
     NS_PER_S,
     FloorPhase,
+    FloorState,
     LaserScan,
     Odometry,
     PressureSample,
@@ -55,9 +56,12 @@ class Drive:
         self.keyframes: list[tuple[int, np.ndarray]] = []  # (t_ns, map pose)
         self.truth: list[TruthPose] = []
         self.phases: set[FloorPhase] = set()
+        #: the detector's phase and floor as each keyframe was drawn
+        self.drawn_while: list[tuple[FloorPhase, int | None]] = []
 
     def run(self) -> Drive:
         last_state: int | None = None
+        phase, floor = FloorPhase.UNKNOWN, None
         for batch in self.gen.windows():
             for _, _, topic, message in batch:
                 if isinstance(message, PressureSample) and topic in (None, "/baro"):
@@ -66,6 +70,7 @@ class Drive:
                     if events or due:
                         last_state = message.t_ns
                         state = self.detector.state()
+                        phase, floor = state.phase, state.floor_id
                         self.phases.add(state.phase)
                         self.map.floor_state(state)
                         self.floors.append((state.floor_id, self.map.floor_id))
@@ -76,6 +81,7 @@ class Drive:
                     drawn_before = self._drawn()
                     if self.map.scan(message) and self._drawn() > drawn_before:
                         self.keyframes.append((message.t_ns, self.map.snapshot().path[-1]))
+                        self.drawn_while.append((phase, floor))
                 elif isinstance(message, TruthPose):
                     self.truth.append(message)
         return self
@@ -95,7 +101,11 @@ def test_the_map_follows_the_detectors_floor(drive: Drive) -> None:
     decided = [d for d, _ in drive.floors if d is not None]
     assert decided[0] == 0 and 1 in decided and decided[-1] == 0  # start, up, back
     assert all(d == m for d, m in drive.floors if d is not None)
-    assert drive.map.not_drawn > 0  # keyframes in the car while riding were left out
+    # drawn only on a settled floor (or the start's, before the first settled pressure):
+    # never while riding or while a stop is being decided
+    assert drive.drawn_while, "nothing drawn"
+    assert all(p is FloorPhase.SETTLED or f is None for p, f in drive.drawn_while)
+    assert FloorPhase.SETTLED in {p for p, _ in drive.drawn_while}
 
 
 def test_a_floor_seen_before_is_resumed_not_started_afresh(drive: Drive) -> None:
@@ -133,3 +143,51 @@ def test_settings_are_checked() -> None:
         LiveMapSettings(resolution_m=2.0)
     with pytest.raises(ConfigError):
         LiveMapSettings(keyframe_deg=0.0)
+
+
+def _state(t_s: float, phase: FloorPhase, floor: int | None) -> FloorState:
+    return FloorState(
+        t_ns=int(t_s * NS_PER_S),
+        phase=phase,
+        floor_id=floor,
+        name=None if floor is None else str(floor),
+        height_m=0.0 if floor is None else 4.0 * floor,
+        level_m=0.0,
+        level_pa=0.0,
+        since_ns=0,
+        floors_known=1 if floor is None else floor + 1,
+    )
+
+
+def _room_scan(t_s: float) -> LaserScan:
+    """A scan of a 6 m round room from its middle: walls every beam sees."""
+    beams = 181
+    return LaserScan(
+        t_ns=int(t_s * NS_PER_S),
+        angle_min_rad=-math.pi / 2,
+        angle_increment_rad=math.pi / (beams - 1),
+        range_max_m=8.0,
+        ranges_m=np.full(beams, 3.0, dtype=np.float32),
+        flags=np.zeros(beams, dtype=np.uint16),
+    )
+
+
+def test_nothing_is_drawn_while_riding_and_the_next_floor_gets_its_own_grid() -> None:
+    """A keyframe while the detector says CHANGING is counted, not drawn; once a floor is
+    decided the keyframes go to that floor's grid."""
+    live = LiveFloorMap(LiveMapSettings(), (0.0, 0.0, 0.0))
+    t = 0.0
+    for phase, floor, scans in (
+        (FloorPhase.SETTLED, 0, 3),
+        (FloorPhase.CHANGING, 0, 2),
+        (FloorPhase.SETTLED, 1, 3),
+    ):
+        live.floor_state(_state(t, phase, floor))
+        for _ in range(scans):
+            t += 1.0
+            # a turn on the spot per scan: a keyframe each time, the room the same
+            live.odometry(Odometry(t_ns=int(t * NS_PER_S), x_m=0.0, y_m=0.0, theta_rad=t))
+            assert live.scan(_room_scan(t))
+    assert live.not_drawn == 2
+    assert (live._floors[0].keyframes, live._floors[1].keyframes) == (3, 3)
+    assert live.snapshot().info.floor_id == 1
