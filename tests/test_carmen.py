@@ -249,6 +249,21 @@ def test_stamps_that_cannot_order_the_scans_are_replaced_by_the_scan_order(stamp
     assert log.stamps.summary()["timed_by"] == "scan order, a scan every 1 s"
 
 
+@pytest.mark.parametrize("odometry_first", [True, False], ids=["before", "after"])
+def test_a_pose_written_with_each_scan_is_timed_with_its_scan(odometry_first: bool) -> None:
+    """A log timed by its scan order that writes one pose beside each scan: the pose is the
+    robot's at that scan (timed between two scans, every scan's odometry would be half a step
+    off)."""
+    lines = []
+    for k in range(6):
+        pair = [_line("ODOM", k, "0"), _line("FLASER", k, "0")]
+        lines += pair if odometry_first else pair[::-1]
+    log = parse_lines(lines)
+    assert log.stamps is not None and log.stamps.from_order
+    assert [o.t_ns for o in log.odometry] == log.scan_times_ns().tolist()
+    assert [o.x_m for o in log.odometry] == [float(k) for k in range(6)]
+
+
 def test_a_few_broken_stamps_take_times_between_their_neighbours() -> None:
     """Acapulco's kind: a zero, a negative and a stray stamp among good ones. Those lines are
     timed between their neighbours in the file; the good ones keep theirs, an odometry line a

@@ -76,6 +76,9 @@ ZERO_BELOW_S = Decimal("0.001")
 #: corrected logs of the public collections keep about a scan per metre, driven at 0.5-1 m/s.
 ORDERED_SHARE = 0.5
 ORDER_INTERVAL_S = 1.0
+#: A log timed by its scan order writes a pose with each scan when at least this share of
+#: the steps from one scan to the next hold exactly one other line.
+PAIRED_SHARE = 0.9
 
 
 @dataclass(frozen=True, slots=True)
@@ -218,6 +221,34 @@ def _strays(t_ns: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
     return np.asarray((t < before - STRAY_S * NS_PER_S) | (t > after + STRAY_S * NS_PER_S))
 
 
+def _order_positions(scan: npt.NDArray[np.bool_]) -> npt.NDArray[np.float64]:
+    """Where each line falls in a log timed by its scan order: scan k at k. A log that writes
+    one pose with each scan (one other line between most two scans, as many as scans) writes
+    it beside its scan: each such line is timed with the scan on its side (the side the file's
+    first line shows). Otherwise the lines between scans k and k + 1 spread evenly between."""
+    scan_no = np.cumsum(scan) - 1  # the scan at or before each line, -1 before any
+    position = scan_no.astype(np.float64)
+    others = np.flatnonzero(~scan)
+    if not len(others):
+        return position
+    group = scan_no[others]
+    lead = np.searchsorted(group, group, side="left")
+    size = np.searchsorted(group, group, side="right") - lead
+    scans = int(scan.sum())
+    between = np.diff(np.flatnonzero(scan)) - 1
+    if (
+        scans > 1
+        and len(others) == scans
+        and np.mean(between == 1) >= PAIRED_SHARE
+        and not (scan[0] and scan[-1])
+    ):
+        # beside the next scan where the file opens with one, else beside the one before
+        position[others] = group + (0.0 if scan[0] else 1.0)
+        return position
+    position[others] = group + (np.arange(len(others)) - lead + 1) / (size + 1)
+    return position
+
+
 def line_times(
     is_scan: list[bool], stamps: list[tuple[str | None, str | None]]
 ) -> tuple[npt.NDArray[np.int64], StampRepair | None]:
@@ -254,16 +285,7 @@ def line_times(
         scan_idx
         and (forward < ORDERED_SHARE * (len(scan_idx) - 1) or all(t is None for t in scan_t))
     ):
-        # positions: scan k at k; the lines between scans k and k + 1 spread evenly between
-        scan = np.array(is_scan, dtype=bool)
-        scan_no = np.cumsum(scan) - 1  # the scan at or before each line, -1 before any
-        position = scan_no.astype(np.float64)
-        others = np.flatnonzero(~scan)
-        if len(others):
-            group = scan_no[others]
-            lead = np.searchsorted(group, group, side="left")
-            size = np.searchsorted(group, group, side="right") - lead
-            position[others] = group + (np.arange(len(others)) - lead + 1) / (size + 1)
+        position = _order_positions(np.array(is_scan, dtype=bool))
         interval = round(ORDER_INTERVAL_S * NS_PER_S)
         out[:] = np.round((position + 1.0) * interval).astype(np.int64)
         for i in range(n):
