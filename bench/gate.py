@@ -4,7 +4,7 @@ them, compared with a baseline kept in the repository.
 
     .venv/bin/python bench/gate.py [--quick] [--cases REGEX] [--seeds 0,1,2] [--workers N]
                                    [--tree PATH] [--baseline FILE] [--write-baseline FILE]
-                                   [--runs K] [--keep DIR] [--list]
+                                   [--runs K] [--keep DIR] [--list] [--table FILE]
 
 A case is a log, a part and stride of it, an odometry error model and a way of timing and
 stamping its lines (baromap.evaluation.log_variants): ``intel``, ``fr079/10:slip``,
@@ -475,6 +475,31 @@ def compare(
     return lines, worse
 
 
+def markdown_table(path: Path) -> list[str]:
+    """A baseline file as a Markdown table, one row per case: the means over its seeds and
+    their range, the scans lost, the watched warnings and the failures over all seeds."""
+    by_case: dict[str, list[Outcome]] = {}
+    for outcome in read_baseline(path).values():
+        by_case.setdefault(outcome.case, []).append(outcome)
+    lines = [
+        "| case | seeds | ATE m (min-max) | relations m (min-max) | lost | warnings | failed |"
+        " CPU s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, _, _ in CASES:
+        now = sorted(by_case.get(name, []), key=lambda o: o.seed)
+        if not now:
+            continue
+        said = sum(sum(v for k, v in o.warnings.items() if k in WATCHED) for o in now)
+        seeds = ",".join(str(o.seed) for o in now)
+        lines.append(
+            f"| `{name}` | {seeds} | {_fmt([o.ate_m for o in now], 3)} "
+            f"| {_fmt([o.rel_m for o in now], 4)} | {sum(o.lost for o in now)} | {said} "
+            f"| {sum(1 for o in now if o.failed)} | {sum(o.cpu_s for o in now):.0f} |"
+        )
+    return lines
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the quick subset, seed 0")
@@ -493,10 +518,16 @@ def main() -> int:
         help="build-maps --runs K (default 1, build-maps' own default)",
     )
     parser.add_argument("--list", action="store_true", help="list the cases and exit")
+    parser.add_argument(
+        "--table", type=Path, default=None, metavar="FILE", help="print FILE as Markdown and exit"
+    )
     parser.add_argument("--run-case", type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.run_case is not None:
         run_commands(args.run_case, args.tree, args.runs)
+        return 0
+    if args.table is not None:
+        print("\n".join(markdown_table(args.table)))
         return 0
     chosen = [
         (parse_case(name), seeds)
