@@ -48,7 +48,7 @@ SCALE_SIGMA = 0.003
 #: Beyond these the odometry is broken rather than miscalibrated: corrections are clipped.
 #: A skid-steer base (the P3-AT) reads turns long by its tyres' sideways slip, tens of
 #: percent on a floor other than the one its turn was calibrated on: a calibration to learn
-#: (docs/mapping.md, "A skid-steer base's turns").
+#: (docs/decisions.md, "Odometry calibration").
 MAX_SCALE_ERROR = 0.2
 MAX_TURN_ERROR = 0.5
 MAX_CREEP_RAD_PER_M = math.radians(5.0)

@@ -92,11 +92,11 @@ class Pull:
     Weighed against the scan as two Gaussian measurements are: the scan's squared residuals
     over their own variance (the variance :attr:`Refined.information` uses, taken at the
     start), the deviation from the start over the pull's sigma squared. A fixed weight per
-    point (scan_matcher.Prior's 0.01) made the pull of the scans between keyframes several
+    point (scan_matcher.Prior's 0.01) makes the pull of the scans between keyframes several
     times stronger than its sigmas say, holding them to the interpolation between keyframes,
     which is worse than their fit; with the weighting of a Gaussian and odometry's fitted
-    noise as sigmas, Freiburg 079's relations went from 0.0510 m, 0.563 deg to 0.0487 m,
-    0.510 deg (seeds 0-4, docs/mapping.md).
+    noise as sigmas, Freiburg 079's relations are 0.0487 m, 0.510 deg against 0.0510 m,
+    0.563 deg (seeds 0-4, docs/decisions.md, "The last alignment against a finer field").
     """
 
     sigma_xy: FloatArray  # (K,)

@@ -4,8 +4,8 @@ Why: one run of the SLAM is one draw. Its discrete choices (the candidate a sear
 closure that passes a threshold, the group of weak closures that forms first) flip under
 changes of the odometry far below any sensor's noise, and on a sparse log (a scan every metre
 or more, where each choice weighs much) the figures after them spread widely: on a scan every
-2-3 m the same seed's ATE against GMapping's poses went from 0.12 to 0.45 m over four runs
-with the odometry moved by half a micrometre (docs/mapping.md, "Restarts"). A particle filter
+2-3 m the same seed's ATE against GMapping's poses spans 0.12 to 0.45 m over four runs with
+the odometry moved by half a micrometre (docs/mapping.md, "Restarts"). A particle filter
 such as GMapping keeps several such histories and the one whose scans agree best; this does the
 same with whole runs, judged without a reference by :mod:`baromap.mapping.revisits`: every
 run's scans against the scans of the same places seen after a long way round, all runs on
@@ -41,16 +41,16 @@ log = structlog.get_logger(__name__)
 
 #: Each run after the first sees the odometry moved by at most this much in every
 #: coordinate (metres, radians): nothing a robot's sensors could tell apart, enough for the
-#: SLAM's discrete choices to fall anew (a change of 5e-7 already does, docs/mapping.md
-#: "One run is one draw").
+#: SLAM's discrete choices to fall anew (a change of 5e-7 already does, docs/mapping.md,
+#: "Restarts").
 RESTART_JITTER = 1e-6
 #: A later run replaces the first only if its revisits agree better by more than this share.
 #: Runs of one quality differ by up to 1 % (Acapulco, Intel and Freiburg 079 as published:
 #: 0.1-1.0 % over four runs, their ATE within its spread of a centimetre), a run gone wrong
 #: at a revisit by 8-90 %; when the runs agree about equally the score cannot tell them
 #: apart, and the first run, the odometry as given, is kept. Over four draws of 57 runs of
-#: sparse and published logs, 2 % lost 0-5 mm of the mean ATE against no margin
-#: (fr079/30 strong 0.167 -> 0.172 m) and still kept every run gone wrong out.
+#: sparse and published logs, 2 % costs 0-5 mm of the mean ATE against no margin
+#: (fr079/30 strong 0.172 m against 0.167) and still keeps every run gone wrong out.
 RESTART_MARGIN = 0.02
 #: Mixed into the seed of each run's jitter, so it is its own stream, apart from the bench's
 #: draws (``laser_logs.perturbed``).

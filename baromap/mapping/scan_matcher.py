@@ -54,8 +54,8 @@ def stamp(
     """
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     # a kernel's cells cost ~1 KB a point in flight: a whole run's points at once (the last
-    # solve's field of every scan) took 0.6 GB for Acapulco driven four times; a maximum
-    # is the same taken in parts
+    # solve's field of every scan, Acapulco driven four times) hold 0.6 GB; a maximum is
+    # the same taken in parts
     for start in range(0, len(pts), STAMP_CHUNK):
         _stamp_part(data, origin_xy, resolution, sigma, pts[start : start + STAMP_CHUNK])
 
@@ -91,8 +91,8 @@ def _block_max(data: Float32Array, step: int) -> Float32Array:
     of ``step``).
 
     One strided ``np.maximum`` per row and column of a block: a ``max`` over the axes of a
-    reshaped view walks memory out of order and took 13 ms on a 1200 x 1400 field against
-    0.7 ms this way (pooling was 6 of Acapulco's 34 s of CPU).
+    reshaped view walks memory out of order, 13 ms on a 1200 x 1400 field against 0.7 ms
+    this way.
     """
     h, w = data.shape
     cols = data.reshape(h, w // step, step)
@@ -235,9 +235,8 @@ class SearchWindow:
 
 #: Most (angle, point, dy, dx) cells the lattice is scored in at once. A front-end window
 #: of 38 degrees at a quarter degree, 0.9 m either way and 96 points holds 40 million, and
-#: scored whole its index and value arrays took 2 GB (`intel/4`, strong odometry, seed 2:
-#: the bench process peaked at 2075 MB); blocks of angles score the same values in a few
-#: tens of megabytes.
+#: scored whole its index and value arrays hold 2 GB (a sparse log after a turn); blocks of
+#: angles score the same values in a few tens of megabytes.
 LATTICE_BLOCK_CELLS = 1 << 22
 
 
@@ -277,14 +276,16 @@ def _score_grid(
 
 
 def _prior_penalty(
-    prior: Prior | None, angles: FloatArray, dx: FloatArray, dy: FloatArray
+    prior: Prior | None, angles: FloatArray, xs: FloatArray, ys: FloatArray
 ) -> FloatArray | float:
-    """Score penalty over an (angle, dy, dx) lattice, broadcastable against its scores."""
+    """Score penalty over an (angle, y, x) lattice, broadcastable against its scores: ``xs``
+    and ``ys`` are the lattice's coordinates, one row (T,) for every angle or one row per
+    angle (A, T)."""
     if prior is None:
         return 0.0
     da = se2.wrap(angles - prior.pose[2])[:, None, None] / prior.sigma_theta
-    ex = (dx[None, None, :] - prior.pose[0]) / prior.sigma_xy
-    ey = (dy[None, :, None] - prior.pose[1]) / prior.sigma_xy
+    ex = (np.atleast_2d(xs)[:, None, :] - prior.pose[0]) / prior.sigma_xy
+    ey = (np.atleast_2d(ys)[:, :, None] - prior.pose[1]) / prior.sigma_xy
     out: FloatArray = 0.5 * prior.weight * (da**2 + ex**2 + ey**2)
     return out
 
@@ -341,35 +342,70 @@ def correlative_search(
 
     With a ``coarse_field`` (``field.pooled(window.coarse_step_cells)``) the window is first
     scored on the coarse grid, an upper bound, and only the best coarse cells are searched
-    finely.
+    finely (:func:`_coarse_to_fine`); without one, every pose of the lattice is scored
+    (:func:`_every_pose`).
 
     The runner-up is reported on the score's scale with the prior's handicap applied: how
     well a clearly different answer (another door along a corridor, the room turned) did by
     the same measure that chose the best.
     """
+    if max(1, window.coarse_step_cells) == 1 or coarse_field is None:
+        return _every_pose(field, points, guess, window, prior)
+    found = _coarse_to_fine(field, coarse_field, points, guess, window, prior=prior, keep=keep)
+    if not found:
+        return SearchResult(np.asarray(guess, dtype=np.float64).copy(), 0.0, 0.0)
+    return _best_and_runner_up(found)
+
+
+def _every_pose(
+    field: LikelihoodField,
+    points: FloatArray,
+    guess: FloatArray,
+    window: SearchWindow,
+    prior: Prior | None,
+) -> SearchResult:
+    """Every pose of the lattice scored at once; the runner-up is the best pose distinct
+    from the best (:data:`DISTINCT_M`, :data:`DISTINCT_RAD`)."""
+    res = field.resolution
+    angles = _window_angles(guess, window)
+    half_cells = max(0, math.ceil(window.linear_m / res))
+    offsets = np.arange(-half_cells, half_cells + 1)
+    scores = _score_grid(field, points, guess, angles, offsets)
+    xs, ys = guess[0] + offsets * res, guess[1] + offsets * res
+    objective = scores - _prior_penalty(prior, angles, xs, ys)
+    a, iy, ix = np.unravel_index(int(np.argmax(objective)), objective.shape)
+    pose = np.array([xs[ix], ys[iy], angles[a]])
+    far = (np.hypot(xs[None, None, :] - xs[ix], ys[None, :, None] - ys[iy]) > DISTINCT_M) | (
+        np.abs(se2.wrap(angles - angles[a]))[:, None, None] > DISTINCT_RAD
+    )
+    best_objective = float(objective[a, iy, ix])
+    runner_up = 0.0
+    runner_pose = None
+    if far.any():
+        masked = np.where(far, objective, -np.inf)
+        ra, ry, rx = np.unravel_index(int(np.argmax(masked)), masked.shape)
+        runner_up = float(scores[a, iy, ix]) - (best_objective - float(masked[ra, ry, rx]))
+        runner_pose = np.array([xs[rx], ys[ry], angles[ra]])
+    return SearchResult(pose, float(scores[a, iy, ix]), max(runner_up, 0.0), runner_pose)
+
+
+def _coarse_to_fine(
+    field: LikelihoodField,
+    coarse_field: LikelihoodField,
+    points: FloatArray,
+    guess: FloatArray,
+    window: SearchWindow,
+    *,
+    prior: Prior | None,
+    keep: int,
+) -> list[tuple[float, float, FloatArray]]:
+    """The window scored on the coarse field, then the best coarse cells, ``keep`` at a time,
+    searched on the fine lattice around them until no coarse bound left can beat the best
+    fine objective: (objective, score, pose) of each searched cell's best."""
     res = field.resolution
     angles = _window_angles(guess, window)
     step = max(1, window.coarse_step_cells)
     half_cells = max(0, math.ceil(window.linear_m / res))
-    if step == 1 or coarse_field is None:
-        offsets = np.arange(-half_cells, half_cells + 1)
-        scores = _score_grid(field, points, guess, angles, offsets)
-        xs, ys = guess[0] + offsets * res, guess[1] + offsets * res
-        objective = scores - _prior_penalty(prior, angles, xs, ys)
-        a, iy, ix = np.unravel_index(int(np.argmax(objective)), objective.shape)
-        pose = np.array([xs[ix], ys[iy], angles[a]])
-        far = (np.hypot(xs[None, None, :] - xs[ix], ys[None, :, None] - ys[iy]) > DISTINCT_M) | (
-            np.abs(se2.wrap(angles - angles[a]))[:, None, None] > DISTINCT_RAD
-        )
-        best_objective = float(objective[a, iy, ix])
-        runner_up = 0.0
-        runner_pose = None
-        if far.any():
-            masked = np.where(far, objective, -np.inf)
-            ra, ry, rx = np.unravel_index(int(np.argmax(masked)), masked.shape)
-            runner_up = float(scores[a, iy, ix]) - (best_objective - float(masked[ra, ry, rx]))
-            runner_pose = np.array([xs[rx], ys[ry], angles[ra]])
-        return SearchResult(pose, float(scores[a, iy, ix]), max(runner_up, 0.0), runner_pose)
     coarse_half = math.ceil(half_cells / step)
     coarse_offsets = np.arange(-coarse_half, coarse_half + 1)
     coarse = _score_grid(coarse_field, points, guess, angles, coarse_offsets)
@@ -393,14 +429,7 @@ def correlative_search(
         scores = _score_grid(field, points, centers, fine_angles, fine_offsets)
         dx = centers[:, 0][:, None] + fine_offsets[None, :] * res  # (B * 3, T)
         dy = centers[:, 1][:, None] + fine_offsets[None, :] * res
-        objective = scores
-        if prior is not None:
-            da = se2.wrap(fine_angles - prior.pose[2]) / prior.sigma_theta
-            ex = (dx - prior.pose[0]) / prior.sigma_xy
-            ey = (dy - prior.pose[1]) / prior.sigma_xy
-            objective = scores - 0.5 * prior.weight * (
-                da[:, None, None] ** 2 + ex[:, None, :] ** 2 + ey[:, :, None] ** 2
-            )
+        objective = scores - _prior_penalty(prior, fine_angles, dx, dy)
         for b in range(len(batch)):
             block = objective[3 * b : 3 * b + 3]
             fa, fy, fx = np.unravel_index(int(np.argmax(block)), block.shape)
@@ -410,8 +439,12 @@ def correlative_search(
         best = max(f[0] for f in found)
         if done >= len(order) or flat_bound[order[done]] <= best:
             break  # every remaining upper bound is below the best fine objective
-    if not found:
-        return SearchResult(np.asarray(guess, dtype=np.float64).copy(), 0.0, 0.0)
+    return found
+
+
+def _best_and_runner_up(found: list[tuple[float, float, FloatArray]]) -> SearchResult:
+    """The best of the (objective, score, pose) found, and the best distinct from it as the
+    runner-up, on the score's scale with the prior's handicap applied."""
     found.sort(key=lambda f: f[0], reverse=True)
     best_objective, best_score, best_pose = found[0]
     runner_up = 0.0

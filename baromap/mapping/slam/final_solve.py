@@ -66,8 +66,8 @@ class FinalSolve(ElevatorCar):
         A step over a silence of the laser or across a gap in the odometry (``silent_steps``)
         keeps the front end's sigmas:
         the noise was fitted to keyframe steps of half a metre, and a minute's drive is far
-        outside them (the simulated one was 6 m and 19 degrees off, a hundred sigmas of the
-        fit). Weighed by the fit, that one edge held every floor after it against the car.
+        outside them (the simulated run's is 6 m and 19 degrees off, a hundred sigmas of the
+        fit): weighed by the fit, that one edge holds every floor after it against the car.
         """
         edges = self.graph.edges
         for e in edges:
@@ -86,33 +86,34 @@ class FinalSolve(ElevatorCar):
 
         A front-end match edge is plain least squares: the front end trusts its own matches,
         and along a sparse log's corridors and after its turns of 100-170 degrees that trust
-        is where the map went wrong. A probe of the worst sparse runs (every front-end step
-        against GMapping's relative pose of the two scans) found the keyframes taken 0.5-1 m
-        along a corridor (the next door along) or turned by 10-20 degrees where corrected
-        odometry was 0.03-0.15 m and 1-5 degrees off; the next keyframe's match, against the
-        submap, put the robot back, so two match edges held the wrong pose in place against
-        two odometry edges, and no closure could move it. Replacing those matches by
-        GMapping's steps took `intel/4` seed 2 from 0.258 to 0.061 m and `fr079/30` seed 3
-        from 0.443 to 0.094 m: they are what is left.
+        is where a map goes wrong. On the worst sparse runs, step by step against GMapping's
+        relative pose of the two scans, the wrong keyframes are taken 0.5-1 m along a
+        corridor (the next door along) or turned by 10-20 degrees where corrected odometry
+        is 0.03-0.15 m and 1-5 degrees off; the next keyframe's match, against the submap,
+        puts the robot back, so two match edges hold the wrong pose in place against two
+        odometry edges, and no closure can move it. With GMapping's steps in place of those
+        matches `intel/4` seed 2 is at 0.061 m instead of 0.258 and `fr079/30` seed 3 at
+        0.094 m instead of 0.443: they are what is left.
 
         A match is doubted when it and corrected odometry disagree by more than both can be
         wrong together: the miss weighed by the match's own covariance plus odometry's noise
         as fitted to the matched steps (:func:`fit_noise`), beyond NOISE_OUTLIER_SIGMAS (where
         that fit itself counts a step as a wrong match). Odometry's noise alone is not the
-        test: on the simulated building it is 7 mm a half-metre step, and 45 matches along
-        corridors, 3-5 cm along the corridor where the match itself is weak, were doubted
-        and the building bent (seed 0: 0.033 -> 0.042 m RMS, max 0.102 -> 0.157 m). A
-        doubted edge keeps its weight while the graph agrees with it and yields to odometry
-        and the closures where they disagree; where match and odometry agree, the chain stays
-        as stiff as before.
+        test: on the simulated building it is 7 mm a half-metre step, and by it 45 matches
+        along corridors, 3-5 cm along the corridor where the match itself is weak, are
+        doubted and the building bends (seed 0: 0.042 m RMS instead of 0.033, max 0.157 m
+        instead of 0.102). A doubted edge keeps its weight while the graph agrees with it
+        and yields to odometry and the closures where they disagree; where match and
+        odometry agree, the chain stays as stiff as plain least squares holds it.
 
         What it does not mend: the keyframes after a wrong match are matched against a submap
         that holds it and move with it as one piece, and the graph starts where the front end
         left them, at the doubted edges' own solution; where odometry's noise is several
         degrees (a turn) a Cauchy edge's pull, fading only as one over its residual, keeps
-        them there (`fr079/30` seed 1: keyframes 56-61 stay turned by 15 degrees). Leaving
-        the doubted edges out of the solve mends that, but on the simulated building it
-        turned a floor by a tenth of a degree (docs/mapping.md).
+        them there (`fr079/30` seed 1: six keyframes stay turned by 15 degrees). Leaving the
+        doubted edges out of the solve mends that, but turns a floor of the simulated
+        building by a tenth of a degree (docs/decisions.md, "Doubt a match that odometry
+        contradicts").
         """
         edges = self.graph.edges
         doubted = 0
@@ -225,8 +226,8 @@ class FinalSolve(ElevatorCar):
             # the fits are poses in the map's frame, so they fix the frame themselves: pinning
             # the first keyframe where the graph solve left it as well (the solver's usual
             # anchor) would keep the run's start off its own map, the place a run comes back
-            # to at its end (Acapulco seed 0: scan 0 needed a 75 mm move to lie on its
-            # revisits, 26 mm once free, GMapping's poses 28 mm)
+            # to at its end (Acapulco seed 0: pinned, scan 0 lies 75 mm from its revisits;
+            # free, 26 mm; GMapping's poses 28 mm)
             graph.optimize(iterations=FINAL_ITERATIONS, anchor=None if len(fits.nodes) else 0)
             self.graph = graph
         self.stats["refined"] = len(fits.nodes)

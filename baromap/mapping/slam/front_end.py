@@ -141,10 +141,11 @@ class FrontEnd(SlamState):
         scoring of the two is kept unless it is ambiguous.
 
         On a sparse log a turn of 100-170 degrees between two scans is where the front end
-        broke: odometry is several degrees off over such a turn (8-9 on `fr079/30`), and the
-        scan, looking back, overlaps the submap of the last metres (seen looking forward)
-        too little to match. The retry lowered the heading error of the steps where it was
-        taken from 5.6 to 2.5 degrees (mean, `fr079/30` seeds 0-2) and 4.8 to 3.9 (`intel/4`).
+        fails without it: odometry is several degrees off over such a turn (8-9 on
+        `fr079/30`), and the scan, looking back, overlaps the submap of the last metres
+        (seen looking forward) too little to match. With the retry the heading error of the
+        steps where it is taken is 2.5 degrees instead of 5.6 (mean, `fr079/30` seeds 0-2),
+        3.9 instead of 4.8 (`intel/4`).
         """
         wider = self._recent_field(k, anchor)
         if wider is None:
@@ -200,13 +201,13 @@ class FrontEnd(SlamState):
         A sparse scan in a hall (a metre or two from the last, its beams a degree apart and
         tens of metres long) fits about as well anywhere over a few decimetres: the search's
         best and a runner-up 0.3 m off score alike, and both hold the heading. Refused, the
-        keyframe stood where odometry put it, degrees off after a turn, and the next scans
-        matched against it (`acapulco/2` seed 0 of the varied odometry: one such keyframe
-        3.8 deg off turned the first 200 m of the run, 0.96 m ATE). Two peaks with a valley
+        keyframe stands where odometry puts it, degrees off after a turn, and the next scans
+        match against it (`acapulco/2` seed 0 of the varied odometry: one such keyframe 3.8
+        deg off turns the first 200 m of the run, 0.96 m ATE). Two peaks with a valley
         between them (the next door along a corridor) stay ambiguous, and so do two answers
         turned against each other: a scan that cannot tell its heading to 5 degrees has not
-        measured it (taken in a first version, such keyframes of `intel/4` were placed 3.3-15.7
-        degrees off where odometry was 0.3-2.5 degrees off).
+        measured it (taken, such keyframes of `intel/4` land 3.3-15.7 degrees off where
+        odometry is 0.3-2.5 degrees off).
         """
         other = result.runner_up_pose
         if other is None or abs(float(se2.wrap(other[2] - result.pose[2]))) > DISTINCT_RAD:

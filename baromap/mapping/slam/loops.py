@@ -5,6 +5,7 @@ the doubtful ones taken only when another closure agrees."""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -12,7 +13,7 @@ import numpy.typing as npt
 from baromap.arrays import FloatArray
 from baromap.mapping import se2
 from baromap.mapping.pose_graph import Edge
-from baromap.mapping.scan_matcher import LikelihoodField, Prior, match
+from baromap.mapping.scan_matcher import LikelihoodField, MatchResult, Prior, SearchWindow, match
 from baromap.mapping.slam.measurement import lattice_angle_step, search_window
 from baromap.mapping.slam.settings import (
     CAR_MIN_POINTS,
@@ -37,6 +38,47 @@ from baromap.mapping.slam.settings import (
 )
 from baromap.mapping.slam.state import SlamState
 from baromap.mapping.submaps import Submap
+
+
+@dataclass(frozen=True, slots=True)
+class _LoopSearch:
+    """One loop search of keyframe ``k`` against the target ``target`` (its anchor keyframe)
+    around the revisited keyframe ``nearest_kf``: the drift ``bounds`` (metres, radians) it
+    was sized by, its window, where it started and what it found."""
+
+    k: int
+    nearest_kf: int
+    target: int
+    bounds: tuple[float, float]
+    window: SearchWindow
+    local_guess: FloatArray
+    result: MatchResult
+    sparse_target: bool
+    wide: bool
+    following: bool
+    #: searched against the run around the revisit, not the submap (:meth:`_stretch_target`)
+    stretched: bool
+    #: ... which the run frames on one side only
+    one_sided: bool
+
+    @property
+    def moved(self) -> float:
+        """How far the match moved k from where the search started."""
+        pose, start = self.result.pose, self.local_guess
+        return math.hypot(pose[0] - start[0], pose[1] - start[1])
+
+    @property
+    def turned(self) -> float:
+        return abs(float(se2.wrap(self.result.pose[2] - self.local_guess[2])))
+
+    def beyond_drift(self, resolution_m: float) -> bool:
+        """A correction larger than the front end can have drifted along the way (to a cell
+        and a step of the lattice's angle)."""
+        bound_m, bound_rad = self.bounds
+        return (
+            self.moved > bound_m + resolution_m
+            or self.turned > bound_rad + self.window.angle_step_rad
+        )
 
 
 class LoopClosing(SlamState):
@@ -109,15 +151,16 @@ class LoopClosing(SlamState):
         estimate further off than the loop window, which is sized by the drift model, can
         reach: a keyframe that finds the correction anyway (beyond, proposed) needs another
         that agrees, and the next keyframes, searching around the same wrong estimate,
-        cannot see it (`fr079/30` varied seed 1: keyframe 151 scored 0.79 at a 22 degree
-        correction, the next windows reached 16-17 degrees, and the run ended 2 m off).
+        cannot see it (`fr079/30` varied seed 1: a keyframe scores 0.79 at a 22 degree
+        correction, the next windows reach 16-17 degrees, and unfollowed the run ends 2 m
+        off).
         Searched around where the proposal puts keyframe k (the window sized by the drift
         since the proposal, never wide), the next scan either fits there as a loop does
         (score past loop_min_score, unambiguous, within that drift) and the two must still
-        agree, or does not and the proposal lapses as before: the window says where to
-        look, the scans decide. Only until a closure is taken at or after the proposal's
-        keyframe: the graph has then placed the run anew (following on after that, a
-        proposal whose sibling was taken confirmed itself through weak targets).
+        agree, or does not and the proposal lapses as any unconfirmed one does: the window
+        says where to look, the scans decide. Only until a closure is taken at or after the
+        proposal's keyframe: the graph has then placed the run anew (following on after
+        that, a proposal whose sibling was taken confirms itself through weak targets).
         """
         # a closure taken since (here or after the proposal) has placed the run anew: the
         # proposal is then either what the graph holds or contradicted, nothing to follow
@@ -154,29 +197,57 @@ class LoopClosing(SlamState):
         nearest_kf: int,
         since_closure: float,
         *,
-        capped: bool = False,
-        defer: bool = False,
         guess: FloatArray | None = None,
     ) -> None:
         """Match keyframe k against a finished submap it may revisit, and take, propose or
         refuse the closure. ``guess`` is where to search from when not k's estimate (a
-        proposal followed, :meth:`_follow_beyond`): what it finds is then only proposed."""
+        proposal followed, :meth:`_follow_beyond`): what it finds is then only proposed.
+
+        Past LOOP_MAX_M of drift the window is searched by branch and bound against the run
+        around the revisit (:meth:`_stretch_target`), and what it finds must agree with
+        another keyframe's closure: a window of metres holds aliases. Where that correction
+        turns out within LOOP_MAX_M, the capped search against the submap decides instead,
+        alone: the front end has drifted no further than the capped window reaches.
+        """
+        drift = min(since_closure, self.clouds.path_m(nearest_kf, k))
+        bound_m = LOOP_BASE_M + self.config.drift_m_per_m * drift
+        bound_rad = LOOP_BASE_RAD + math.radians(self.config.drift_deg_per_m) * drift
+        # a followed proposal is looked for where it puts k, not searched for afresh
+        wide = bound_m > LOOP_MAX_M and guess is None
+        found = self._search_loop(k, sub, nearest_kf, (bound_m, bound_rad), wide=wide, guess=guess)
+        if found.stretched and found.moved <= LOOP_MAX_M:
+            # against a target the run frames on one side only, the capped window's closure
+            # is kept in case no closure framed on both sides follows (see _settle_deferred)
+            capped = self._search_loop(k, sub, nearest_kf, (bound_m, bound_rad), wide=False)
+            self._judge_loop(capped, defer=found.one_sided)
+            return
+        if found.one_sided:
+            self.stats["loop_unframed"] += 1
+            return
+        self._judge_loop(found, defer=False)
+
+    def _search_loop(
+        self,
+        k: int,
+        sub: Submap,
+        nearest_kf: int,
+        bounds: tuple[float, float],
+        *,
+        wide: bool,
+        guess: FloatArray | None = None,
+    ) -> _LoopSearch:
+        """Keyframe k matched against its loop target, in a window as wide as the drift
+        ``bounds`` (metres, radians), capped at LOOP_MAX_M unless ``wide`` (then at
+        LOOP_WIDE_M, by branch and bound, against the run around the revisit when the
+        target is dense), from ``guess`` or k's estimate."""
         config = self.config
         poses = self.graph.poses
-        following = guess is not None
-        drift = min(since_closure, self.clouds.path_m(nearest_kf, k))
-        bound_m = LOOP_BASE_M + config.drift_m_per_m * drift
-        bound_rad = LOOP_BASE_RAD + math.radians(config.drift_deg_per_m) * drift
-        # past LOOP_MAX_M the window is searched by branch and bound, and what it finds must
-        # agree with another keyframe's closure: a window of metres holds aliases. Any
-        # target: after a long drive without a closure (a big building's loop of hundreds of
-        # metres) the front end is metres off, and a window capped at LOOP_MAX_M would hold
-        # only the aliases, the best of which scores like a loop; a dense target is then the
-        # run around the revisit, and where the correction turns out within LOOP_MAX_M the
-        # capped search decides, alone, as before (docs/mapping.md)
+        bound_m, bound_rad = bounds
+        # any target: after a long drive without a closure (a big building's loop of
+        # hundreds of metres) the front end is metres off, and a window capped at LOOP_MAX_M
+        # would hold only the aliases, the best of which scores like a loop; a dense target
+        # is then the run around the revisit
         sparse_target = len(sub.keyframes) < LOOP_MIN_KEYFRAMES
-        # a followed proposal is looked for where it puts k, not searched for afresh
-        wide = bound_m > LOOP_MAX_M and not capped and not following
         stretch = None
         one_sided = False
         if wide and not sparse_target:
@@ -211,51 +282,56 @@ class LoopClosing(SlamState):
             prior=prior,
             wide=wide,
         )
-        moved = math.hypot(result.pose[0] - local_guess[0], result.pose[1] - local_guess[1])
-        if stretch is not None and moved <= LOOP_MAX_M:
-            # the front end has drifted no further than the capped window reaches: that
-            # window, against the submap, decides as it did before the wide search existed;
-            # against a target the run frames on one side only, it is kept in case no
-            # closure framed on both sides follows (see _settle_deferred)
-            self._try_loop(k, sub, nearest_kf, since_closure, capped=True, defer=one_sided)
-            return
-        if one_sided:
-            self.stats["loop_unframed"] += 1
-            return
-        low = LOOP_GROUP_MIN_SCORE if sparse_target else config.loop_min_score
-        if following:
+        return _LoopSearch(
+            k,
+            nearest_kf,
+            target,
+            bounds,
+            window,
+            local_guess,
+            result,
+            sparse_target=sparse_target,
+            wide=wide,
+            following=guess is not None,
+            stretched=stretch is not None,
+            one_sided=one_sided,
+        )
+
+    def _judge_loop(self, found: _LoopSearch, *, defer: bool) -> None:
+        """Take, propose, defer or refuse the closure a loop search found."""
+        config = self.config
+        result = found.result
+        low = LOOP_GROUP_MIN_SCORE if found.sparse_target else config.loop_min_score
+        if found.following:
             # the window is centred on the proposal: only a scan that fits there as a
             # loop does (a weak one fits anywhere near) says the proposal is right
             low = config.loop_min_score
         if result.score < low:
             return
-        turned = abs(float(se2.wrap(result.pose[2] - local_guess[2])))
-        # a correction larger than the front end's drift along the way: an alias (a similar
-        # room, the next door along), or, where the chain it corrects holds a step the scan
-        # could not vouch for, a front-end match that went wrong (degrees, after a turn of
-        # 100-170 degrees on a sparse log), which no drift model foresees and only such a
-        # closure can put right. Then, scoring as a loop within the capped loop window (2 m)
-        # and the front end's widest turn (45 deg) of the estimate, it is proposed: taken
-        # only when another keyframe's closure agrees
-        beyond = moved > bound_m + config.resolution_m or turned > bound_rad + window.angle_step_rad
+        beyond = found.beyond_drift(config.resolution_m)
         if beyond and (
-            following
-            or self.last_doubtful <= max(self.last_closure, nearest_kf)
+            found.following
+            or self.last_doubtful <= max(self.last_closure, found.nearest_kf)
             or result.score < config.loop_min_score
-            or moved > LOOP_MAX_M
-            or turned > MAX_FRONT_WINDOW_RAD
+            or found.moved > LOOP_MAX_M
+            or found.turned > MAX_FRONT_WINDOW_RAD
         ):
+            # beyond the drift: an alias (a similar room, the next door along), unless the
+            # chain it corrects holds a step the scan could not vouch for (a front-end match
+            # gone wrong after a turn, which no drift model foresees and only such a closure
+            # can put right) and it scores as a loop within the capped loop window and the
+            # front end's widest turn of the estimate
             self.stats["loop_implausible"] += 1
             return
         if result.runner_up >= LOOP_MAX_AMBIGUITY * result.score:
             self.stats["loop_ambiguous"] += 1
             return
-        edge = self._match_edge(target, k, result, kind="loop")
+        edge = self._match_edge(found.target, found.k, result, kind="loop")
         if defer:  # a dense target: its score is past loop_min_score here
             self.deferred.append((edge, result.score))
             self.stats["loop_deferred"] += 1
             return
-        if result.score < config.loop_min_score or wide or beyond or following:
+        if result.score < config.loop_min_score or found.wide or beyond or found.following:
             if beyond:
                 self.stats["loop_beyond_drift"] += 1
                 self.beyond.append(edge)
@@ -307,11 +383,11 @@ class LoopClosing(SlamState):
         found this way on the sparse logs: the keyframe that first sees a revisited
         stretch matches two of its submaps, both right, and the next keyframes search
         around the turned estimate and confirm neither (Intel every fourth scan, strong
-        odometry, seed 2: keyframe 188 matched submaps 21 and 24 at 0.67 and 0.61, 0.36 and
-        0.04 m from the truth; left waiting, two weak closures 2 m off were taken instead,
-        ATE 0.709 m). Of 64 beyond-drift proposals in 30 runs of the sparse logs one was
-        wrong by more than half a metre (1.0 m, score 0.55); of the 11 pairs one scan made in
-        55 runs, none (docs/mapping.md)."""
+        odometry, seed 2: one keyframe matches two submaps at 0.67 and 0.61, 0.36 and 0.04 m
+        from the truth; left waiting, they lose to two weak closures 2 m off, ATE 0.709 m).
+        Of 64 beyond-drift proposals in 30 runs of the sparse logs one is wrong by more than
+        half a metre (1.0 m, score 0.55); of the 11 pairs one scan makes in 55 runs, none
+        (docs/decisions.md, "Closures that need a second opinion")."""
         beyond = {id(e) for e in self.beyond}
         return (
             a.i != b.i
@@ -328,8 +404,9 @@ class LoopClosing(SlamState):
         where it began) can only be matched against a map the run frames on one side: the
         scan, truly a little behind where the run began, sees walls beside it the map never
         saw, and slid a metre or two along the corridor onto the map it scores better than
-        where it is (the big loop with varied odometry, seed 0, such closures taken at once:
-        one 1.4 m along, then capped closures that followed it, ATE 0.39 -> 0.62 m). Where
+        where it is (the big loop with varied odometry, seed 0: taken at once, one such
+        closure lands 1.4 m along and the capped closures after it follow it, ATE 0.62 m
+        instead of 0.39). Where
         the run goes on, a closure framed on both sides comes and decides instead, as if
         these were never made; where it ends, these are all there is, and they are right
         far more often than not (the big loop driven 6 m past its start: ATE 1.5-5.7 m

@@ -42,8 +42,8 @@ def match_information(information: FloatArray, sigma_xy: float, sigma_theta: flo
 
     ``(H^-1 s + F)^-1`` is computed as ``(I + H F / s)^-1 H / s``, which needs no inverse of
     ``H``: a scan with a handful of points along one wall (a laser that sees little in a hall)
-    has an information matrix of rank one, whose inverse is ``inf`` or garbage and made the old
-    double inversion raise. A direction the scan did not measure gets no information here.
+    has an information matrix of rank one, whose inverse is ``inf`` or garbage, where a double
+    inversion raises. A direction the scan did not measure gets no information here.
     """
     h = np.asarray(information, dtype=np.float64) / MATCH_COV_SCALE
     floor = np.diag([sigma_xy**2, sigma_xy**2, sigma_theta**2])

@@ -341,8 +341,8 @@ def run_slam(
     ``blind``: the scans the odometry said nothing about
     (:attr:`~baromap.mapping.run_data.RunData.blind`: the base unplugged while the
     laser went on). They are not mapped: without odometry a corridor lets the scans slide
-    (the sim's blind minute, matched scan by scan with a constant-velocity guess, drifted
-    metres while the robot sped up along one), and the step across them is taken as a laser
+    (the sim's blind minute, matched scan by scan with a constant-velocity guess, drifts
+    metres where the robot speeds up along one), and the step across them is taken as a laser
     silence is, begun again in new submaps and tied back by loop closure and the car. Their
     poses are drawn across the gap, for the record only.
 

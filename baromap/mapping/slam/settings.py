@@ -33,10 +33,10 @@ class SlamConfig:
     keyframe_deg: float = 25.0
     #: beams beyond this are ignored. Far returns are sparse (0.5 m apart at 30 m with 1
     #: degree beams) and often graze a wall, but across a hall they are what pins the heading:
-    #: from 20 to 30 m Acapulco's ATE fell 0.127 -> 0.114 m (seeds 0-4; 0.114 at 40 m too),
-    #: Freiburg 079's 0.066 -> 0.062 m, Intel's 0.053 -> 0.051 m, while the relations, local,
-    #: moved by under 3 % (Intel 0.0219 -> 0.0224 m mean). A laser in its 8 m mode (the
-    #: simulated robot's) never reaches it
+    #: at 30 m instead of 20 Acapulco's ATE is 0.114 m instead of 0.127 (seeds 0-4; 0.114 at
+    #: 40 m too), Freiburg 079's 0.062 instead of 0.066 m, Intel's 0.051 instead of 0.053 m,
+    #: while the relations, local, differ by under 3 % (Intel 0.0224 against 0.0219 m mean).
+    #: A laser in its 8 m mode (the simulated robot's) never reaches it
     max_range_m: float = 30.0
     #: cell of the likelihood fields and of the scan's voxel filter; also the field's sigma
     resolution_m: float = 0.05
@@ -65,10 +65,10 @@ class SlamConfig:
     #: in seven explained), not a test of right and wrong: a scan two or three metres on
     #: sees much its submap never saw, so a correct match there scores 0.2-0.3, and on the
     #: Intel log with every third scan wrong matches (0.3 m or 3 deg from GMapping's) were
-    #: as frequent among scores over 0.55 as among 0.2-0.3. Refusing those drove the front
-    #: end on odometry and the map fell apart (metres); the ambiguity test and odometry's
+    #: as frequent among scores over 0.55 as among 0.2-0.3. Refusing those drives the front
+    #: end on odometry and the map falls apart (metres); the ambiguity test and odometry's
     #: window are what keep wrong matches out. A loop closure, judged against a map it may
-    #: only partly share, keeps a high bar: lowering it (0.35) bent Freiburg 079.
+    #: only partly share, keeps a high bar: at 0.35 Freiburg 079 bends.
     front_min_score: float = 0.15
     loop_min_score: float = 0.55
 
@@ -197,8 +197,8 @@ CAR_FAR_WINDOW_RAD = math.radians(45.0)
 #: splits, its lattice turned a degree at a time (the car's walls are within 2.5 m, where a
 #: degree moves a point half a cell; the refinement takes it from there), for at most this
 #: many keyframes of each such ride. The pooled field of a 2 m box bounds thousands of nodes
-#: near 1.0: with the loops' 300 splits, or a quarter-degree lattice, the budget ran out and
-#: the search returned aliases; so it settles in 0.5-1.4 s a keyframe.
+#: near 1.0: with the loops' 300 splits, or a quarter-degree lattice, the budget runs out
+#: and the search returns aliases; with these it settles in 0.5-1.4 s a keyframe.
 CAR_FAR_BUDGET = 30_000
 CAR_FAR_ANGLE_STEP_RAD = math.radians(1.0)
 CAR_FAR_PER_RIDE = 3
@@ -212,8 +212,9 @@ BLIND_SPEED_M_S = 1.0
 BLIND_TURN_RAD_S = math.radians(90.0)
 #: After such a step across which the odometry shows no motion at all (a power-cycled base
 #: counts from zero in a frame of its own, joined at its last pose), the chain has lost its
-#: place: the robot turned 120 degrees on the spot in 5 s, or drove 18 m and turned 161
-#: degrees in a minute, and the chain after the gap stood where "no motion" put it. So what
+#: place: the robot may turn 120 degrees on the spot in 5 s, or drive 18 m and turn 161
+#: degrees in a minute (the simulated run's gaps), and the chain after the gap stands where
+#: "no motion" puts it. So what
 #: it saw in its last RELOCATE_RECENT_M is looked for in the map of its floor from before the
 #: gap (the keyframes within RELOCATE_VIEW_M of the step's reach), placed in the frame of the
 #: first keyframe after the gap: within the step's reach, at most RELOCATE_MAX_M (a wider
@@ -259,18 +260,18 @@ MIN_NOISE_STEPS = 30
 #: In the refinement (each keyframe against its floor's finished map) odometry's sigmas are that fit
 #: times this; in the graph solve before it, against the front end's matches and the loop closures,
 #: they are the fit itself (then every kind scaled to its scatter). The fit mixes the matches'
-#: errors into odometry's (it cannot tell them apart), and the map fits carry covariances several
-#: times their real error (MATCH_COV_SCALE and the floors above); at the fit itself in the
-#: refinement too, odometry outweighs good fits: the Intel relations lose a quarter (0.023 -> 0.030
-#: m, seed 0). Found by trying the fit itself, 2 and 3 in both solves and then in one of them (3 in
-#: the refinement only: Intel seeds 0-4 at 0.021-0.024 m, the simulated building 0.035-0.056 m RMS
-#: over seeds 0-4). Weighing the map fits, the core and odometry in the refinement by their own
-#: scatter (as :meth:`_Slam._weigh_by_scatter` does before it) with this factor at 1 does not
-#: replace it: the building gains (seed 2 0.030 m RMS) but the Intel relations lose (seeds 0-4 at
-#: 0.033-0.034 m): there odometry shows under half the variance it claims and the fits a quarter,
-#: yet the relations want odometry weaker still (perhaps because its errors are not independent step
-#: to step, or because the fits' residuals shrink where they decide their keyframes: neither
-#: measured).
+#: errors into odometry's (it cannot tell them apart), and the map fits carry covariances
+#: several times their real error (MATCH_COV_SCALE and the floors above); at the fit itself in
+#: the refinement too, odometry outweighs good fits: the Intel relations lose a quarter (0.030
+#: m against 0.023, seed 0). Of the fit itself, 2 and 3, in both solves or in one, 3 in the
+#: refinement only holds best (Intel seeds 0-4 at 0.021-0.024 m, the simulated building
+#: 0.035-0.056 m RMS over seeds 0-4). Weighing the map fits, the core and odometry in the
+#: refinement by their own scatter (as the solve before it does) with this factor at 1 does
+#: not replace it: the building gains (seed 2 0.030 m RMS) but the Intel relations lose
+#: (seeds 0-4 at 0.033-0.034 m): there odometry shows under half the variance it claims and the
+#: fits a quarter, yet the relations want odometry weaker still (why, whether its errors are
+#: not independent step to step or the fits' residuals shrink where they decide their
+#: keyframes, is not measured).
 REFINE_ODOMETRY_INFLATION = 3.0
 #: Matching against a finished map (the refinement, the elevator core, the scans between
 #: keyframes) uses a field this fraction of the front end's cell and sigma. The front end's
@@ -278,12 +279,13 @@ REFINE_ODOMETRY_INFLATION = 3.0
 #: wants a basin a few cells wide, and a 5 cm sigma is five times a laser's range noise. Once
 #: the graph has put every keyframe within a cell of where it belongs, only Gauss-Newton from
 #: there is left, and a field that wide blurs the walls it aligns to. At half (2.5 cm, still
-#: above a SICK's 1-2 cm noise and the map's own spread) the ground-truth relations improved
-#: on both logs that have them, beyond the spread of five draws of a seed (Intel seeds 0-4
-#: mean 0.0224 -> 0.0202 m, worst over the draws 0.0242 -> 0.0215 m; Freiburg 079 mean
-#: 0.0490 -> 0.0469 m), the simulated building's RMS fell on five of six recordings (mean
-#: 0.040 -> 0.035 m), the ATE against GMapping's poses held (Acapulco mean 0.115 -> 0.113 m),
-#: at the same time and memory (docs/mapping.md, "One run is one draw").
+#: above a SICK's 1-2 cm noise and the map's own spread) the ground-truth relations are
+#: better on both logs that have them, beyond the spread of five draws of a seed (Intel
+#: seeds 0-4 mean 0.0202 m against 0.0224 at the full cell, worst over the draws 0.0215
+#: against 0.0242 m; Freiburg 079 mean 0.0469 against 0.0490 m), the simulated building's RMS
+#: is lower on five of six recordings (mean 0.035 against 0.040 m), the ATE against
+#: GMapping's poses holds (Acapulco mean 0.113 against 0.115 m), at the same time and memory
+#: (docs/decisions.md, "The last alignment against a finer field").
 FINISHED_MAP_FIELD_SCALE = 0.5
 #: In the graph solve before the refinement every kind of edge with at least this many edges
 #: is weighed by its own scatter against the solved graph (:meth:`_Slam._weigh_by_scatter`).
