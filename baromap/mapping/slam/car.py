@@ -4,6 +4,7 @@ pair of car keyframes matched to tie the floors, and the core around the shaft."
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,6 +17,7 @@ from baromap.mapping.refine import concatenate, refine_batch
 from baromap.mapping.scan_matcher import LikelihoodField, MatchResult, SearchWindow, match
 from baromap.mapping.slam.measurement import (
     finished_map_field,
+    match_edge,
     match_information,
     rotate_information,
     same_shift,
@@ -45,7 +47,7 @@ from baromap.mapping.slam.settings import (
     MIN_WINDOW_RAD,
     WINDOW_SIGMAS,
 )
-from baromap.mapping.slam.state import SlamState, graph_of
+from baromap.mapping.slam.state import Chain, Keyframes, SlamPart, graph_of
 
 log = structlog.get_logger(__name__)
 
@@ -63,18 +65,24 @@ class CarModel:
         object.__setattr__(self, "coarse", self.fine.pooled(COARSE_STEP_CELLS))
 
 
-class ElevatorCar(SlamState):
-    """The car and its shaft as the landmark that joins the floors."""
+class ElevatorCar(SlamPart):
+    """The car and its shaft as the landmark that joins the floors. It owns the closures
+    between the car at different rides."""
+
+    def __init__(self, keyframes: Keyframes, chain: Chain, stats: Counter[str]) -> None:
+        super().__init__(keyframes, chain, stats)
+        #: closures between the closed car at different rides, (model anchor, keyframe)
+        self.car_edges: list[tuple[int, int]] = []
 
     def _car_match(self, a: int, b: int, guess_b: FloatArray, window: SearchWindow) -> MatchResult:
         """Match car keyframe b against car keyframe a, in a's frame, on a fine field: the car's
         walls are a metre away, where a degree of rotation moves points less than a 5 cm cell."""
         res = self.config.resolution_m / 2
         fld = LikelihoodField.from_points(self.clouds.surfaces[a], res, res)
-        local = se2.between(self.graph.poses[a], guess_b)
+        local = se2.between(self.chain.graph.poses[a], guess_b)
         return match(fld, self.clouds.points[b], local, window)
 
-    def _ride(self, k: int, guess: FloatArray, sigma_xy: float, sigma_theta: float) -> None:
+    def ride(self, k: int, guess: FloatArray, sigma_xy: float, sigma_theta: float) -> None:
         """The ride: both keyframes see the closed car, which travels with the robot, so
         matching them measures how the robot moved in the car while the floors changed."""
         if not (self.clouds.in_car(k - 1) and self.clouds.in_car(k)):
@@ -86,8 +94,8 @@ class ElevatorCar(SlamState):
         )
         result = self._car_match(k - 1, k, guess, window)
         if result.score >= CAR_MIN_SCORE and result.runner_up < FRONT_MAX_AMBIGUITY * result.score:
-            self.graph.poses[k] = se2.compose(self.graph.poses[k - 1], result.pose)
-            self.graph.add_edge(self._match_edge(k - 1, k, result, kind="ride"))
+            self.chain.graph.poses[k] = se2.compose(self.chain.graph.poses[k - 1], result.pose)
+            self.chain.graph.add_edge(match_edge(k - 1, k, result, kind="ride"))
             self.stats["ride_matches"] += 1
 
     def _car_ends(self) -> list[list[int]]:
@@ -109,7 +117,7 @@ class ElevatorCar(SlamState):
                 rides.append(sorted(group))
         return rides
 
-    def _car_to_car(self) -> None:
+    def car_to_car(self) -> None:
         """The car at every ride against the car at the first: the same car in the same
         shaft, on whatever floor, so all floors share one frame through it.
 
@@ -121,7 +129,7 @@ class ElevatorCar(SlamState):
         rides = self._car_ends()
         if len(rides) < 2:
             return
-        poses = self.graph.poses
+        poses = self.chain.graph.poses
         model, anchor = rides[0], rides[0][0]
         res = self.config.resolution_m / 2
         points = np.concatenate(
@@ -152,7 +160,7 @@ class ElevatorCar(SlamState):
             result = self._car_search(car, b, window)
             if result is None or result.score < CAR_MIN_SCORE:
                 continue
-            self.graph.add_edge(self._match_edge(car.anchor, b, result, kind="car"))
+            self.chain.graph.add_edge(match_edge(car.anchor, b, result, kind="car"))
             self.car_edges.append((car.anchor, b))
             self.stats["car_closures"] += 1
             taken += 1
@@ -162,7 +170,7 @@ class ElevatorCar(SlamState):
         self, car: CarModel, b: int, window: SearchWindow, *, wide: bool = False
     ) -> MatchResult | None:
         """Car keyframe b matched against the car's model; None when ambiguous."""
-        local = se2.between(self.graph.poses[car.anchor], self.graph.poses[b])
+        local = se2.between(self.chain.graph.poses[car.anchor], self.chain.graph.poses[b])
         if wide:
             result = match(
                 car.far, self.clouds.points[b], local, window, wide=True, budget=CAR_FAR_BUDGET
@@ -189,7 +197,7 @@ class ElevatorCar(SlamState):
         from there as at every other ride. Returns whether the graph was moved.
         """
         window = SearchWindow(CAR_FAR_WINDOW_M, CAR_FAR_WINDOW_RAD, CAR_FAR_ANGLE_STEP_RAD)
-        poses = self.graph.poses
+        poses = self.chain.graph.poses
         found: list[tuple[int, MatchResult, FloatArray]] = []
         for ride in missed:
             mine = 0
@@ -206,7 +214,7 @@ class ElevatorCar(SlamState):
         moves = []  # how far each pulling match puts its keyframe from where the chain had it
         for b, result, shift in found:
             if any(other is not shift and same_shift(shift, other) for _, _, other in found):
-                edge = self._match_edge(car.anchor, b, result, kind="car")
+                edge = match_edge(car.anchor, b, result, kind="car")
                 edge.robust_c = None
                 pulls.append(edge)
                 moves.append(se2.between(poses[b], se2.compose(poses[car.anchor], result.pose)))
@@ -220,13 +228,13 @@ class ElevatorCar(SlamState):
             moved_m=round(max(math.hypot(m[0], m[1]) for m in moves), 2),
             turned_deg=round(max(abs(math.degrees(se2.wrap(m[2]))) for m in moves), 1),
         )
-        kept = list(self.graph.edges)
-        self.graph = graph_of(poses, kept + pulls)
-        self.graph.optimize(iterations=FINAL_ITERATIONS)
-        self.graph = graph_of(self.graph.poses, kept)
+        kept = list(self.chain.graph.edges)
+        self.chain.graph = graph_of(poses, kept + pulls)
+        self.chain.graph.optimize(iterations=FINAL_ITERATIONS)
+        self.chain.graph = graph_of(self.chain.graph.poses, kept)
         return True
 
-    def _core_edges(self, poses: FloatArray) -> list[Edge]:
+    def core_edges(self, poses: FloatArray) -> list[Edge]:
         """The elevator core on every visit against the core on every other visit.
 
         The shaft is vertical, so the car and the walls around its doors stand at the same

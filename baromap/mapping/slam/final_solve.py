@@ -5,6 +5,7 @@ floor's keyframes refined against the map of the others."""
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,7 +13,7 @@ import structlog
 
 from baromap.arrays import FloatArray, IntArray
 from baromap.mapping import se2
-from baromap.mapping.odometry_calibration import NOISE_OUTLIER_SIGMAS, OdometryNoise, fit_noise
+from baromap.mapping.odometry_calibration import NOISE_OUTLIER_SIGMAS, OdometryNoise
 from baromap.mapping.pose_graph import Edge, PoseGraph
 from baromap.mapping.refine import concatenate, refine_batch
 from baromap.mapping.slam.car import ElevatorCar
@@ -28,11 +29,12 @@ from baromap.mapping.slam.settings import (
     LOOP_ROBUST_C,
     MATCH_SIGMA_M,
     MATCH_SIGMA_RAD,
-    MIN_NOISE_STEPS,
     MIN_SCATTER_EDGES,
+    REFINE_ODOMETRY_INFLATION,
+    REFINE_PASSES,
     SCATTER_KINDS,
 )
-from baromap.mapping.slam.state import graph_of
+from baromap.mapping.slam.state import Chain, Keyframes, OdometryLearning, SlamPart, graph_of
 
 log = structlog.get_logger(__name__)
 
@@ -46,10 +48,43 @@ class _MapFits:
     information: FloatArray
 
 
-class FinalSolve(ElevatorCar):
-    """The solves after the run (the car's core edges tie the floors there)."""
+class FinalSolve(SlamPart):
+    """The solves after the run (the car's core edges tie the floors there), on the chain's
+    graph, which it replaces as it re-weighs the edges."""
 
-    def _odometry_as_learnt(self, noise: OdometryNoise | None, inflation: float) -> None:
+    def __init__(
+        self,
+        keyframes: Keyframes,
+        chain: Chain,
+        odometry: OdometryLearning,
+        car: ElevatorCar,
+        stats: Counter[str],
+    ) -> None:
+        super().__init__(keyframes, chain, stats)
+        self.odometry = odometry
+        self.calibration = odometry.calibration
+        self.car = car
+
+    def solve(self, silent_steps: set[int]) -> None:
+        """Odometry as the run taught it, doubtful matches doubted, every kind of edge
+        weighed by its scatter, then the refinement against each floor's map.
+        ``silent_steps``: the keyframes reached by a step the fitted noise does not
+        describe (see :meth:`_odometry_as_learnt`)."""
+        noise = self.odometry.fit_noise()
+        self._odometry_as_learnt(noise, 1.0, silent_steps)
+        if noise is not None:
+            self._doubt_matches_beyond(noise)
+        self.chain.graph.optimize(iterations=FINAL_ITERATIONS)
+        if self._weigh_by_scatter():
+            self.chain.graph.optimize(iterations=FINAL_ITERATIONS)
+        if REFINE_PASSES:
+            self._odometry_as_learnt(noise, REFINE_ODOMETRY_INFLATION, silent_steps)
+        for _ in range(REFINE_PASSES):
+            self._refine()
+
+    def _odometry_as_learnt(
+        self, noise: OdometryNoise | None, inflation: float, silent_steps: set[int]
+    ) -> None:
         """Every odometry edge with what the whole run taught about odometry: its systematic
         errors taken out, and the information of the noise that corrected odometry showed
         against the steps the front end matched at both ends.
@@ -69,16 +104,16 @@ class FinalSolve(ElevatorCar):
         outside them (the simulated run's is 6 m and 19 degrees off, a hundred sigmas of the
         fit): weighed by the fit, that one edge holds every floor after it against the car.
         """
-        edges = self.graph.edges
+        edges = self.chain.graph.edges
         for e in edges:
             if e.kind != "odometry":
                 continue
-            read = self._odometry_step(e.i, e.j)
+            read = self.keyframes.odometry_step(e.i, e.j)
             e.z = self.calibration.correct(read)
-            if noise is not None and e.j not in self.silent_steps:
+            if noise is not None and e.j not in silent_steps:
                 sigma_xy, sigma_theta = noise.sigmas(math.hypot(read[0], read[1]), read[2])
                 e.information = diagonal_information(inflation * sigma_xy, inflation * sigma_theta)
-        self.graph = graph_of(self.graph.poses, edges)
+        self.chain.graph = graph_of(self.chain.graph.poses, edges)
 
     def _doubt_matches_beyond(self, noise: OdometryNoise) -> None:
         """Front-end matches that put a step further from corrected odometry than the noise
@@ -115,12 +150,12 @@ class FinalSolve(ElevatorCar):
         building by a tenth of a degree (docs/decisions.md, "Doubt a match that odometry
         contradicts").
         """
-        edges = self.graph.edges
+        edges = self.chain.graph.edges
         doubted = 0
         for e in edges:
             if e.kind != "match":
                 continue
-            read = self._odometry_step(e.i, e.j)
+            read = self.keyframes.odometry_step(e.i, e.j)
             # the corrected odometric step as seen from where the match put k (the frame in
             # which the edge's information weighs a translation)
             miss = se2.between(e.z, self.calibration.correct(read))
@@ -133,7 +168,7 @@ class FinalSolve(ElevatorCar):
                 e.robust_c = LOOP_ROBUST_C
                 doubted += 1
         self.stats["matches_doubted"] = doubted
-        self.graph = graph_of(self.graph.poses, edges)
+        self.chain.graph = graph_of(self.chain.graph.poses, edges)
 
     def _weigh_by_scatter(self) -> bool:
         """Each kind of edge weighed by how it actually scatters against the solved graph.
@@ -155,40 +190,18 @@ class FinalSolve(ElevatorCar):
         """
         factors = {}
         for kind in SCATTER_KINDS:
-            count, scatter = self.graph.scatter(kind)
+            count, scatter = self.chain.graph.scatter(kind)
             if count >= MIN_SCATTER_EDGES and scatter > 0:
-                self.graph.scale_information(kind, 1.0 / scatter)
+                self.chain.graph.scale_information(kind, 1.0 / scatter)
                 factors[kind] = round(scatter, 3)
         log.info("edges weighed by their scatter", **factors)
         return bool(factors)
-
-    def _odometry_noise(self) -> OdometryNoise | None:
-        """Corrected odometry's noise, fitted to the matched steps' residuals (None when too
-        few steps were matched at both ends to say)."""
-        if len(self.matched_steps) < MIN_NOISE_STEPS:
-            return None
-        read = np.array([r for r, _ in self.matched_steps])
-        matched = np.array([m for _, m in self.matched_steps])
-        corrected = np.array([self.calibration.correct(r) for r in read])
-        residuals = matched - corrected
-        residuals[:, 2] = se2.wrap(residuals[:, 2])
-        noise = fit_noise(residuals, np.hypot(read[:, 0], read[:, 1]), read[:, 2])
-        xy, theta = noise.sigmas(self.config.keyframe_m, 0.0)
-        _, turn = noise.sigmas(0.0, self.config.keyframe_rad)
-        log.info(
-            "odometry noise",
-            steps=len(read),
-            sigma_m_per_keyframe_step=round(xy, 4),
-            sigma_deg_per_keyframe_step=round(math.degrees(theta), 3),
-            sigma_deg_per_keyframe_turn=round(math.degrees(turn), 3),
-        )
-        return noise
 
     def _refine(self) -> None:
         """Each floor's keyframes against the map of the others (see refine.py), in a graph of
         odometry, the elevator edges and the core; match and loop edges have had their say."""
         config = self.config
-        poses = self.graph.poses.copy()
+        poses = self.chain.graph.poses.copy()
         nodes: list[IntArray] = []
         measured: list[FloatArray] = []
         infos: list[FloatArray] = []
@@ -211,15 +224,15 @@ class FinalSolve(ElevatorCar):
                 measured.append(out.poses[out.usable])
                 infos.append(info[out.usable])
         # odometry as the whole run taught it (see _odometry_as_learnt)
-        kept = [e for e in self.graph.edges if e.kind in ("odometry", "ride", "car")]
-        kept += self._core_edges(poses)
+        kept = [e for e in self.chain.graph.edges if e.kind in ("odometry", "ride", "car")]
+        kept += self.car.core_edges(poses)
         fits = _MapFits(
             np.concatenate(nodes) if nodes else np.zeros(0, dtype=np.int64),
             np.concatenate(measured) if nodes else np.zeros((0, 3)),
             np.concatenate(infos) if nodes else np.zeros((0, 3, 3)),
         )
         if len(np.unique(self.kf_floor)) > 1:
-            self.graph = self._solve_with_floor_frames(poses, kept, fits)
+            self.chain.graph = self._solve_with_floor_frames(poses, kept, fits)
         else:  # one floor: nothing to turn it against, the fits hold it where it is
             graph = graph_of(poses, kept)
             graph.set_priors(fits.nodes, fits.poses, fits.information)
@@ -229,7 +242,7 @@ class FinalSolve(ElevatorCar):
             # to at its end (Acapulco seed 0: pinned, scan 0 lies 75 mm from its revisits;
             # free, 26 mm; GMapping's poses 28 mm)
             graph.optimize(iterations=FINAL_ITERATIONS, anchor=None if len(fits.nodes) else 0)
-            self.graph = graph
+            self.chain.graph = graph
         self.stats["refined"] = len(fits.nodes)
 
     def _solve_with_floor_frames(

@@ -4,11 +4,12 @@ ends teach the odometry calibration."""
 
 from __future__ import annotations
 
+from collections import Counter
+
 import numpy as np
 
 from baromap.arrays import FloatArray
 from baromap.mapping import se2
-from baromap.mapping.pose_graph import Edge
 from baromap.mapping.scan_matcher import (
     DISTINCT_RAD,
     LikelihoodField,
@@ -22,10 +23,9 @@ from baromap.mapping.scan_matcher import (
 from baromap.mapping.scans import voxel_filter
 from baromap.mapping.slam.measurement import (
     diagonal_information,
-    edge_covariance,
     lattice_angle_step,
+    match_edge,
     place_on_ridge,
-    rotate_information,
     search_window,
 )
 from baromap.mapping.slam.settings import (
@@ -44,37 +44,49 @@ from baromap.mapping.slam.settings import (
     PRIOR_WEIGHT,
     WINDOW_SIGMAS,
 )
-from baromap.mapping.slam.state import SlamState
+from baromap.mapping.slam.state import Chain, Keyframes, OdometryLearning, SlamPart, Submaps
 from baromap.mapping.submaps import Submap
 
 
-class FrontEnd(SlamState):
-    """Matching each keyframe against the map being built around it."""
+class FrontEnd(SlamPart):
+    """Matching each keyframe against the map being built around it. It owns what the chain
+    knows of its own doubt: where the current visit began and the last step the scan could
+    not vouch for."""
 
-    def _learn_odometry(self, k: int, read: FloatArray, edge: Edge) -> None:
-        """Keyframe k was matched: with k - 1 matched too, the step between them is measured at
-        both ends, a sample of what odometry got wrong (:mod:`odometry_calibration`)."""
-        # k's pose, in k's own frame
-        cov = edge_covariance(edge.information)
-        self.front_cov[k] = cov
-        before = self.front_cov.get(k - 1)
-        if before is not None:
-            # k's covariance in the frame of k - 1 (k stands turned by z's heading in it)
-            in_before = rotate_information(cov, -float(edge.z[2]))
-            self.calibration.observe(read, edge.z, before + in_before)
-            self.matched_steps.append((read.copy(), edge.z.copy()))
+    def __init__(
+        self,
+        keyframes: Keyframes,
+        chain: Chain,
+        submaps: Submaps,
+        odometry: OdometryLearning,
+        stats: Counter[str],
+    ) -> None:
+        super().__init__(keyframes, chain, stats)
+        self.submaps = submaps
+        self.odometry = odometry
+        self.visit_start = 0
+        #: keyframe of the last front-end step the scan could not vouch for (a weak, refused
+        #: or missing match: odometry or a doubtful match placed it), -1 for none
+        self.last_doubtful = -1
 
-    def _front_end(
+    def begin_visit(self, k: int) -> None:
+        """A visit begins at keyframe k: the look back after a turn stays within it."""
+        self.visit_start = k
+
+    def match(
         self, k: int, guess: FloatArray, sigma_xy: float, sigma_theta: float, read: FloatArray
     ) -> None:
+        """Keyframe k matched against the older submap being built, from odometry's
+        ``guess`` within three of its sigmas; taken into the graph and taught to the odometry
+        calibration unless too weak or ambiguous (``read``: the step as the wheels read it)."""
         points = self.clouds.points[k]
-        if len(points) < MIN_POINTS or not self.active:
+        if len(points) < MIN_POINTS or not self.submaps.active:
             self.stats["front_skipped"] += 1
             self.last_doubtful = k
             return
         config = self.config
-        sub = self.active[0]
-        anchor = self.graph.poses[sub.anchor]
+        sub = self.submaps.active[0]
+        anchor = self.chain.graph.poses[sub.anchor]
         local_guess = se2.between(anchor, guess)
         linear = min(MAX_FRONT_WINDOW_M, max(MIN_WINDOW_M, WINDOW_SIGMAS * sigma_xy))
         angular = min(MAX_FRONT_WINDOW_RAD, max(MIN_WINDOW_RAD, WINDOW_SIGMAS * sigma_theta))
@@ -111,21 +123,21 @@ class FrontEnd(SlamState):
         if ambiguous:
             self.stats["front_ambiguous"] += 1
             return
-        edge = self._match_edge(sub.anchor, k, result, kind="match", spread=spread)
+        edge = match_edge(sub.anchor, k, result, kind="match", spread=spread)
         placed = result.pose
         if spread is not None:
             placed = place_on_ridge(
                 local_guess, diagonal_information(sigma_xy, sigma_theta), result.pose, spread
             )
-        self.graph.poses[k] = se2.compose(anchor, placed)
+        self.chain.graph.poses[k] = se2.compose(anchor, placed)
         # the measurement is expressed from the previous keyframe, whose pose the submap
         # holds as the graph last had it: a solve that bends the run between the anchor and
         # the previous keyframe then moves this edge with it
         edge.i = k - 1
-        edge.z = se2.between(se2.between(anchor, self.graph.poses[k - 1]), result.pose)
-        self.graph.add_edge(edge)
+        edge.z = se2.between(se2.between(anchor, self.chain.graph.poses[k - 1]), result.pose)
+        self.chain.graph.add_edge(edge)
         self.stats["front_matches"] += 1
-        self._learn_odometry(k, read, edge)
+        self.odometry.learn(k, read, edge)
 
     def _retry_after_turn(
         self,
@@ -165,7 +177,7 @@ class FrontEnd(SlamState):
         """The keyframes of this visit over the last FRONT_RETRY_M of travel before k, in the
         anchor's frame: after a turn the robot looks back over where it came from, which the
         active submap (the last few metres, seen looking forward) hardly holds."""
-        poses = self.graph.poses
+        poses = self.chain.graph.poses
         start = k - 1
         while start > self.visit_start and self.clouds.path_m(start - 1, k) <= FRONT_RETRY_M:
             start -= 1

@@ -5,6 +5,7 @@ the doubtful ones taken only when another closure agrees."""
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,7 +15,8 @@ from baromap.arrays import FloatArray
 from baromap.mapping import se2
 from baromap.mapping.pose_graph import Edge
 from baromap.mapping.scan_matcher import LikelihoodField, MatchResult, Prior, SearchWindow, match
-from baromap.mapping.slam.measurement import lattice_angle_step, search_window
+from baromap.mapping.slam.front_end import FrontEnd
+from baromap.mapping.slam.measurement import lattice_angle_step, match_edge, search_window
 from baromap.mapping.slam.settings import (
     CAR_MIN_POINTS,
     LOOP_BASE_M,
@@ -36,7 +38,7 @@ from baromap.mapping.slam.settings import (
     MIN_WINDOW_RAD,
     PRIOR_WEIGHT,
 )
-from baromap.mapping.slam.state import SlamState
+from baromap.mapping.slam.state import Chain, Keyframes, SlamPart, Submaps
 from baromap.mapping.submaps import Submap
 
 
@@ -81,24 +83,47 @@ class _LoopSearch:
         )
 
 
-class LoopClosing(SlamState):
-    """Closing loops against the finished submaps of the same floor."""
+class LoopCloser(SlamPart):
+    """Closing loops against the finished submaps of the same floor. It owns the closures
+    that wait: proposals waiting for another to agree, those of them beyond the drift model,
+    and those against a target the run frames on one side only."""
 
-    def _close_loops(self, k: int) -> None:
+    def __init__(
+        self,
+        keyframes: Keyframes,
+        chain: Chain,
+        submaps: Submaps,
+        front_end: FrontEnd,
+        stats: Counter[str],
+    ) -> None:
+        super().__init__(keyframes, chain, stats)
+        self.submaps = submaps
+        self.front_end = front_end
+        #: closures under the threshold waiting for another to agree (see _propose)
+        self.pending: list[tuple[Edge, float]] = []
+        #: those of them beyond the drift model, searched for again (see _follow_beyond)
+        self.beyond: list[Edge] = []
+        #: closures against a target the run frames on one side only, kept until the visit
+        #: ends in case no closure framed on both sides comes (see settle_deferred)
+        self.deferred: list[tuple[Edge, float]] = []
+
+    def close(self, k: int) -> None:
+        """Keyframe k's closures: the finished submaps it may revisit, each matched, and the
+        closure beyond the drift model waiting for a partner followed from k."""
         points = self.clouds.points[k]
-        if len(points) < CAR_MIN_POINTS or not self.finished:
+        if len(points) < CAR_MIN_POINTS or not self.submaps.finished:
             return
-        index = self.finished_index
+        index = self.submaps.index
         travelled = float(self.clouds.distance[k])
-        since_closure = self.clouds.path_m(self.last_closure, k)
+        since_closure = self.clouds.path_m(self.chain.last_closure, k)
         near = index.last_keyframe <= k - LOOP_MIN_SEPARATION
         near &= travelled - index.tried_at >= LOOP_RETRY_M
         for n, nearest_kf, repeat in self._loop_candidates(
-            k, self.graph.poses[k], since_closure, near
+            k, self.chain.graph.poses[k], since_closure, near
         ):
             index.tried_at[n] = travelled
             if not repeat:
-                self._try_loop(k, self.finished[n], nearest_kf, since_closure)
+                self._try_loop(k, self.submaps.finished[n], nearest_kf, since_closure)
         self._follow_beyond(k)
 
     def _loop_candidates(
@@ -108,8 +133,8 @@ class LoopClosing(SlamState):
         nearest first, at most LOOP_TARGETS: (submap, revisited keyframe, repeat). Two small
         submaps sharing the revisited keyframe stand for the same target (the keyframes
         around it): the second is a repeat, one match of the target is enough."""
-        index = self.finished_index
-        poses = self.graph.poses
+        index = self.submaps.index
+        poses = self.chain.graph.poses
         reach = self.config.loop_radius_m + min(
             LOOP_WIDE_M, self.config.drift_m_per_m * since_closure
         )
@@ -122,7 +147,7 @@ class LoopClosing(SlamState):
         near &= index.floor == self.kf_floor[k]
         candidates: list[tuple[float, int, int]] = []
         for m in np.flatnonzero(near):
-            sub = self.finished[m]
+            sub = self.submaps.finished[m]
             origins = se2.transform_points(anchors[m], sub.origins())
             dist = np.hypot(origins[:, 0] - here[0], origins[:, 1] - here[1])
             nearest = int(np.argmin(dist))
@@ -137,7 +162,7 @@ class LoopClosing(SlamState):
         small: set[int] = set()
         for _, n, nearest_kf in candidates[:LOOP_TARGETS]:
             repeat = False
-            if len(self.finished[n].keyframes) < LOOP_MIN_KEYFRAMES:
+            if len(self.submaps.finished[n].keyframes) < LOOP_MIN_KEYFRAMES:
                 repeat = nearest_kf in small
                 small.add(nearest_kf)
             chosen.append((n, nearest_kf, repeat))
@@ -165,7 +190,9 @@ class LoopClosing(SlamState):
         # a closure taken since (here or after the proposal) has placed the run anew: the
         # proposal is then either what the graph holds or contradicted, nothing to follow
         self.beyond = [
-            e for e in self.beyond if e.j > self.last_closure and k - e.j <= LOOP_GROUP_KEYFRAMES
+            e
+            for e in self.beyond
+            if e.j > self.chain.last_closure and k - e.j <= LOOP_GROUP_KEYFRAMES
         ]
         earlier = [
             (edge, score)
@@ -175,17 +202,17 @@ class LoopClosing(SlamState):
         if not earlier:
             return
         proposal = max(earlier, key=lambda p: p[1])[0]
-        poses = self.graph.poses
+        poses = self.chain.graph.poses
         # keyframe k, moved with the keyframe the proposal places
         placed = se2.compose(poses[proposal.i], proposal.z)
         guess = se2.compose(placed, se2.between(poses[proposal.j], poses[k]))
         since = self.clouds.path_m(proposal.j, k)
-        near = self.finished_index.last_keyframe <= k - LOOP_MIN_SEPARATION
+        near = self.submaps.index.last_keyframe <= k - LOOP_MIN_SEPARATION
         for n, nearest_kf, repeat in self._loop_candidates(k, guess, since, near):
             if repeat:
                 continue
             self.stats["loop_follows"] += 1
-            self._try_loop(k, self.finished[n], nearest_kf, since, guess=guess)
+            self._try_loop(k, self.submaps.finished[n], nearest_kf, since, guess=guess)
             if not any(proposal is other for other, _ in self.pending):
                 self.stats["loop_followed"] += 1
                 return
@@ -217,7 +244,7 @@ class LoopClosing(SlamState):
         found = self._search_loop(k, sub, nearest_kf, (bound_m, bound_rad), wide=wide, guess=guess)
         if found.stretched and found.moved <= LOOP_MAX_M:
             # against a target the run frames on one side only, the capped window's closure
-            # is kept in case no closure framed on both sides follows (see _settle_deferred)
+            # is kept in case no closure framed on both sides follows (see settle_deferred)
             capped = self._search_loop(k, sub, nearest_kf, (bound_m, bound_rad), wide=False)
             self._judge_loop(capped, defer=found.one_sided)
             return
@@ -241,7 +268,7 @@ class LoopClosing(SlamState):
         LOOP_WIDE_M, by branch and bound, against the run around the revisit when the
         target is dense), from ``guess`` or k's estimate."""
         config = self.config
-        poses = self.graph.poses
+        poses = self.chain.graph.poses
         bound_m, bound_rad = bounds
         # any target: after a long drive without a closure (a big building's loop of
         # hundreds of metres) the front end is metres off, and a window capped at LOOP_MAX_M
@@ -311,7 +338,7 @@ class LoopClosing(SlamState):
         beyond = found.beyond_drift(config.resolution_m)
         if beyond and (
             found.following
-            or self.last_doubtful <= max(self.last_closure, found.nearest_kf)
+            or self.front_end.last_doubtful <= max(self.chain.last_closure, found.nearest_kf)
             or result.score < config.loop_min_score
             or found.moved > LOOP_MAX_M
             or found.turned > MAX_FRONT_WINDOW_RAD
@@ -326,7 +353,7 @@ class LoopClosing(SlamState):
         if result.runner_up >= LOOP_MAX_AMBIGUITY * result.score:
             self.stats["loop_ambiguous"] += 1
             return
-        edge = self._match_edge(found.target, found.k, result, kind="loop")
+        edge = match_edge(found.target, found.k, result, kind="loop")
         if defer:  # a dense target: its score is past loop_min_score here
             self.deferred.append((edge, result.score))
             self.stats["loop_deferred"] += 1
@@ -337,7 +364,7 @@ class LoopClosing(SlamState):
                 self.beyond.append(edge)
             self._propose(edge, result.score)
             return
-        self._accept_loop(edge, result.score)
+        self.chain.accept_loop(edge, result.score)
 
     def _propose(self, edge: Edge, score: float) -> None:
         """A closure under the loop threshold, against a target of few scans: kept until
@@ -353,7 +380,7 @@ class LoopClosing(SlamState):
         """
         k = edge.j
         self.pending = [p for p in self.pending if k - p[0].j <= LOOP_GROUP_KEYFRAMES]
-        poses = self.graph.poses
+        poses = self.chain.graph.poses
         agreeing = []
         for other, other_score in self.pending:
             if other.j == k and not self._one_scan_two_places(other, other_score, edge, score):
@@ -366,8 +393,8 @@ class LoopClosing(SlamState):
             return
         for other, other_score in agreeing:
             self.pending.remove((other, other_score))
-            self._accept_loop(other, other_score)
-        self._accept_loop(edge, score)
+            self.chain.accept_loop(other, other_score)
+        self.chain.accept_loop(edge, score)
         self.stats["loop_groups"] += 1
         if all(other.j == k for other, _ in agreeing):
             self.stats["loop_groups_one_scan"] += 1
@@ -396,7 +423,7 @@ class LoopClosing(SlamState):
             and min(a_score, b_score) >= self.config.loop_min_score
         )
 
-    def _settle_deferred(self) -> None:
+    def settle_deferred(self) -> None:
         """At the end of a visit, the closures against one-sided targets made since the
         last accepted closure: taken when at least two agree, else dropped.
 
@@ -411,19 +438,19 @@ class LoopClosing(SlamState):
         these were never made; where it ends, these are all there is, and they are right
         far more often than not (the big loop driven 6 m past its start: ATE 1.5-5.7 m
         without them, 0.40-0.60 m with them)."""
-        deferred = [(e, s) for e, s in self.deferred if e.j > self.last_closure]
+        deferred = [(e, s) for e, s in self.deferred if e.j > self.chain.last_closure]
         self.deferred = []
         if len(deferred) < 2:
             return
-        poses = self.graph.poses
+        poses = self.chain.graph.poses
         best = max(deferred, key=lambda d: d[1])[0]
         agreeing = [(e, s) for e, s in deferred if e is best or self._agree(best, e, poses)]
         if len(agreeing) < 2:
             return
         for edge, score in agreeing:
-            self._accept_loop(edge, score)
+            self.chain.accept_loop(edge, score)
         self.stats["loop_deferred_taken"] += len(agreeing)
-        self._solve_if_needed()
+        self.chain.solve_if_needed()
 
     def _agree(self, a: Edge, b: Edge, poses: FloatArray) -> bool:
         """Whether two closures imply the same correction: the motion between their
@@ -450,11 +477,11 @@ class LoopClosing(SlamState):
         frame: a revisit scores against a place seen from several scans, as on a dense log.
         Returns the anchor keyframe, the field and its coarse copy."""
         if len(sub.keyframes) >= LOOP_MIN_KEYFRAMES:
-            self.cache.use(sub)
+            self.submaps.cache.use(sub)
             coarse = sub.coarse(coarse_step) if coarse_step > 1 else None
             return sub.anchor, sub.field, coarse
-        poses = self.graph.poses
-        last = min(int(self.finished_index.last_keyframe.max()), k - LOOP_MIN_SEPARATION)
+        poses = self.chain.graph.poses
+        last = min(int(self.submaps.index.last_keyframe.max()), k - LOOP_MIN_SEPARATION)
         near = [
             j
             for j in range(nearest_kf - LOOP_MIN_KEYFRAMES // 2, last + 1)
@@ -486,8 +513,8 @@ class LoopClosing(SlamState):
         corridor onto the map, and consecutive keyframes slide alike, so they agree.
         Revisits are taken where the map reaches past the window on both sides; where it
         does not, a correction within LOOP_MAX_M is kept, to be taken only if the visit
-        brings nothing better (_settle_deferred)."""
-        last = min(int(self.finished_index.last_keyframe.max()), k - LOOP_MIN_SEPARATION)
+        brings nothing better (settle_deferred)."""
+        last = min(int(self.submaps.index.last_keyframe.max()), k - LOOP_MIN_SEPARATION)
         visit = self.kf_visit[nearest_kf]
         path = self.clouds.path_m
         lo = hi = nearest_kf
@@ -496,7 +523,7 @@ class LoopClosing(SlamState):
         while hi < last and self.kf_visit[hi + 1] == visit and path(nearest_kf, hi) < reach_m:
             hi += 1
         one_sided = path(lo, nearest_kf) < reach_m or path(nearest_kf, hi) < reach_m
-        poses = self.graph.poses
+        poses = self.chain.graph.poses
         points = np.concatenate(
             [
                 se2.transform_points(

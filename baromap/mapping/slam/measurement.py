@@ -9,7 +9,8 @@ import numpy as np
 
 from baromap.arrays import FloatArray
 from baromap.mapping import se2
-from baromap.mapping.scan_matcher import LikelihoodField, SearchWindow
+from baromap.mapping.pose_graph import Edge
+from baromap.mapping.scan_matcher import LikelihoodField, MatchResult, SearchWindow
 from baromap.mapping.scans import voxel_filter
 from baromap.mapping.slam.settings import (
     CAR_FAR_AGREE_M,
@@ -17,7 +18,12 @@ from baromap.mapping.slam.settings import (
     COARSE_ABOVE_CELLS,
     COARSE_STEP_CELLS,
     FINISHED_MAP_FIELD_SCALE,
+    LOOP_ROBUST_C,
+    LOOP_SIGMA_M,
+    LOOP_SIGMA_RAD,
     MATCH_COV_SCALE,
+    MATCH_SIGMA_M,
+    MATCH_SIGMA_RAD,
     MAX_ANGLE_STEP_RAD,
     MIN_ANGLE_STEP_RAD,
     UNMEASURED_INFORMATION,
@@ -120,4 +126,35 @@ def same_shift(a: FloatArray, b: FloatArray) -> bool:
     d = se2.between(a, b)
     return bool(
         math.hypot(d[0], d[1]) <= CAR_FAR_AGREE_M and abs(se2.wrap(d[2])) <= CAR_FAR_AGREE_RAD
+    )
+
+
+def match_edge(
+    anchor: int,
+    k: int,
+    result: MatchResult,
+    *,
+    kind: str,
+    spread: FloatArray | None = None,
+) -> Edge:
+    """Edge anchor -> k from a match of keyframe k made in the anchor's frame.
+
+    Front-end and car edges are trusted (plain least squares); loop closures get the
+    robust kernel and their own floor sigmas, and can be outvoted.
+    """
+    loop = kind in ("loop", "car")
+    info = match_information(
+        result.information,
+        LOOP_SIGMA_M if loop else MATCH_SIGMA_M,
+        LOOP_SIGMA_RAD if loop else MATCH_SIGMA_RAD,
+    )
+    if spread is not None:
+        info = spread_information(info, spread)
+    return Edge(
+        anchor,
+        k,
+        result.pose.copy(),
+        rotate_information(info, result.pose[2]),
+        kind,
+        robust_c=LOOP_ROBUST_C if loop else None,
     )

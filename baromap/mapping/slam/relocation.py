@@ -4,6 +4,7 @@ base), the chain looks for its place in the map of its floor from before the gap
 from __future__ import annotations
 
 import math
+from collections import Counter
 
 import numpy as np
 import structlog
@@ -13,7 +14,7 @@ from baromap.mapping import se2
 from baromap.mapping.occupancy import OccupancyGrid, build_grid
 from baromap.mapping.scan_matcher import LikelihoodField, SearchWindow, match
 from baromap.mapping.scans import voxel_filter
-from baromap.mapping.slam.measurement import same_shift
+from baromap.mapping.slam.measurement import match_edge, same_shift
 from baromap.mapping.slam.settings import (
     CAR_FAR_ANGLE_STEP_RAD,
     LOOP_MAX_AMBIGUITY,
@@ -30,7 +31,7 @@ from baromap.mapping.slam.settings import (
     RELOCATE_VIEW_M,
     WINDOW_SIGMAS,
 )
-from baromap.mapping.slam.state import Lost, SlamState
+from baromap.mapping.slam.state import Chain, Keyframes, Lost, SlamPart
 
 log = structlog.get_logger(__name__)
 
@@ -57,14 +58,33 @@ def _free_space_costs(
     return LikelihoodField(data=data, origin_xy=fld.origin_xy, resolution=res)
 
 
-class Relocation(SlamState):
-    """Finding the chain again after an unmeasured step."""
+class Relocation(SlamPart):
+    """Finding the chain again after an unmeasured step. It owns the search while the chain
+    looks for its place (:class:`Lost`)."""
+
+    def __init__(self, keyframes: Keyframes, chain: Chain, stats: Counter[str]) -> None:
+        super().__init__(keyframes, chain, stats)
+        #: the chain after a step across the odometry's silence, until it finds its place
+        self.lost: Lost | None = None
+
+    def start(self, k: int, sigma_xy: float, sigma_theta: float) -> None:
+        """Keyframe k comes after a step the odometry did not measure: the chain looks for
+        its place from here (:meth:`_lost_at`), in place of any search still going on."""
+        self.lost = self._lost_at(k, sigma_xy, sigma_theta)
+
+    def give_up(self) -> None:
+        """The visit ended before the chain found its place: the car ties the floors after
+        the ride."""
+        if self.lost is not None:
+            log.info("the chain did not find its place after the odometry's silence")
+            self.stats["relocate_failed"] += 1
+            self.lost = None
 
     def _lost_at(self, k: int, sigma_xy: float, sigma_theta: float) -> Lost | None:
         """The search for keyframe k's place after a step across the odometry's silence
         (RELOCATE_*): the map of its floor from before, near enough to be seen from where
         the step may have taken it; None when there is no such map."""
-        poses = self.graph.poses
+        poses = self.chain.graph.poses
         reach_m = min(RELOCATE_MAX_M, WINDOW_SIGMAS * sigma_xy)
         reach_rad = min(math.pi, WINDOW_SIGMAS * sigma_theta)
         before = k - 1
@@ -81,12 +101,15 @@ class Relocation(SlamState):
         local = se2.transform_points(se2.inverse(poses[before]), voxel_filter(world, res / 2))
         window = SearchWindow(reach_m, reach_rad, CAR_FAR_ANGLE_STEP_RAD)
         grid = build_grid(
-            self.scans, self.kf_scan[seen], poses[seen], resolution=RELOCATE_FREE_CELL_M
+            self.keyframes.scans,
+            self.keyframes.kf_scan[seen],
+            poses[seen],
+            resolution=RELOCATE_FREE_CELL_M,
         )
         fld = _free_space_costs(LikelihoodField.from_points(local, res, res), poses[before], grid)
         return Lost(before, k, window, fld)
 
-    def _relocate(self, k: int) -> None:
+    def relocate(self, k: int) -> None:
         """The chain since the silence looked for in the map from before it (RELOCATE_*):
         once two looks agree on one rigid correction, the chain from the silence on is moved
         there (nothing after the silence is tied to the map from before but the silent
@@ -100,7 +123,8 @@ class Relocation(SlamState):
         look there ambiguous, before it came back into a room it had mapped, which fits one.
         """
         lost = self.lost
-        assert lost is not None
+        if lost is None:
+            return
         travelled = float(self.clouds.distance[k])
         if k != lost.start and travelled - lost.tried_at < RELOCATE_EVERY_M:
             return
@@ -108,7 +132,7 @@ class Relocation(SlamState):
             return
         lost.tried += 1
         lost.tried_at = travelled
-        poses = self.graph.poses
+        poses = self.chain.graph.poses
         start = lost.start
         points = voxel_filter(
             np.concatenate(
@@ -138,7 +162,7 @@ class Relocation(SlamState):
         was = poses[start].copy()
         poses[start:] = se2.compose(shift, poses[start:])
         moved = se2.between(was, poses[start])
-        self._accept_loop(self._match_edge(lost.before, start, result, kind="loop"), result.score)
+        self.chain.accept_loop(match_edge(lost.before, start, result, kind="loop"), result.score)
         self.stats["relocated"] += 1
         log.info(
             "the chain found its place after the odometry's silence",

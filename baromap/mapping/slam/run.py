@@ -4,6 +4,7 @@ end, and every scan's pose from the keyframes around it."""
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -17,22 +18,20 @@ from baromap.mapping.keyframes import motion_spaced
 from baromap.mapping.pose_graph import Edge, PoseGraph
 from baromap.mapping.refine import Pull, refine_batch
 from baromap.mapping.scans import ScanBlock
+from baromap.mapping.slam.car import ElevatorCar
 from baromap.mapping.slam.final_solve import FinalSolve
 from baromap.mapping.slam.front_end import FrontEnd
-from baromap.mapping.slam.loops import LoopClosing
+from baromap.mapping.slam.loops import LoopCloser
 from baromap.mapping.slam.measurement import diagonal_information, finished_map_field
 from baromap.mapping.slam.relocation import Relocation
 from baromap.mapping.slam.settings import (
     BETWEEN_FLOORS,
     BLIND_SPEED_M_S,
     BLIND_TURN_RAD_S,
-    FINAL_ITERATIONS,
     MAX_FRONT_WINDOW_M,
     MAX_FRONT_WINDOW_RAD,
     ODOMETRY_SIGMA_M,
     ODOMETRY_SIGMA_RAD,
-    REFINE_ODOMETRY_INFLATION,
-    REFINE_PASSES,
     REGISTER_BEAMS,
     REGISTER_CHUNK,
     TURN_AS_M,
@@ -40,6 +39,7 @@ from baromap.mapping.slam.settings import (
     Int8Array,
     SlamConfig,
 )
+from baromap.mapping.slam.state import Chain, Keyframes, OdometryLearning, Submaps
 
 log = structlog.get_logger(__name__)
 
@@ -73,48 +73,49 @@ def select_keyframes(
     return motion_spaced(odom, group, config.keyframe_m, config.keyframe_rad, last_of_group=True)
 
 
-class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
-    """One SLAM run, fed one keyframe at a time."""
+class _Slam:
+    """One SLAM run, fed one keyframe at a time: the keyframes and what the odometry said,
+    the submaps, the chain of keyframes in its pose graph, the front end, loop closure, the
+    car, the search after an unmeasured step and the last solve, each keeping its own state,
+    and the statistics they all count into."""
+
+    def __init__(self, keyframes: Keyframes) -> None:
+        self.keyframes = keyframes
+        self.config = keyframes.config
+        self.stats: Counter[str] = Counter()
+        self.submaps = Submaps(keyframes)
+        self.chain = Chain(self.submaps, self.stats)
+        self.odometry = OdometryLearning(keyframes.config)
+        self.front_end = FrontEnd(keyframes, self.chain, self.submaps, self.odometry, self.stats)
+        self.loops = LoopCloser(keyframes, self.chain, self.submaps, self.front_end, self.stats)
+        self.car = ElevatorCar(keyframes, self.chain, self.stats)
+        self.relocation = Relocation(keyframes, self.chain, self.stats)
+        self.final = FinalSolve(keyframes, self.chain, self.odometry, self.car, self.stats)
+        #: keyframes reached by a step the fitted odometry noise does not describe: beyond the
+        #: front end's window (the laser silent), or across a gap in the odometry
+        self.silent_steps: set[int] = set()
 
     def add(self, k: int) -> None:
-        graph = self.graph
+        run = self.keyframes
+        graph = self.chain.graph
         if k == 0:
-            graph.add_node(self.odom[self.kf_scan[0]])
-            self._insert(k)
+            graph.add_node(run.odom[run.kf_scan[0]])
+            self.submaps.insert(k, self.chain.graph.poses)
             return
-        new_visit = bool(self.kf_visit[k] != self.kf_visit[k - 1])
+        new_visit = bool(run.kf_visit[k] != run.kf_visit[k - 1])
         if new_visit:
             self._end_visit()
-            if self.lost is not None:
-                log.info("the chain did not find its place after the odometry's silence")
-                self.stats["relocate_failed"] += 1
-                self.lost = None  # the car ties the floors after the ride
-        read = self._odometry_step(k - 1, k)
-        step = self.calibration.correct(read)
+            self.relocation.give_up()
+        read = run.odometry_step(k - 1, k)
+        step = self.odometry.calibration.correct(read)
         guess = se2.compose(graph.poses[k - 1], step)
         graph.add_node(guess)
-        sigma_xy, sigma_theta = self._odometry_sigmas(step)
-        drive = self._drive(k, read)
-        if drive is not None:
-            drive_xy, drive_theta = self._odometry_sigmas(drive)
-            if (
-                WINDOW_SIGMAS * drive_xy > MAX_FRONT_WINDOW_M
-                or WINDOW_SIGMAS * drive_theta > MAX_FRONT_WINDOW_RAD
-            ):
-                # a drive beyond the window: its doubt is the whole drive's, not its end's
-                sigma_xy, sigma_theta = max(sigma_xy, drive_xy), max(sigma_theta, drive_theta)
-        blind = bool(self.blind_step[k])
+        sigma_xy, sigma_theta = self._step_sigmas(k, step, read)
+        blind = bool(run.blind_step[k])
         if blind:
-            # odometry drew a straight line here: the step is as long as the robot can drive
-            # and turn in the time
-            seconds = float(self.t_ns[self.kf_scan[k]] - self.t_ns[self.kf_scan[k - 1]]) / 1e9
-            sigma_xy = max(sigma_xy, BLIND_SPEED_M_S * seconds / WINDOW_SIGMAS)
-            sigma_theta = max(sigma_theta, BLIND_TURN_RAD_S * seconds / WINDOW_SIGMAS)
             self.stats["odometry_gaps"] += 1
-        if not new_visit and (
-            blind
-            or WINDOW_SIGMAS * sigma_xy > MAX_FRONT_WINDOW_M
-            or (drive is not None and WINDOW_SIGMAS * sigma_theta > MAX_FRONT_WINDOW_RAD)
+        if not new_visit and self._beyond_front_window(
+            blind, sigma_xy, sigma_theta, run.drive(k, read) is not None
         ):
             # a step longer than the front end's widest window can search odometry's doubt
             # over (the laser silent while the robot drove on: unplugged, power-cycled): the
@@ -123,66 +124,91 @@ class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
             # with the drift, ties them back
             self.stats["front_after_gap"] += 1
             self.silent_steps.add(k)
-            self._finish_active()
+            self.submaps.finish_active()
         # odometry always enters the graph: along a featureless corridor it is the only
         # measurement of the motion, and the match edge's information says so
         graph.add_edge(
             Edge(k - 1, k, step, diagonal_information(sigma_xy, sigma_theta), "odometry")
         )
         if new_visit:
-            self.visit_start = k
-            self.last_closure = k
-            self._ride(k, guess, sigma_xy, sigma_theta)
+            self.front_end.begin_visit(k)
+            self.chain.begin_visit(k)
+            self.car.ride(k, guess, sigma_xy, sigma_theta)
         else:
-            self._front_end(k, guess, sigma_xy, sigma_theta, read)
-        self._insert(k)
-        if self.unmeasured_step[k] and not new_visit:
-            self.lost = self._lost_at(k, sigma_xy, sigma_theta)
-        if self.lost is not None:
-            self._relocate(k)
-        if not self.clouds.in_car(k) and k - self.visit_start >= 1:
-            self._close_loops(k)
-        self._solve_if_needed()
+            self.front_end.match(k, guess, sigma_xy, sigma_theta, read)
+        self.submaps.insert(k, self.chain.graph.poses)
+        if run.unmeasured_step[k] and not new_visit:
+            self.relocation.start(k, sigma_xy, sigma_theta)
+        self.relocation.relocate(k)
+        if not run.clouds.in_car(k) and k - self.front_end.visit_start >= 1:
+            self.loops.close(k)
+        self.chain.solve_if_needed()
+
+    def _step_sigmas(self, k: int, step: FloatArray, read: FloatArray) -> tuple[float, float]:
+        """What odometry can have got wrong over the (corrected) ``step`` to keyframe k: over
+        a drive beyond the front end's window, the whole drive's doubt, not its end's; across
+        scans the odometry said nothing about, as far as the robot can drive and turn in the
+        time (odometry drew a straight line there)."""
+        run = self.keyframes
+        sigma_xy, sigma_theta = run.odometry_sigmas(step)
+        drive = run.drive(k, read)
+        if drive is not None:
+            drive_xy, drive_theta = run.odometry_sigmas(drive)
+            if (
+                WINDOW_SIGMAS * drive_xy > MAX_FRONT_WINDOW_M
+                or WINDOW_SIGMAS * drive_theta > MAX_FRONT_WINDOW_RAD
+            ):
+                sigma_xy, sigma_theta = max(sigma_xy, drive_xy), max(sigma_theta, drive_theta)
+        if run.blind_step[k]:
+            seconds = float(run.t_ns[run.kf_scan[k]] - run.t_ns[run.kf_scan[k - 1]]) / 1e9
+            sigma_xy = max(sigma_xy, BLIND_SPEED_M_S * seconds / WINDOW_SIGMAS)
+            sigma_theta = max(sigma_theta, BLIND_TURN_RAD_S * seconds / WINDOW_SIGMAS)
+        return sigma_xy, sigma_theta
+
+    @staticmethod
+    def _beyond_front_window(
+        blind: bool, sigma_xy: float, sigma_theta: float, driven: bool
+    ) -> bool:
+        """Whether a step is beyond what the front end's widest window searches: across a
+        gap, or with more doubt in position (or, where the odometry's drive is known, in
+        heading) than it holds."""
+        return (
+            blind
+            or WINDOW_SIGMAS * sigma_xy > MAX_FRONT_WINDOW_M
+            or (driven and WINDOW_SIGMAS * sigma_theta > MAX_FRONT_WINDOW_RAD)
+        )
 
     def finish(self) -> SlamResult:
         self._end_visit()
-        self._car_to_car()
-        noise = self.noise = self._odometry_noise()
-        self._odometry_as_learnt(noise, 1.0)
-        if noise is not None:
-            self._doubt_matches_beyond(noise)
-        self.graph.optimize(iterations=FINAL_ITERATIONS)
-        if self._weigh_by_scatter():
-            self.graph.optimize(iterations=FINAL_ITERATIONS)
-        if REFINE_PASSES:
-            self._odometry_as_learnt(noise, REFINE_ODOMETRY_INFLATION)
-        for _ in range(REFINE_PASSES):
-            self._refine()
-        self.stats["keyframes"] = len(self.kf_scan)
-        self.stats["odometry_samples"] = self.calibration.samples
-        scale = self.calibration.scale()
-        turn, creep = self.calibration.turn_terms()
+        self.car.car_to_car()
+        self.final.solve(self.silent_steps)
+        run = self.keyframes
+        calibration = self.odometry.calibration
+        self.stats["keyframes"] = len(run.kf_scan)
+        self.stats["odometry_samples"] = calibration.samples
+        scale = calibration.scale()
+        turn, creep = calibration.turn_terms()
         log.info(
             "odometry calibration",
-            samples=self.calibration.samples,
-            rejected=self.calibration.rejected,
+            samples=calibration.samples,
+            rejected=calibration.rejected,
             scale=round(scale, 5),
             turn=round(turn, 5),
             creep_deg_per_m=round(math.degrees(creep), 4),
         )
-        self.stats["loops"] = len(self.loops)
-        self.stats["submaps"] = len(self.finished)
-        self.stats["submap_releases"] = self.cache.releases
+        self.stats["loops"] = len(self.chain.loops)
+        self.stats["submaps"] = len(self.submaps.finished)
+        self.stats["submap_releases"] = self.submaps.cache.releases
         untied, evidence = self._untied()
         self.stats["untied_keyframes"] = sum(len(part) for part in untied)
-        poses = self.graph.poses.copy()
+        poses = self.chain.graph.poses.copy()
         return SlamResult(
-            self.kf_scan,
+            run.kf_scan,
             poses,
             np.zeros((0, 3)),
-            self.graph,
-            self.loops,
-            self.car_edges,
+            self.chain.graph,
+            self.chain.loops,
+            self.car.car_edges,
             {k: float(v) for k, v in self.stats.items()},
             (scale, turn, creep),
             untied,
@@ -200,27 +226,28 @@ class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
         given as one) that part stands where the odometry across the gap put it, metres and
         degrees off for all the scans can say, and its own map may be right while the
         building's is not."""
-        across = self.silent_steps | set(np.flatnonzero(self.blind_step | self.unmeasured_step))
+        run = self.keyframes
+        across = self.silent_steps | set(np.flatnonzero(run.blind_step | run.unmeasured_step))
         if not across:
             return [], []
         gaps = np.array(
-            [e.kind == "odometry" and e.j in across for e in self.graph.edges], dtype=bool
+            [e.kind == "odometry" and e.j in across for e in self.chain.graph.edges], dtype=bool
         )
         if not gaps.any():
             return [], []
-        part = self.graph.parts(gaps)
+        part = self.chain.graph.parts(gaps)
         untied = [np.flatnonzero(part == p) for p in range(1, int(part.max()) + 1)]
         if not untied:
             return [], []
         # a part's first keyframe is reached by a step across a gap: what made it one
         evidence = [self._gap_evidence(int(p[0])) for p in untied]
-        t = self.t_ns[self.kf_scan]
+        t = run.t_ns[run.kf_scan]
         log.warning(
             "part of the run is placed by odometry across a gap alone",
             parts=len(untied),
             keyframes=sum(len(p) for p in untied),
             first_after_s=[round(float(t[p[0]] - t[0]) / 1e9, 1) for p in untied],
-            floors=sorted({int(f) for p in untied for f in self.kf_floor[p] if f >= 0}),
+            floors=sorted({int(f) for p in untied for f in run.kf_floor[p] if f >= 0}),
             evidence=evidence,
         )
         return untied, evidence
@@ -229,34 +256,36 @@ class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
         """What made the step to keyframe ``k`` a gap, in words: a break in the odometry (the
         scans either side of it are blind too, so it is said first), scans the odometry said
         nothing about, or a drive with no scan further than the front end searches."""
-        a, b = int(self.kf_scan[k - 1]), int(self.kf_scan[k])
-        if self.unmeasured_step[k]:
+        run = self.keyframes
+        a, b = int(run.kf_scan[k - 1]), int(run.kf_scan[k])
+        if run.unmeasured_step[k]:
             return "odometry counted from zero again"
-        silent = np.flatnonzero(self.blind[a + 1 : b + 1]) + a + 1
+        silent = np.flatnonzero(run.blind[a + 1 : b + 1]) + a + 1
         if len(silent):
-            seconds = float(self.t_ns[silent[-1]] - self.t_ns[silent[0]]) / 1e9
+            seconds = float(run.t_ns[silent[-1]] - run.t_ns[silent[0]]) / 1e9
             return f"odometry silent for {seconds:.0f} s while the laser went on"
-        step = se2.between(self.odom[a], self.odom[b])
+        step = se2.between(run.odom[a], run.odom[b])
         return (
             f"laser silent while the robot drove {math.hypot(step[0], step[1]):.1f} m and "
             f"turned {math.degrees(abs(step[2])):.0f} deg"
         )
 
     def _end_visit(self) -> None:
-        self._settle_deferred()
-        self._finish_active()
+        self.loops.settle_deferred()
+        self.submaps.finish_active()
 
     def _sides_of_silences(self) -> Int8Array:
         """For the scans between the keyframes of a silent step: -1 before the silence, +1
         after it, split at the longest wait between two scans the odometry spoke for (the
         gap, with the scans it said nothing about inside; the robot may have stood a while
         before it, so the middle of the step is not the gap); 0 for every other scan."""
-        side = np.zeros(len(self.odom), dtype=np.int8)
-        t = self.t_ns
+        run = self.keyframes
+        side = np.zeros(len(run.odom), dtype=np.int8)
+        t = run.t_ns
         for k in sorted(self.silent_steps):
-            a, b = int(self.kf_scan[k - 1]), int(self.kf_scan[k])
+            a, b = int(run.kf_scan[k - 1]), int(run.kf_scan[k])
             s = np.arange(a + 1, b)
-            heard = np.concatenate([[a], s[~self.blind[s]], [b]])
+            heard = np.concatenate([[a], s[~run.blind[s]], [b]])
             resumed = heard[int(np.argmax(np.diff(t[heard]))) + 1]
             side[s] = np.where(s >= resumed, 1, -1)
         return side
@@ -268,37 +297,38 @@ class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
         scan slide). A scan that finds too little of the map keeps its interpolated pose.
 
         The pull's sigmas are corrected odometry's noise as the run showed it
-        (:meth:`_odometry_noise`) over the travel and turn to the nearer keyframe, where the
-        interpolation is pinned: what the interpolation can be wrong by. The front end's
+        (:meth:`OdometryLearning.fit_noise`) over the travel and turn to the nearer keyframe,
+        where the interpolation is pinned: what the interpolation can be wrong by. The front end's
         search sigmas (2 cm + 7 %/m, wide on purpose to hold an uncalibrated robot) are used
         only when the run matched too few steps to fit the noise."""
+        run = self.keyframes
         config = self.config
-        kf_poses = self.graph.poses
-        poses = scan_poses(self.odom, self.kf_scan, kf_poses, silence=self._sides_of_silences())
+        kf_poses = self.chain.graph.poses
+        poses = scan_poses(run.odom, run.kf_scan, kf_poses, silence=self._sides_of_silences())
         is_kf = np.zeros(len(poses), dtype=bool)
-        is_kf[self.kf_scan] = True
+        is_kf[run.kf_scan] = True
         # odometric distance of every scan to the nearer keyframe (how much odometry it holds)
         travelled = np.concatenate(
-            [[0.0], np.cumsum(np.hypot(*np.diff(self.odom[:, :2], axis=0).T))]
+            [[0.0], np.cumsum(np.hypot(*np.diff(run.odom[:, :2], axis=0).T))]
         )
-        kf_travel = travelled[self.kf_scan]
+        kf_travel = travelled[run.kf_scan]
         pos = np.clip(np.searchsorted(kf_travel, travelled), 1, max(len(kf_travel) - 1, 1))
         after = np.minimum(pos, len(kf_travel) - 1)
 
         def to_nearer_keyframe(along: FloatArray) -> FloatArray:
-            at_kf = along[self.kf_scan]
+            at_kf = along[run.kf_scan]
             return np.minimum(np.abs(along - at_kf[pos - 1]), np.abs(at_kf[after] - along))
 
         to_kf = to_nearer_keyframe(travelled)
-        turned = np.concatenate([[0.0], np.cumsum(np.abs(se2.wrap(np.diff(self.odom[:, 2]))))])
+        turned = np.concatenate([[0.0], np.cumsum(np.abs(se2.wrap(np.diff(run.odom[:, 2]))))])
         turn_to_kf = to_nearer_keyframe(turned)
-        for f in np.unique(self.kf_floor):
+        for f in np.unique(run.kf_floor):
             todo = np.flatnonzero((floor == f) & ~is_kf)
             if len(todo) == 0:
                 continue
-            ids = np.flatnonzero(self.kf_floor == f)
+            ids = np.flatnonzero(run.kf_floor == f)
             world = np.concatenate(
-                [se2.transform_points(kf_poses[k], self.clouds.surfaces[k]) for k in ids]
+                [se2.transform_points(kf_poses[k], run.clouds.surfaces[k]) for k in ids]
             )
             fld = finished_map_field(world, config.resolution_m)
             # a few thousand scans at a time: each is fitted on its own, and every beam of a
@@ -306,8 +336,8 @@ class _Slam(FrontEnd, LoopClosing, Relocation, FinalSolve):
             for part in np.array_split(todo, -(-len(todo) // REGISTER_CHUNK)):
                 points, owner = scans.sampled_endpoints(part, config.max_range_m, REGISTER_BEAMS)
                 d = to_kf[part]
-                if self.noise is not None:
-                    pull = Pull(*self.noise.sigmas_many(d, turn_to_kf[part]))
+                if self.odometry.noise is not None:
+                    pull = Pull(*self.odometry.noise.sigmas_many(d, turn_to_kf[part]))
                 else:
                     pull = Pull(
                         ODOMETRY_SIGMA_M + config.odometry_sigma_m_per_m * d,
@@ -356,15 +386,17 @@ def run_slam(
     if len(kf_scan) == 0:
         raise MappingError("no scan is on a floor: nothing to map")
     slam = _Slam(
-        scans,
-        odom,
-        kf_scan,
-        kf_floor=floor[kf_scan],
-        kf_visit=visit[kf_scan],
-        config=config,
-        travel=travel,
-        blind=blind,
-        breaks=breaks,
+        Keyframes(
+            scans,
+            odom,
+            kf_scan,
+            kf_floor=floor[kf_scan],
+            kf_visit=visit[kf_scan],
+            config=config,
+            travel=travel,
+            blind=blind,
+            breaks=breaks,
+        )
     )
     for k in range(len(kf_scan)):
         slam.add(k)

@@ -110,7 +110,7 @@ COARSE_ABOVE_CELLS = 4
 COARSE_STEP_CELLS = 4
 #: A front-end match scoring under this after a turn of more than FRONT_RETRY_TURN_RAD (the
 #: robot looking back over where it came from) is tried again against the keyframes of the
-#: last FRONT_RETRY_M of travel (:meth:`_Slam._retry_after_turn`). Dense logs, a keyframe
+#: last FRONT_RETRY_M of travel (:meth:`FrontEnd._retry_after_turn`). Dense logs, a keyframe
 #: every 25 degrees, never turn that far between keyframes.
 FRONT_RETRY_BELOW = 0.3
 FRONT_RETRY_M = 20.0
@@ -139,7 +139,7 @@ LOOP_PRIOR_SIGMA_RAD = math.radians(5.0)
 #: A match is ambiguous when a clearly different pose scores within this ratio of the best.
 FRONT_MAX_AMBIGUITY = 0.97
 #: ... unless every pose between the two scores at least this share of the lower of them: one
-#: ridge, not two peaks (see :meth:`_Slam._ridge`).
+#: ridge, not two peaks (see :meth:`FrontEnd._ridge`).
 FRONT_RIDGE_SHARE = 0.9
 LOOP_MAX_AMBIGUITY = 0.95
 #: The loop window's floor (the front end is never better tied than this) and ceiling.
@@ -157,11 +157,11 @@ LOOP_MIN_SEPARATION = 30
 #: half metre ties a pass to the map as well as one per keyframe does.
 LOOP_RETRY_M = 1.0
 LOOP_TARGETS = 2
-#: A loop target holds at least this many keyframes (see :meth:`_Slam._loop_target`).
+#: A loop target holds at least this many keyframes (see :meth:`LoopCloser._loop_target`).
 LOOP_MIN_KEYFRAMES = 5
-#: A closure against a target of few scans (see :meth:`_Slam._loop_target`) scoring under the
+#: A closure against a target of few scans (see :meth:`LoopCloser._loop_target`) scoring under the
 #: loop threshold but at least this is taken once another keyframe's closure, from at most
-#: this many keyframes before it, implies the same correction (:meth:`_Slam._propose`).
+#: this many keyframes before it, implies the same correction (:meth:`LoopCloser._propose`).
 LOOP_GROUP_MIN_SCORE = 0.2
 LOOP_GROUP_KEYFRAMES = 10
 #: Cauchy scale of loop closures, in sigmas.
@@ -180,14 +180,14 @@ CAR_EXTENT_M = 2.5
 CAR_MIN_POINTS = 30
 CAR_MIN_SCORE = 0.6
 #: Keyframes this near the car (on any floor) see the elevator core, and of what they see,
-#: what lies this near the car is matched across floors (:meth:`_Slam._core_edges`).
+#: what lies this near the car is matched across floors (:meth:`ElevatorCar.core_edges`).
 CORE_RADIUS_M = 4.0
 CORE_REACH_M = 6.0
 #: How far the car at a ride can be from where the rides' chain of car matches puts it.
 CAR_WINDOW_M = 0.3
 CAR_WINDOW_RAD = math.radians(5.0)
 #: A ride none of whose car keyframes is found within CAR_WINDOW is looked for this far out
-#: (:meth:`_Slam._car_beyond`): a minute's drive without the laser at half a metre a second
+#: (:meth:`ElevatorCar._car_beyond`): a minute's drive without the laser at half a metre a second
 #: leaves odometry metres and tens of degrees off (6 m and 19 degrees in the simulated run),
 #: and a turn of 45 degrees stays clear of the box's own symmetries (a half turn, a quarter
 #: turn of a square car).
@@ -288,6 +288,6 @@ REFINE_ODOMETRY_INFLATION = 3.0
 #: (docs/decisions.md, "The last alignment against a finer field").
 FINISHED_MAP_FIELD_SCALE = 0.5
 #: In the graph solve before the refinement every kind of edge with at least this many edges
-#: is weighed by its own scatter against the solved graph (:meth:`_Slam._weigh_by_scatter`).
+#: is weighed by its own scatter against the solved graph (:meth:`FinalSolve._weigh_by_scatter`).
 SCATTER_KINDS = ("odometry", "match", "ride", "loop", "car")
 MIN_SCATTER_EDGES = 30

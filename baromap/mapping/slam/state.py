@@ -1,5 +1,10 @@
-"""The state one SLAM run keeps while it is fed keyframes, shared by its parts (the front
-end, loop closure, the car, the search after a silence, the last solve)."""
+"""What one SLAM run keeps while it is fed keyframes, in the parts the front end, loop
+closure, the car, the search after a silence and the last solve are handed: the keyframes
+(:class:`Keyframes`, fixed before the run), the submaps (:class:`Submaps`), the pose graph
+with its closures (:class:`Chain`) and what the run learns about odometry
+(:class:`OdometryLearning`). Each part keeps its own state (the front end its doubt, loop
+closure the closures that wait, the car its closures, the search after a silence the lost
+chain); the pose graph in :class:`Chain` is where they all put their edges and poses."""
 
 from __future__ import annotations
 
@@ -12,23 +17,15 @@ import structlog
 
 from baromap.arrays import BoolArray, FloatArray, IntArray
 from baromap.mapping import se2
-from baromap.mapping.odometry_calibration import OdometryCalibration, OdometryNoise
+from baromap.mapping.odometry_calibration import OdometryCalibration, OdometryNoise, fit_noise
 from baromap.mapping.pose_graph import Edge, PoseGraph
-from baromap.mapping.scan_matcher import LikelihoodField, MatchResult, SearchWindow
+from baromap.mapping.scan_matcher import LikelihoodField, SearchWindow
 from baromap.mapping.scans import ScanBlock, voxel_filter
-from baromap.mapping.slam.measurement import (
-    match_information,
-    rotate_information,
-    spread_information,
-)
+from baromap.mapping.slam.measurement import edge_covariance, rotate_information
 from baromap.mapping.slam.settings import (
     CAR_EXTENT_M,
     CAR_MIN_POINTS,
-    LOOP_ROBUST_C,
-    LOOP_SIGMA_M,
-    LOOP_SIGMA_RAD,
-    MATCH_SIGMA_M,
-    MATCH_SIGMA_RAD,
+    MIN_NOISE_STEPS,
     ODOMETRY_SIGMA_M,
     ODOMETRY_SIGMA_RAD,
     SOLVE_ABOVE_CHI2,
@@ -121,10 +118,10 @@ class SubmapIndex:
         self.tried_at = np.append(self.tried_at, -np.inf)
 
 
-class SlamState:
-    """The state of one SLAM run and the steps every part of it takes: a keyframe's
-    odometry, its place in the submaps, a match or closure entering the graph, the solve
-    a disagreeing closure asks for."""
+class Keyframes:
+    """The run as the SLAM sees it before it places anything: the keyframes' scans, floors,
+    visits and clouds, the odometry at each, and which steps between keyframes the odometry
+    did not measure. Nothing in it changes while the run is fed."""
 
     def __init__(
         self,
@@ -174,46 +171,12 @@ class SlamState:
         self.kf_floor = kf_floor
         self.kf_visit = kf_visit
         self.clouds = KeyframeClouds(scans, odom, kf_scan, config)
-        self.graph = PoseGraph()
-        self.active: list[Submap] = []
-        self.finished: list[Submap] = []
-        self.cache = SubmapCache(SUBMAP_MEMORY_BYTES)
-        self.finished_index = SubmapIndex()
-        self.loops: list[tuple[int, int]] = []
-        self.stats: Counter[str] = Counter()
-        self.visit_start = 0
-        self.last_closure = 0  # keyframe of the last accepted closure (or visit start)
-        #: keyframe of the last front-end step the scan could not vouch for (a weak, refused
-        #: or missing match: odometry or a doubtful match placed it), -1 for none
-        self.last_doubtful = -1
-        self.unsolved: list[int] = []  # loop edges added since the last solve
-        #: closures under the threshold waiting for another to agree (see _propose)
-        self.pending: list[tuple[Edge, float]] = []
-        #: those of them beyond the drift model, searched for again (see _follow_beyond)
-        self.beyond: list[Edge] = []
-        #: closures against a target the run frames on one side only, kept until the visit
-        #: ends in case no closure framed on both sides comes (see _settle_deferred)
-        self.deferred: list[tuple[Edge, float]] = []
-        self.car_edges: list[tuple[int, int]] = []
-        #: keyframes reached by a step the fitted odometry noise does not describe: beyond the
-        #: front end's window (the laser silent), or across a gap in the odometry
-        self.silent_steps: set[int] = set()
-        #: the chain after a step across the odometry's silence, until it finds its place
-        self.lost: Lost | None = None
-        #: odometry's systematic errors, learnt from front-end matches (see the module)
-        self.calibration = OdometryCalibration()
-        #: covariance of each front-matched keyframe's pose (its own frame), for calibration
-        self.front_cov: dict[int, FloatArray] = {}
-        #: steps matched at both ends, (odometric, matched): what odometry's noise is learnt from
-        self.matched_steps: list[tuple[FloatArray, FloatArray]] = []
-        #: corrected odometry's noise as the run showed it (set by finish, when it can say)
-        self.noise: OdometryNoise | None = None
 
-    def _odometry_step(self, a: int, b: int) -> FloatArray:
+    def odometry_step(self, a: int, b: int) -> FloatArray:
         """Odometry's motion from keyframe a to keyframe b, as the wheels read it."""
         return se2.between(self.odom[self.kf_scan[a]], self.odom[self.kf_scan[b]])
 
-    def _drive(self, k: int, step: FloatArray) -> FloatArray | None:
+    def drive(self, k: int, step: FloatArray) -> FloatArray | None:
         """The odometric ``step`` to keyframe k as the odometry drove it: its path and every
         turn on the way, as a step (path, 0, turn); None when the odometry came only with
         the scans."""
@@ -222,7 +185,9 @@ class SlamState:
         path, turn = self.travel[self.kf_scan[k]] - self.travel[self.kf_scan[k - 1]]
         return np.array([max(path, math.hypot(step[0], step[1])), 0.0, max(turn, abs(step[2]))])
 
-    def _odometry_sigmas(self, step: FloatArray) -> tuple[float, float]:
+    def odometry_sigmas(self, step: FloatArray) -> tuple[float, float]:
+        """What odometry can have got wrong over ``step`` as the configuration says (the
+        front end's search sigmas)."""
         config = self.config
         dist = math.hypot(step[0], step[1])
         sigma_xy = ODOMETRY_SIGMA_M + config.odometry_sigma_m_per_m * dist
@@ -233,73 +198,79 @@ class SlamState:
         )
         return sigma_xy, sigma_theta
 
-    def _insert(self, k: int) -> None:
-        config = self.config
+
+class Submaps:
+    """The submaps: the two being built around the chain, and the finished ones (their
+    fields cached within SUBMAP_MEMORY_BYTES, indexed for loop closure)."""
+
+    def __init__(self, keyframes: Keyframes) -> None:
+        self.keyframes = keyframes
+        self.active: list[Submap] = []
+        self.finished: list[Submap] = []
+        self.cache = SubmapCache(SUBMAP_MEMORY_BYTES)
+        self.index = SubmapIndex()
+
+    def insert(self, k: int, poses: FloatArray) -> None:
+        """Keyframe k (at ``poses[k]``) into the submaps being built; a new one begins every
+        ``submap_m`` of path or SUBMAP_MAX_KEYFRAMES, and the oldest of three is finished."""
+        config = self.keyframes.config
+        clouds = self.keyframes.clouds
         newest = self.active[-1] if self.active else None
         if (
             newest is None
-            or self.clouds.path_m(newest.anchor, k) >= config.submap_m
+            or clouds.path_m(newest.anchor, k) >= config.submap_m
             or len(newest.keyframes) >= SUBMAP_MAX_KEYFRAMES
         ):
             self.active.append(
                 Submap(
                     k,
-                    int(self.kf_floor[k]),
+                    int(self.keyframes.kf_floor[k]),
                     config.resolution_m,
                     config.resolution_m,
-                    self.clouds.surfaces,
+                    clouds.surfaces,
                 )
             )
             if len(self.active) > 2:
-                self._finish_submap(self.active.pop(0))
-        poses = self.graph.poses
+                self._finish(self.active.pop(0))
         for sub in self.active:
             sub.insert(k, se2.between(poses[sub.anchor], poses[k]))
 
-    def _finish_submap(self, sub: Submap) -> None:
+    def _finish(self, sub: Submap) -> None:
         sub.finish()
         if len(sub.keyframes) >= 2:
             self.finished.append(sub)
-            self.finished_index.add(sub)
+            self.index.add(sub)
             self.cache.use(sub)
 
-    def _finish_active(self) -> None:
+    def finish_active(self) -> None:
         """The submaps being built are finished: the next keyframe begins new ones."""
         while self.active:
-            self._finish_submap(self.active.pop(0))
+            self._finish(self.active.pop(0))
 
-    def _match_edge(
-        self,
-        anchor: int,
-        k: int,
-        result: MatchResult,
-        *,
-        kind: str,
-        spread: FloatArray | None = None,
-    ) -> Edge:
-        """Edge anchor -> k from a match of keyframe k made in the anchor's frame.
+    def rebuild_active(self, poses: FloatArray) -> None:
+        """A solve moved the keyframes of the submaps being built: build them again from
+        the corrected ``poses``, so the front end matches against the map as it now stands."""
+        for sub in self.active:
+            sub.relocate([se2.between(poses[sub.anchor], poses[k]) for k in sub.keyframes])
 
-        Front-end and car edges are trusted (plain least squares); loop closures get the
-        robust kernel and their own floor sigmas, and can be outvoted.
-        """
-        loop = kind in ("loop", "car")
-        info = match_information(
-            result.information,
-            LOOP_SIGMA_M if loop else MATCH_SIGMA_M,
-            LOOP_SIGMA_RAD if loop else MATCH_SIGMA_RAD,
-        )
-        if spread is not None:
-            info = spread_information(info, spread)
-        return Edge(
-            anchor,
-            k,
-            result.pose.copy(),
-            rotate_information(info, result.pose[2]),
-            kind,
-            robust_c=LOOP_ROBUST_C if loop else None,
-        )
 
-    def _accept_loop(self, edge: Edge, score: float) -> None:
+class Chain:
+    """The pose graph of the keyframes and the closures it holds: the closures enter here,
+    and the graph is solved when one disagrees with it."""
+
+    def __init__(self, submaps: Submaps, stats: Counter[str]) -> None:
+        self.graph = PoseGraph()
+        self.submaps = submaps
+        self.stats = stats
+        self.loops: list[tuple[int, int]] = []
+        self.unsolved: list[int] = []  # loop edges added since the last solve
+        self.last_closure = 0  # keyframe of the last accepted closure (or visit start)
+
+    def begin_visit(self, k: int) -> None:
+        """A visit begins at keyframe k: the ride ties it to the last, as a closure would."""
+        self.last_closure = k
+
+    def accept_loop(self, edge: Edge, score: float) -> None:
         # the largest correction a closure made to the graph as it stood: the front end's
         # drift at the first revisit after a long drive, for the bench to print
         poses = self.graph.poses
@@ -312,7 +283,9 @@ class SlamState:
         self.last_closure = max(self.last_closure, edge.j)
         log.debug("loop closure", frm=edge.i, to=edge.j, score=round(score, 3))
 
-    def _solve_if_needed(self) -> None:
+    def solve_if_needed(self) -> None:
+        """Solve the graph when a closure since the last solve disagrees with it, or
+        SOLVE_AFTER_LOOPS wait; the submaps being built follow the solve."""
         if not self.unsolved:
             return
         _, chi2 = self.graph.edge_errors(edges=np.array(self.unsolved))
@@ -320,11 +293,74 @@ class SlamState:
             self.graph.optimize(iterations=SOLVE_ITERATIONS)
             self.stats["solves"] += 1
             self.unsolved.clear()
-            self._rebuild_active()
+            self.submaps.rebuild_active(self.graph.poses)
 
-    def _rebuild_active(self) -> None:
-        """The solve moved the keyframes of the submaps being built: build them again from
-        the corrected poses, so the front end matches against the map as it now stands."""
-        poses = self.graph.poses
-        for sub in self.active:
-            sub.relocate([se2.between(poses[sub.anchor], poses[k]) for k in sub.keyframes])
+
+class SlamPart:
+    """What every part of a run is handed: the keyframes it reads, the chain it puts its
+    edges and poses into, and the statistics it counts in."""
+
+    def __init__(self, keyframes: Keyframes, chain: Chain, stats: Counter[str]) -> None:
+        self.keyframes = keyframes
+        self.clouds = keyframes.clouds
+        self.config = keyframes.config
+        self.kf_scan = keyframes.kf_scan
+        self.kf_floor = keyframes.kf_floor
+        self.kf_visit = keyframes.kf_visit
+        self.chain = chain
+        self.stats = stats
+
+
+class OdometryLearning:
+    """What the run teaches about odometry: its systematic errors, learnt from front-end
+    matches (:mod:`baromap.mapping.odometry_calibration`), and, at the end, the noise
+    corrected odometry still shows against the steps matched at both ends."""
+
+    def __init__(self, config: SlamConfig) -> None:
+        self.config = config
+        self.calibration = OdometryCalibration()
+        #: covariance of each front-matched keyframe's pose (its own frame), for calibration
+        self.front_cov: dict[int, FloatArray] = {}
+        #: steps matched at both ends, (odometric, matched): what odometry's noise is learnt from
+        self.matched_steps: list[tuple[FloatArray, FloatArray]] = []
+        #: corrected odometry's noise as the run showed it (set at the end, when it can say)
+        self.noise: OdometryNoise | None = None
+
+    def learn(self, k: int, read: FloatArray, edge: Edge) -> None:
+        """Keyframe k was matched: with k - 1 matched too, the step between them is measured at
+        both ends, a sample of what odometry got wrong (:mod:`odometry_calibration`)."""
+        # k's pose, in k's own frame
+        cov = edge_covariance(edge.information)
+        self.front_cov[k] = cov
+        before = self.front_cov.get(k - 1)
+        if before is not None:
+            # k's covariance in the frame of k - 1 (k stands turned by z's heading in it)
+            in_before = rotate_information(cov, -float(edge.z[2]))
+            self.calibration.observe(read, edge.z, before + in_before)
+            self.matched_steps.append((read.copy(), edge.z.copy()))
+
+    def fit_noise(self) -> OdometryNoise | None:
+        """Corrected odometry's noise, fitted to the matched steps' residuals (None when too
+        few steps were matched at both ends to say); kept as :attr:`noise`."""
+        self.noise = self._fit_noise()
+        return self.noise
+
+    def _fit_noise(self) -> OdometryNoise | None:
+        if len(self.matched_steps) < MIN_NOISE_STEPS:
+            return None
+        read = np.array([r for r, _ in self.matched_steps])
+        matched = np.array([m for _, m in self.matched_steps])
+        corrected = np.array([self.calibration.correct(r) for r in read])
+        residuals = matched - corrected
+        residuals[:, 2] = se2.wrap(residuals[:, 2])
+        noise = fit_noise(residuals, np.hypot(read[:, 0], read[:, 1]), read[:, 2])
+        xy, theta = noise.sigmas(self.config.keyframe_m, 0.0)
+        _, turn = noise.sigmas(0.0, self.config.keyframe_rad)
+        log.info(
+            "odometry noise",
+            steps=len(read),
+            sigma_m_per_keyframe_step=round(xy, 4),
+            sigma_deg_per_keyframe_step=round(math.degrees(theta), 3),
+            sigma_deg_per_keyframe_turn=round(math.degrees(turn), 3),
+        )
+        return noise
