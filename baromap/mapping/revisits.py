@@ -33,11 +33,11 @@ Choices, and why:
   such a point's distance is large under every trajectory and counts 0.2 m whatever its
   size, the same offset for all trajectories compared. The disagreements in question (the
   ATE against GMapping is 0.06-0.14 m) count in full below 0.2 m, and two different surfaces
-  are rarely that close. A median per scan was tried first: a scan overlapping its partners
-  by less than half scores its non-overlap, and on Freiburg 079 those scans made most of the
-  mean over scans (68-72 mm, where the median scan scores 9-12 mm); the median over scans
-  instead hid a trajectory misplaced in one part of the building (MRPT's icp-slam on seed 1,
-  relations 0.118 m against 0.046-0.049 m on the other seeds, scored as well as those).
+  are rarely that close. Not a median per scan: a scan overlapping its partners by less than
+  half would score its non-overlap, and on Freiburg 079 those scans would make most of the
+  mean over scans (68-72 mm, where the median scan scores 9-12 mm); nor a median over scans,
+  which hides a trajectory misplaced in one part of the building (MRPT's icp-slam on seed 1,
+  relations 0.118 m against 0.046-0.049 m on the other seeds, scores as well as those).
 
 It measures self-consistency, not truth: a trajectory bent smoothly between two revisits, or
 along a corridor seen once, is as consistent as a straight one. Whether it ranks trajectories
@@ -72,8 +72,8 @@ MAX_TURN_DEG = 60.0
 MAX_PARTNERS = 6
 #: The partners' outlines are sampled this finely: distances below it are not resolved.
 SPACING_M = 0.02
-#: Beams beyond this are left out (far returns graze and scatter). The SLAM's own range when
-#: the measure was validated; kept since, so its figures stay comparable.
+#: Beams beyond this are left out (far returns graze and scatter). The range the measure is
+#: validated at (against the ground-truth relations), so its figures stay comparable.
 MAX_RANGE_M = 20.0
 #: A scan's points used as queries, spread evenly over its beams.
 QUERY_BEAMS = 90

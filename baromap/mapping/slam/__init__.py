@@ -48,6 +48,13 @@ moves the map), not after every keyframe.
 
 Scans that are not keyframes get the corrected pose of the keyframes around them: odometry
 between the two, with the correction the graph made to that stretch spread along it.
+
+The code: :func:`run_slam` feeds the keyframes one by one to parts that each keep their own
+state and are handed what they use: the keyframes and what the odometry said
+(``state.Keyframes``), the submaps (``state.Submaps``), the pose graph and its closures
+(``state.Chain``), what the run learns about odometry (``state.OdometryLearning``), the front
+end (``front_end``), loop closure (``loops``), the car (``car``), the search after an
+unmeasured step (``relocation``) and the last solve (``final_solve``).
 """
 
 from baromap.mapping.slam.measurement import (
