@@ -17,6 +17,7 @@ from baromap.mapping.errors import MappingError
 from baromap.mapping.keyframes import motion_spaced
 from baromap.mapping.pose_graph import Edge, PoseGraph
 from baromap.mapping.refine import Pull, refine_batch
+from baromap.mapping.scan_matcher import LikelihoodField
 from baromap.mapping.scans import ScanBlock
 from baromap.mapping.slam.car import ElevatorCar
 from baromap.mapping.slam.final_solve import FinalSolve
@@ -307,46 +308,61 @@ class _Slam:
         poses = scan_poses(run.odom, run.kf_scan, kf_poses, silence=self._sides_of_silences())
         is_kf = np.zeros(len(poses), dtype=bool)
         is_kf[run.kf_scan] = True
-        # odometric distance of every scan to the nearer keyframe (how much odometry it holds)
-        travelled = np.concatenate(
-            [[0.0], np.cumsum(np.hypot(*np.diff(run.odom[:, :2], axis=0).T))]
-        )
-        kf_travel = travelled[run.kf_scan]
-        pos = np.clip(np.searchsorted(kf_travel, travelled), 1, max(len(kf_travel) - 1, 1))
-        after = np.minimum(pos, len(kf_travel) - 1)
-
-        def to_nearer_keyframe(along: FloatArray) -> FloatArray:
-            at_kf = along[run.kf_scan]
-            return np.minimum(np.abs(along - at_kf[pos - 1]), np.abs(at_kf[after] - along))
-
-        to_kf = to_nearer_keyframe(travelled)
-        turned = np.concatenate([[0.0], np.cumsum(np.abs(se2.wrap(np.diff(run.odom[:, 2]))))])
-        turn_to_kf = to_nearer_keyframe(turned)
+        to_kf, turn_to_kf = _odometry_to_nearer_keyframe(run.odom, run.kf_scan)
         for f in np.unique(run.kf_floor):
             todo = np.flatnonzero((floor == f) & ~is_kf)
             if len(todo) == 0:
                 continue
-            ids = np.flatnonzero(run.kf_floor == f)
-            world = np.concatenate(
-                [se2.transform_points(kf_poses[k], run.clouds.surfaces[k]) for k in ids]
-            )
-            fld = finished_map_field(world, config.resolution_m)
+            fld = self._floor_field(f, kf_poses)
             # a few thousand scans at a time: each is fitted on its own, and every beam of a
             # long run's scans at once would hold gigabytes
             for part in np.array_split(todo, -(-len(todo) // REGISTER_CHUNK)):
                 points, owner = scans.sampled_endpoints(part, config.max_range_m, REGISTER_BEAMS)
-                d = to_kf[part]
-                if self.odometry.noise is not None:
-                    pull = Pull(*self.odometry.noise.sigmas_many(d, turn_to_kf[part]))
-                else:
-                    pull = Pull(
-                        ODOMETRY_SIGMA_M + config.odometry_sigma_m_per_m * d,
-                        ODOMETRY_SIGMA_RAD + math.radians(config.odometry_sigma_deg_per_m) * d,
-                    )
+                pull = self._pull(to_kf[part], turn_to_kf[part])
                 out = refine_batch(fld, points, owner, poses[part], pull)
                 poses[part[out.usable]] = out.poses[out.usable]
                 self.stats["registered"] += int(out.usable.sum())
         return poses
+
+    def _floor_field(self, f: int, kf_poses: FloatArray) -> LikelihoodField:
+        """The finished map of floor f (its keyframes at ``kf_poses``), to match scans on."""
+        run = self.keyframes
+        ids = np.flatnonzero(run.kf_floor == f)
+        world = np.concatenate(
+            [se2.transform_points(kf_poses[k], run.clouds.surfaces[k]) for k in ids]
+        )
+        return finished_map_field(world, self.config.resolution_m)
+
+    def _pull(self, d: FloatArray, turn: FloatArray) -> Pull:
+        """What an interpolated pose can be wrong by, ``d`` metres and ``turn`` radians of
+        odometry from the keyframe it is pinned to: corrected odometry's noise as the run
+        showed it, or the front end's search sigmas where the run could not fit it."""
+        config = self.config
+        noise = self.odometry.noise
+        if noise is not None:
+            return Pull(*noise.sigmas_many(d, turn))
+        return Pull(
+            ODOMETRY_SIGMA_M + config.odometry_sigma_m_per_m * d,
+            ODOMETRY_SIGMA_RAD + math.radians(config.odometry_sigma_deg_per_m) * d,
+        )
+
+
+def _odometry_to_nearer_keyframe(
+    odom: FloatArray, kf_scan: IntArray
+) -> tuple[FloatArray, FloatArray]:
+    """Every scan's odometric travel and turn to the nearer of the keyframes around it: how
+    much odometry its interpolated pose holds."""
+    travelled = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(odom[:, :2], axis=0).T))])
+    kf_travel = travelled[kf_scan]
+    pos = np.clip(np.searchsorted(kf_travel, travelled), 1, max(len(kf_travel) - 1, 1))
+    after = np.minimum(pos, len(kf_travel) - 1)
+
+    def to_nearer_keyframe(along: FloatArray) -> FloatArray:
+        at_kf = along[kf_scan]
+        return np.minimum(np.abs(along - at_kf[pos - 1]), np.abs(at_kf[after] - along))
+
+    turned = np.concatenate([[0.0], np.cumsum(np.abs(se2.wrap(np.diff(odom[:, 2]))))])
+    return to_nearer_keyframe(travelled), to_nearer_keyframe(turned)
 
 
 def run_slam(
