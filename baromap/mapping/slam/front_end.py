@@ -84,32 +84,11 @@ class FrontEnd(SlamPart):
             self.stats["front_skipped"] += 1
             self.last_doubtful = k
             return
-        config = self.config
         sub = self.submaps.active[0]
         anchor = self.chain.graph.poses[sub.anchor]
         local_guess = se2.between(anchor, guess)
-        linear = min(MAX_FRONT_WINDOW_M, max(MIN_WINDOW_M, WINDOW_SIGMAS * sigma_xy))
-        angular = min(MAX_FRONT_WINDOW_RAD, max(MIN_WINDOW_RAD, WINDOW_SIGMAS * sigma_theta))
-        window = search_window(
-            linear,
-            angular,
-            lattice_angle_step(self.clouds.typical_range[k], config.resolution_m),
-            config.resolution_m,
-        )
         prior = Prior(local_guess, sigma_xy, sigma_theta, PRIOR_WEIGHT)
-        if self.clouds.extent[k] < CAR_EXTENT_M:
-            # a small enclosure (the elevator car): its walls are a metre away, where a 5 cm
-            # cell blurs a degree of rotation, so it is matched in a field twice as fine made
-            # of what the submap's keyframes saw of it
-            fld = self._fine_field(sub, local_guess)
-            window = SearchWindow(window.linear_m, window.angular_rad, MIN_ANGLE_STEP_RAD)
-            result = match(fld, points, local_guess, window, prior=prior)
-        else:
-            fld = sub.field
-            coarse = sub.coarse(window.coarse_step_cells) if window.coarse_step_cells > 1 else None
-            result = match(fld, points, local_guess, window, coarse_field=coarse, prior=prior)
-            if result.score < FRONT_RETRY_BELOW and abs(read[2]) > FRONT_RETRY_TURN_RAD:
-                result = self._retry_after_turn(k, sub.anchor, result, window=window, prior=prior)
+        fld, result = self._search(k, sub, prior, turn=float(read[2]))
         ambiguous = result.runner_up >= FRONT_MAX_AMBIGUITY * result.score
         spread = self._ridge(fld, points, result) if ambiguous else None
         if spread is not None:
@@ -117,7 +96,7 @@ class FrontEnd(SlamPart):
             self.stats["front_ridges"] += 1
         if result.score < FRONT_RETRY_BELOW or ambiguous:
             self.last_doubtful = k
-        if result.score < config.front_min_score:
+        if result.score < self.config.front_min_score:
             self.stats["front_failures"] += 1
             return
         if ambiguous:
@@ -138,6 +117,38 @@ class FrontEnd(SlamPart):
         self.chain.graph.add_edge(edge)
         self.stats["front_matches"] += 1
         self.odometry.learn(k, read, edge)
+
+    def _search(
+        self, k: int, sub: Submap, prior: Prior, *, turn: float
+    ) -> tuple[LikelihoodField, MatchResult]:
+        """Keyframe k matched against the submap ``sub`` from the ``prior``'s pose (in the
+        anchor's frame), within three of its sigmas: the field it was matched in and the
+        match. ``turn``: the odometric turn since the last keyframe (a poor match after a
+        turn is tried again, :meth:`_retry_after_turn`)."""
+        config = self.config
+        points = self.clouds.points[k]
+        local_guess = prior.pose
+        linear = min(MAX_FRONT_WINDOW_M, max(MIN_WINDOW_M, WINDOW_SIGMAS * prior.sigma_xy))
+        angular = min(MAX_FRONT_WINDOW_RAD, max(MIN_WINDOW_RAD, WINDOW_SIGMAS * prior.sigma_theta))
+        window = search_window(
+            linear,
+            angular,
+            lattice_angle_step(self.clouds.typical_range[k], config.resolution_m),
+            config.resolution_m,
+        )
+        if self.clouds.extent[k] < CAR_EXTENT_M:
+            # a small enclosure (the elevator car): its walls are a metre away, where a 5 cm
+            # cell blurs a degree of rotation, so it is matched in a field twice as fine made
+            # of what the submap's keyframes saw of it
+            fld = self._fine_field(sub, local_guess)
+            window = SearchWindow(window.linear_m, window.angular_rad, MIN_ANGLE_STEP_RAD)
+            return fld, match(fld, points, local_guess, window, prior=prior)
+        fld = sub.field
+        coarse = sub.coarse(window.coarse_step_cells) if window.coarse_step_cells > 1 else None
+        result = match(fld, points, local_guess, window, coarse_field=coarse, prior=prior)
+        if result.score < FRONT_RETRY_BELOW and abs(turn) > FRONT_RETRY_TURN_RAD:
+            result = self._retry_after_turn(k, sub.anchor, result, window=window, prior=prior)
+        return fld, result
 
     def _retry_after_turn(
         self,
