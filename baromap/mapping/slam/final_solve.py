@@ -200,8 +200,29 @@ class FinalSolve(SlamPart):
     def _refine(self) -> None:
         """Each floor's keyframes against the map of the others (see refine.py), in a graph of
         odometry, the elevator edges and the core; match and loop edges have had their say."""
-        config = self.config
         poses = self.chain.graph.poses.copy()
+        fits = self._map_fits(poses)
+        # odometry as the whole run taught it (see _odometry_as_learnt)
+        kept = [e for e in self.chain.graph.edges if e.kind in ("odometry", "ride", "car")]
+        kept += self.car.core_edges(poses)
+        if len(np.unique(self.kf_floor)) > 1:
+            self.chain.graph = self._solve_with_floor_frames(poses, kept, fits)
+        else:  # one floor: nothing to turn it against, the fits hold it where it is
+            graph = graph_of(poses, kept)
+            graph.set_priors(fits.nodes, fits.poses, fits.information)
+            # the fits are poses in the map's frame, so they fix the frame themselves: pinning
+            # the first keyframe where the graph solve left it as well (the solver's usual
+            # anchor) would keep the run's start off its own map, the place a run comes back
+            # to at its end (Acapulco seed 0: pinned, scan 0 lies 75 mm from its revisits;
+            # free, 26 mm; GMapping's poses 28 mm)
+            graph.optimize(iterations=FINAL_ITERATIONS, anchor=None if len(fits.nodes) else 0)
+            self.chain.graph = graph
+        self.stats["refined"] = len(fits.nodes)
+
+    def _map_fits(self, poses: FloatArray) -> _MapFits:
+        """Each floor's keyframes (at ``poses``) fitted to the map of the others of their
+        floor: the keyframes of one parity against a map of the other's."""
+        config = self.config
         nodes: list[IntArray] = []
         measured: list[FloatArray] = []
         infos: list[FloatArray] = []
@@ -223,27 +244,11 @@ class FinalSolve(SlamPart):
                 nodes.append(mine[out.usable])
                 measured.append(out.poses[out.usable])
                 infos.append(info[out.usable])
-        # odometry as the whole run taught it (see _odometry_as_learnt)
-        kept = [e for e in self.chain.graph.edges if e.kind in ("odometry", "ride", "car")]
-        kept += self.car.core_edges(poses)
-        fits = _MapFits(
+        return _MapFits(
             np.concatenate(nodes) if nodes else np.zeros(0, dtype=np.int64),
             np.concatenate(measured) if nodes else np.zeros((0, 3)),
             np.concatenate(infos) if nodes else np.zeros((0, 3, 3)),
         )
-        if len(np.unique(self.kf_floor)) > 1:
-            self.chain.graph = self._solve_with_floor_frames(poses, kept, fits)
-        else:  # one floor: nothing to turn it against, the fits hold it where it is
-            graph = graph_of(poses, kept)
-            graph.set_priors(fits.nodes, fits.poses, fits.information)
-            # the fits are poses in the map's frame, so they fix the frame themselves: pinning
-            # the first keyframe where the graph solve left it as well (the solver's usual
-            # anchor) would keep the run's start off its own map, the place a run comes back
-            # to at its end (Acapulco seed 0: pinned, scan 0 lies 75 mm from its revisits;
-            # free, 26 mm; GMapping's poses 28 mm)
-            graph.optimize(iterations=FINAL_ITERATIONS, anchor=None if len(fits.nodes) else 0)
-            self.chain.graph = graph
-        self.stats["refined"] = len(fits.nodes)
 
     def _solve_with_floor_frames(
         self, poses: FloatArray, edges: list[Edge], fits: _MapFits
