@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import structlog
 
-from baromap.arrays import FloatArray
+from baromap.arrays import FloatArray, IntArray
 from baromap.mapping import se2
 from baromap.mapping.pose_graph import Edge
 from baromap.mapping.refine import concatenate, refine_batch
@@ -248,7 +248,6 @@ class ElevatorCar(SlamPart):
         if not cars:
             return []
         center = poses[cars, :2].mean(axis=0)
-        res = self.config.resolution_m
         near = np.hypot(poses[:, 0] - center[0], poses[:, 1] - center[1]) < CORE_RADIUS_M
         visits = {
             int(v): np.flatnonzero(near & (self.kf_visit == v)) for v in np.unique(self.kf_visit)
@@ -260,35 +259,46 @@ class ElevatorCar(SlamPart):
             self.stats["core_edges"] = 0
             return edges
         for v, ids in visits.items():
-            anchor = int(ids[0])
-            clouds = []
-            for k in ids:
-                pts = se2.transform_points(poses[k], self.clouds.surfaces[k])
-                keep = np.hypot(pts[:, 0] - center[0], pts[:, 1] - center[1]) < CORE_REACH_M
-                clouds.append(se2.transform_points(se2.inverse(poses[anchor]), pts[keep]))
-            fld = finished_map_field(np.concatenate(clouds), res)
             others = np.concatenate([o for w, o in visits.items() if w != v])
-            clouds = []
-            for k in others:
-                pts = self.clouds.points[k]
-                world = se2.transform_points(poses[k], pts)
-                clouds.append(
-                    pts[np.hypot(world[:, 0] - center[0], world[:, 1] - center[1]) < CORE_REACH_M]
-                )
-            points, owner = concatenate(clouds)
-            start = se2.between(poses[anchor][None, :], poses[others])
-            out = refine_batch(fld, points, owner, start)
-            for n in np.flatnonzero(out.usable):
-                info = match_information(out.information[n], LOOP_SIGMA_M, LOOP_SIGMA_RAD)
-                edges.append(
-                    Edge(
-                        anchor,
-                        int(others[n]),
-                        out.poses[n].copy(),
-                        rotate_information(info, out.poses[n, 2]),
-                        "core",
-                        robust_c=LOOP_ROBUST_C,
-                    )
-                )
+            edges += self._core_matches(poses, center, ids, others)
         self.stats["core_edges"] = len(edges)
+        return edges
+
+    def _core_matches(
+        self, poses: FloatArray, center: FloatArray, ids: IntArray, others: IntArray
+    ) -> list[Edge]:
+        """The keyframes ``others`` (of the other visits, near the car at ``center``) matched
+        against the core as the visit's keyframes ``ids`` saw it, in the frame of the first
+        of them: one robust edge each where the match is usable."""
+        res = self.config.resolution_m
+        edges: list[Edge] = []
+        anchor = int(ids[0])
+        clouds = []
+        for k in ids:
+            pts = se2.transform_points(poses[k], self.clouds.surfaces[k])
+            keep = np.hypot(pts[:, 0] - center[0], pts[:, 1] - center[1]) < CORE_REACH_M
+            clouds.append(se2.transform_points(se2.inverse(poses[anchor]), pts[keep]))
+        fld = finished_map_field(np.concatenate(clouds), res)
+        clouds = []
+        for k in others:
+            pts = self.clouds.points[k]
+            world = se2.transform_points(poses[k], pts)
+            clouds.append(
+                pts[np.hypot(world[:, 0] - center[0], world[:, 1] - center[1]) < CORE_REACH_M]
+            )
+        points, owner = concatenate(clouds)
+        start = se2.between(poses[anchor][None, :], poses[others])
+        out = refine_batch(fld, points, owner, start)
+        for n in np.flatnonzero(out.usable):
+            info = match_information(out.information[n], LOOP_SIGMA_M, LOOP_SIGMA_RAD)
+            edges.append(
+                Edge(
+                    anchor,
+                    int(others[n]),
+                    out.poses[n].copy(),
+                    rotate_information(info, out.poses[n, 2]),
+                    "core",
+                    robust_c=LOOP_ROBUST_C,
+                )
+            )
         return edges
