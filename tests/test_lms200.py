@@ -567,6 +567,42 @@ def test_format_errors_for_self_contradicting_scans() -> None:
     bad_units = L.encode_reply(L.Reply.SCAN, (1 | 0x8000).to_bytes(2, "little") + b"\x00\x00")
     out = decode(lying_count + bad_units + REPLY)
     assert [getattr(m, "reason", None) for m in out] == ["format", "format", None]
+    too_short = L.encode_reply(L.Reply.SCAN, b"\x01")  # not even a count field
+    assert decode(too_short) == [BadFrame("format", len(too_short), too_short)]
+
+
+def test_decoded_telegrams_carry_their_wire_size() -> None:
+    items = [L.status_request(), REPLY, L.encode_scan([1, 2, 3])]
+    decoded = decode(b"".join(items))
+    assert [m.wire_size for m in decoded] == [len(item) for item in items]
+
+
+def test_scans_equal_only_in_every_field() -> None:
+    base = L.ScanTelegram(L.scan_count_word(3), np.array([1, 2, 3]), extra=b"\x01")
+    assert base == L.ScanTelegram(L.scan_count_word(3), np.array([1, 2, 3]), extra=b"\x01")
+    others = [
+        dataclasses.replace(base, count_word=L.scan_count_word(3, "cm")),
+        dataclasses.replace(base, status=0x11),
+        dataclasses.replace(base, extra=b"\x02"),
+        dataclasses.replace(base, address=0x81),
+        dataclasses.replace(base, values=np.array([1, 2, 4])),
+    ]
+    assert all(other != base for other in others)
+
+
+def test_a_scan_keeps_its_own_read_only_words() -> None:
+    """Writeable words are copied (the caller's array stays the caller's); read-only uint16
+    words are shared, not copied."""
+    words = np.array([1, 2, 3], dtype=np.uint16)
+    scan = L.ScanTelegram(L.scan_count_word(3), words)
+    words[0] = 9
+    assert scan.values.tolist() == [1, 2, 3] and words.flags.writeable
+    assert not scan.values.flags.writeable
+    assert L.ScanTelegram(scan.count_word, scan.values).values is scan.values
+    assert L.scan_count_word(3) == 3 | 1 << 14  # whole (not partial), in mm, unless told
+    for values in ([70000], [-1]):
+        with pytest.raises(EncodeError, match=r"^scan values must fit in 16 bits$"):
+            L.encode_scan(values)
 
 
 # -- scans as LaserScans ---------------------------------------------------------------------
