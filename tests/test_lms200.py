@@ -254,11 +254,11 @@ def test_status_reply_fields_sit_at_sicktoolboxs_offsets() -> None:
     parsed = L.parse_status_reply(telegram)
     assert parsed == dataclasses.replace(report, software_version="V3.2   ", prom_version="P012345")
     # the shortest reply that holds every field; a longer version string is cut to 7
-    shortest = L.status_reply(dataclasses.replace(report, software_version="V03.21XYZ"), size=130)
-    (telegram,) = decode(shortest)
+    longer = dataclasses.replace(report, software_version="V03.21XYZ", prom_version="P1")
+    (telegram,) = decode(L.status_reply(longer, size=130))
     parsed = L.parse_status_reply(telegram)
     assert len(telegram.data) == 130 and parsed is not None
-    assert parsed.software_version == "V03.21X"
+    assert parsed.software_version == "V03.21X" and parsed.prom_version == "P1     "
     with pytest.raises(EncodeError, match="130"):
         L.status_reply(report, size=129)
     cut = L.Telegram(L.SENSOR_ADDRESS, L.Reply.STATUS, telegram.data[:129], 0x10)
@@ -266,6 +266,11 @@ def test_status_reply_fields_sit_at_sicktoolboxs_offsets() -> None:
     # bytes that are no ASCII read as replacement characters, never as an error
     garbled = L.Telegram(L.SENSOR_ADDRESS, L.Reply.STATUS, b"\xff" * 130, 0x10)
     parsed = L.parse_status_reply(garbled)
+    assert parsed is not None and parsed.software_version == "\ufffd" * 7
+    assert parsed.prom_version == "\ufffd" * 7
+    # UTF-8 is no ASCII either: each of its bytes is a replacement character of its own
+    utf8 = L.Telegram(L.SENSOR_ADDRESS, L.Reply.STATUS, "é".encode() * 65, 0x10)
+    parsed = L.parse_status_reply(utf8)
     assert parsed is not None and parsed.software_version == "\ufffd" * 7
     assert parsed.prom_version == "\ufffd" * 7
 
@@ -445,6 +450,7 @@ def test_type_reply_text_loses_only_trailing_padding() -> None:
         return L.parse_type_reply(L.Telegram(L.SENSOR_ADDRESS, L.Reply.TYPE, data, 0x10))
 
     assert kind(b" LMS200;30106 \x00\x00") == " LMS200;30106"
+    assert kind(b"LMS200X\x00") == "LMS200X"
     assert kind(b"LMS\xc3\xa9\xff") == "LMS\ufffd\ufffd\ufffd"  # not ASCII: never an error
 
 
@@ -732,6 +738,15 @@ def test_range_words_carry_explicit_flags() -> None:
     words = L.range_words([1.0, 2.0, 3.0], flags, units="mm")
     assert list(words) == [0x1FFE, 2000 | 0x4000, 3000]
     assert words.dtype == np.uint16 and not words.flags.writeable
+
+
+def test_word_tables_are_float32_ranges_and_uint16_flags() -> None:
+    """The definition the cached tables are built from, called directly (the cache would
+    keep a table built before a change)."""
+    words = np.array([1000, 0x1FFF, 1000 | 0x2000], dtype=np.uint16)
+    ranges, flags = L._words_to_ranges_and_flags(words, "mm", 13)
+    assert ranges.dtype == np.float32 and flags.dtype == np.uint16
+    assert ranges[0] == np.float32(1.0) and math.isnan(ranges[1]) and flags[2] != 0
 
 
 def test_range_words_of_wider_range_fields() -> None:

@@ -406,6 +406,13 @@ def test_one_feed_returns_every_complete_packet_and_accounts_for_every_byte() ->
     }
 
 
+def test_two_unfinished_headers_at_the_end_are_one_truncated_run() -> None:
+    decoder = P.Decoder()
+    cut = b"\xfa\xfb\x10" * 2
+    assert decoder.feed(cut) == []
+    assert decoder.flush() == [BadFrame("truncated", len(cut), cut)]
+
+
 def test_bad_checksum_resyncs_at_the_byte_after_fa() -> None:
     inner = ECHO.encode()
     count = 2 + len(inner) + 1  # a header whose body swallows a real packet
