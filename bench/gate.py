@@ -444,6 +444,10 @@ def compare(
         lines.append(text)
         if not base:
             continue
+        # judged on the seeds the baseline has
+        now = [o for o in now if (name, o.seed) in baseline]
+        failed = [o for o in now if o.failed]
+        said = sum(sum(v for k, v in o.warnings.items() if k in WATCHED) for o in now)
         if failed and not any(b.failed for b in base):
             worse.append(f"worse on {name}: failed ({failed[0].failed})")
             continue
