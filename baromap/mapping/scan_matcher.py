@@ -23,10 +23,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
-from baromap.arrays import FloatArray
+from baromap.arrays import Float32Array, FloatArray
 from baromap.mapping import se2
-
-Float32Array = npt.NDArray[np.float32]
 
 
 def kernel_radius(resolution: float, sigma: float) -> int:

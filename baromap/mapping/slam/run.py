@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import structlog
 
-from baromap.arrays import BoolArray, FloatArray, IntArray
+from baromap.arrays import BoolArray, FloatArray, Int8Array, IntArray
 from baromap.mapping import se2
 from baromap.mapping.errors import MappingError
 from baromap.mapping.keyframes import motion_spaced
@@ -37,7 +37,6 @@ from baromap.mapping.slam.settings import (
     REGISTER_CHUNK,
     TURN_AS_M,
     WINDOW_SIGMAS,
-    Int8Array,
     SlamConfig,
 )
 from baromap.mapping.slam.state import Chain, Keyframes, OdometryLearning, Submaps

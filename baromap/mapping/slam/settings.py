@@ -6,12 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-import numpy as np
-import numpy.typing as npt
-
 from baromap.errors import ConfigError
-
-Int8Array = npt.NDArray[np.int8]
 
 #: Floor label of scans taken while the barometer says the robot is between floors.
 BETWEEN_FLOORS = -1
