@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import math
 from pathlib import Path
 
 import numpy as np
@@ -145,6 +146,28 @@ def test_bad_samples_are_counted_not_raised() -> None:
     assert detector.ignored_samples == 2
     state = detector.state()
     assert state.floor_id is None and state.phase is FloorPhase.UNKNOWN
+
+
+def test_a_new_detector_knows_no_floor_and_no_level() -> None:
+    state = OnlineFloorDetector().state()
+    assert state.floors_known == 0 and state.floor_id is None and math.isnan(state.level_pa)
+
+
+def test_reference_readings_count_each_bad_one_and_correct_within_a_second() -> None:
+    """Every unusable reference reading is counted; a reading half a second after the last one
+    moves the weather correction (the station may report faster than once a second)."""
+    detector = OnlineFloorDetector()
+    for t in (1, 2):
+        detector.update_reference(PressureSample(t, float("nan")))
+    assert detector.ignored_samples == 2
+    plain, corrected = OnlineFloorDetector(), OnlineFloorDetector()
+    corrected.update_reference(PressureSample(0, P0))
+    for detector in (plain, corrected):
+        detector.update(PressureSample(NS_PER_S // 4, P0))
+    corrected.update_reference(PressureSample(NS_PER_S // 2, P0 + 50.0))
+    for detector in (plain, corrected):
+        detector.update(PressureSample(3 * NS_PER_S // 4, P0))
+    assert plain.state().level_pa == P0 and corrected.state().level_pa != P0
 
 
 def test_bad_temperatures_and_reference_readings_do_not_stop_the_detector() -> None:
