@@ -59,6 +59,7 @@ INTEGRATION_DIRS = ("daemon", "e2e", "firmware", "hardware", "live", "liveview")
 #: ``make test-heavy``, as it leaves the maps' quality over every log and variant to
 #: bench/gate.py.
 HEAVY = "heavy"
+HEAVY_TIMEOUT_S = 900
 
 
 def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool | None:
@@ -80,6 +81,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.slow)
         if item.get_closest_marker(HEAVY):
             item.add_marker(pytest.mark.slow)
+            # minutes on a loaded machine: the suite's 180 s would fail them for the load
+            item.add_marker(pytest.mark.timeout(HEAVY_TIMEOUT_S))
         group = _shared_fixture_group(item, tests_dir)
         if group:
             item.add_marker(pytest.mark.xdist_group(group))
