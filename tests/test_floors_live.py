@@ -168,10 +168,9 @@ def test_a_long_stop_without_moving_stays_in_the_car_with_odometry() -> None:
     assert moves(live(tr, odometry=False).events) == [(0, 1), (1, 2)]
 
 
-def test_while_stopped_the_state_says_so() -> None:
-    # Floor 1 is known from a first visit; on the way up again the car stops there. Without
-    # odometry nothing says the robot stays in: the stop is not yet a visit.
-    tr = trace(
+def _a_halt_at_a_known_floor() -> Trace:
+    """Floors 0, 1, 0, then up to 2 with an 8 s halt at floor 1 on the way."""
+    return trace(
         [
             Stay(0.0, 60),
             Stay(STOREY_M, 60, drive_m=3.0),
@@ -180,6 +179,12 @@ def test_while_stopped_the_state_says_so() -> None:
             Stay(2 * STOREY_M, 60, drive_m=3.0),
         ]
     )
+
+
+def test_while_stopped_the_state_says_so() -> None:
+    # Floor 1 is known from a first visit; on the way up again the car stops there. Without
+    # odometry nothing says the robot stays in: the stop is not yet a visit.
+    tr = _a_halt_at_a_known_floor()
     stop_start = tr.stays_s[3][0]
     detector = OnlineFloorDetector()
     seen = None
@@ -197,15 +202,7 @@ def test_while_stopped_the_state_says_so() -> None:
 def test_a_halt_with_the_robot_in_the_car_is_decided_at_once_and_corrected() -> None:
     # The same ride with odometry (the robot stands in the car all along): the halt at the
     # known floor is decided as the car stops there, and corrected when the car goes on.
-    tr = trace(
-        [
-            Stay(0.0, 60),
-            Stay(STOREY_M, 60, drive_m=3.0),
-            Stay(0.0, 60, drive_m=3.0),
-            Stay(STOREY_M, 8.0),
-            Stay(2 * STOREY_M, 60, drive_m=3.0),
-        ]
-    )
+    tr = _a_halt_at_a_known_floor()
     detector = OnlineFloorDetector()
     odo_t, odo_x, odo_y = tr.odometry
     o = 0
