@@ -188,7 +188,8 @@ def default_logging() -> Iterator[None]:
 
 #: Where each test's cost is appended when set: ``BAROMAP_TEST_COST=cost.tsv make test`` (then
 #: ``sort -t$'\t' -k2 -rn cost.tsv | head``). CPU seconds are the worker's and its children's,
-#: so they hold on a loaded machine, where wall times do not.
+#: so they hold on a loaded machine, where wall times do not. The pytest runs a test starts
+#: (tests/hardware/test_hil_on_twins.py) inherit the variable and append their tests too.
 COST_FILE = os.environ.get("BAROMAP_TEST_COST")
 
 
