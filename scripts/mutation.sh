@@ -36,9 +36,10 @@ case $part in
     ;;
   detector)
     only='baromap/floors/online.py'
-    # the detector's decisions (test_floors_online.py) and its live account: rides, names,
-    # corrections (test_floors_live.py); none takes more than 5 s at a load of 10
-    tests='tests/test_floors_online.py tests/test_floors_live.py'
+    # the detector's decisions (test_floors_online.py), its edges: thresholds met exactly,
+    # gaps, the first samples, finish (test_floors_online_edges.py), and its live account:
+    # rides, names, corrections (test_floors_live.py); none takes more than 5 s at a load of 10
+    tests='tests/test_floors_online.py tests/test_floors_online_edges.py tests/test_floors_live.py'
     test_timeout=60
     ;;
   *) echo "unknown part $part" >&2; exit 2 ;;

@@ -1,0 +1,309 @@
+"""The online floor detector at its edges: a threshold met exactly, a gap in the samples, the
+first decisions of a run, the rides it announces. Each test feeds a few hundred to a few
+thousand noise-free synthetic samples (milliseconds) and reads its numbers off the module's
+constants and the configuration, so a retune moves the tests with it."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+from structlog.testing import capture_logs
+
+from baromap.evaluation.floor_traces import TRACE_EPOCH_NS, Stay, Trace, trace
+from baromap.floors import FloorDetectorConfig, OnlineFloorDetector
+from baromap.floors.config import MAX_AIR_C, MIN_AIR_C
+from baromap.floors.height import pa_per_m, pressure_drop_pa
+from baromap.floors.online import MAX_WEATHER_RATE_PA_S
+from baromap.floors.replay import replay
+from baromap.messages import (
+    NS_PER_S,
+    FloorEvent,
+    FloorPhase,
+    PressureSample,
+    RideDirection,
+    RideEvent,
+    RideEventKind,
+)
+
+P0 = 97_700.0
+T_C = 15.0
+RATE_HZ = 10.0
+CONFIG = FloorDetectorConfig()
+#: Pa per metre at the start pressure: the detector's thresholds are metres times this.
+GRADIENT = pa_per_m(P0, T_C)
+
+
+def at(seconds: float) -> int:
+    return TRACE_EPOCH_NS + round(seconds * NS_PER_S)
+
+
+def feed(
+    detector: OnlineFloorDetector,
+    start_s: float,
+    end_s: float,
+    pressure: Callable[[float], float],
+) -> list[FloorEvent | RideEvent]:
+    """Samples at RATE_HZ from ``start_s`` (included) to ``end_s`` (excluded), the pressure
+    a function of the time in seconds; returns the events published meanwhile."""
+    out: list[FloorEvent | RideEvent] = []
+    for k in range(round((end_s - start_s) * RATE_HZ)):
+        s = start_s + k / RATE_HZ
+        out += detector.update(PressureSample(at(s), pressure(s), T_C))
+    return out
+
+
+def storeys_pa(storeys: float) -> float:
+    """The pressure change of climbing ``storeys`` minimum transitions (negative going up)."""
+    return -pressure_drop_pa(storeys * CONFIG.min_transition_m, P0, T_C)
+
+
+def live(
+    tr: Trace, config: FloorDetectorConfig = CONFIG, *, odometry: bool = True
+) -> OnlineFloorDetector:
+    detector, _, _ = replay(
+        tr.t_ns,
+        tr.pressure_pa,
+        tr.temperature_c,
+        config,
+        odometry=tr.odometry if odometry else None,
+    )
+    return detector
+
+
+def moves(events: list[FloorEvent] | tuple[FloorEvent, ...]) -> list[tuple[int, int]]:
+    return [(e.from_id, e.to_id) for e in events]
+
+
+def secs(t_ns: int) -> float:
+    return (t_ns - TRACE_EPOCH_NS) / NS_PER_S
+
+
+# -- a gap in the samples -----------------------------------------------------------------
+
+
+def test_the_weather_drift_is_carried_over_a_gap_in_the_samples() -> None:
+    """A gap longer than max_gap_s starts a change (the robot may have moved meanwhile),
+    measured from where the weather has taken the floor's level over the gap."""
+    drift = MAX_WEATHER_RATE_PA_S / 2
+    detector = OnlineFloorDetector(CONFIG)
+
+    def weather(s: float) -> float:
+        return P0 + drift * s
+
+    feed(detector, 0.0, 400.0, weather)  # long enough for the tracker to learn the drift
+    assert detector.phase is FloorPhase.SETTLED
+    gap = 3 * CONFIG.max_gap_s
+    resume = 400.0 + gap
+    assert detector.update(PressureSample(at(resume), weather(resume), T_C)) == []
+    state = detector.state()
+    assert state.phase is FloorPhase.CHANGING
+    # the floor's level moved with the weather by drift * gap: the robot is on it
+    carried_m = drift * gap / GRADIENT
+    assert abs(state.level_m) < carried_m / 10
+    assert feed(detector, resume + 0.1, resume + 30.0, weather) == []
+    state = detector.state()
+    assert state.phase is FloorPhase.SETTLED and abs(state.level_m) < carried_m / 10
+
+
+# -- the first samples and the state before them --------------------------------------------
+
+
+def test_the_state_is_stamped_with_the_last_sample_and_nothing_before_the_first() -> None:
+    detector = OnlineFloorDetector(CONFIG)
+    state = detector.state()
+    assert (state.t_ns, state.since_ns) == (0, 0)  # no time seen yet
+    for _ in range(2):  # each unusable first sample is counted, not only the last
+        detector.update(PressureSample(at(0.0), math.nan, T_C))
+    assert detector.ignored_samples == 2
+    feed(detector, 0.0, 1.0, lambda s: P0)
+    assert detector.state().t_ns == at(0.9) and detector.floor_id is None
+    feed(detector, 1.0, 10.0, lambda s: P0)
+    state = detector.state()
+    assert state.floor_id == 0 and state.t_ns == at(9.9)
+    # the start floor is known from the first sample that ends a still window
+    assert state.since_ns == at(CONFIG.settle_s)
+
+
+def test_without_a_reference_station_the_level_is_the_pressure() -> None:
+    detector = OnlineFloorDetector(CONFIG)
+    feed(detector, 0.0, 10.0, lambda s: P0)
+    assert detector.level == P0 and detector.smoothed == P0
+    assert detector.state().level_pa == P0
+
+
+def test_a_reference_reading_moves_the_correction_by_its_time_based_gain() -> None:
+    """One reference step of ``x`` Pa, ``dt`` after the first reading, moves the weather
+    correction by x * dt / (reference_tau_s + dt); the robot's level is its pressure less
+    that, and what it publishes is back in measured pascals."""
+    detector = OnlineFloorDetector(CONFIG)
+    detector.update_reference(PressureSample(at(0.0), P0, T_C))
+    dt = CONFIG.reference_tau_s / 4
+    step = 10.0
+    detector.update_reference(PressureSample(at(dt), P0 + step, T_C))
+    correction = step * dt / (CONFIG.reference_tau_s + dt)
+    feed(detector, 0.0, 30.0, lambda s: P0)
+    assert detector.level == pytest.approx(P0 - correction, abs=1e-6)
+    assert detector.state().level_pa == pytest.approx(P0, abs=1e-6)
+
+
+def test_levels_published_with_a_reference_station_are_measured_pressures() -> None:
+    """The weather the station sees is taken off the robot's pressure for the decisions and
+    put back in the levels published: an event's level is the pressure the robot read."""
+    weather = MAX_WEATHER_RATE_PA_S  # Pa/s, seen by both
+    tr = trace([Stay(0.0, 60), Stay(2 * CONFIG.min_transition_m, 60)], noise_pa=0.0)
+    seconds = tr.seconds()
+    robot = tr.pressure_pa + weather * seconds
+    station = (tr.t_ns, P0 + weather * seconds)
+    detector, _, _ = replay(tr.t_ns, robot, tr.temperature_c, CONFIG, reference=station)
+    (event,) = detector.events
+    at_event = robot[tr.t_ns == event.t_ns][0]
+    assert event.level_pa == pytest.approx(at_event, abs=0.5)
+    assert event.delta_m == pytest.approx(2 * CONFIG.min_transition_m, abs=0.05)
+
+
+def test_temperatures_at_the_plausible_bounds_are_glitches() -> None:
+    """A reading of exactly MIN_AIR_C or MAX_AIR_C is as implausible as one beyond: the last
+    plausible temperature stands, and heights are the same as with no reading at all."""
+    tr = trace([Stay(0.0, 60), Stay(2 * CONFIG.min_transition_m, 60)], noise_pa=0.0)
+    bounds = [MIN_AIR_C if k % 2 else MAX_AIR_C for k in range(tr.t_ns.size)]
+    bounds[0] = T_C
+    none, _, _ = replay(tr.t_ns, tr.pressure_pa, [T_C] * tr.t_ns.size, CONFIG)
+    glitched, _, _ = replay(tr.t_ns, tr.pressure_pa, bounds, CONFIG)
+    assert [e.delta_m for e in glitched.events] == [e.delta_m for e in none.events]
+    assert len(none.events) == 1
+
+
+def test_log_lines_say_what_happened() -> None:
+    """The debug and info lines an operator reads: every floor and ride event with its
+    fields, and a gap with its length in seconds."""
+    tr = trace([Stay(0.0, 30), Stay(2 * CONFIG.min_transition_m, 30)], noise_pa=0.0)
+    keep = tr.seconds() < 10.0
+    keep |= tr.seconds() > 10.0 + 2 * CONFIG.max_gap_s
+    with capture_logs() as logs:
+        detector, _, _ = replay(tr.t_ns[keep], tr.pressure_pa[keep], tr.temperature_c[keep], CONFIG)
+    (gap,) = [e for e in logs if e["event"] == "pressure gap"]
+    kept = tr.t_ns[keep]
+    assert gap["seconds"] == pytest.approx(float(np.diff(kept).max()) / NS_PER_S)
+    (floor,) = [e for e in logs if e["event"] == "floor event"]
+    (event,) = detector.events
+    assert floor["kind"] == "transition" and floor["event_id"] == event.event_id
+    assert (floor["from_name"], floor["to_name"]) == (event.from_name, event.to_name)
+    assert floor["delta_m"] == round(event.delta_m, 2) != event.delta_m
+    rides = [e for e in logs if e["event"] == "ride event"]
+    assert len(detector.rides) == 2  # started, ended
+    assert [r["kind"] for r in rides] == [r.kind.value for r in detector.rides]
+    assert [r["reason"] for r in rides] == [r.reason for r in detector.rides]
+
+
+# -- when decisions are taken ----------------------------------------------------------------
+
+
+def test_without_odometry_a_stop_is_a_visit_exactly_min_visit_s_after_it_came_to_rest() -> None:
+    tr = trace([Stay(0.0, 60), Stay(2 * CONFIG.min_transition_m, 60)], noise_pa=0.0)
+    (event,) = live(tr, odometry=False).events
+    assert event.t_ns - event.t_end_ns == round(CONFIG.min_visit_s * NS_PER_S)
+
+
+def test_the_pressure_is_still_for_settle_s_before_a_stop_is_known() -> None:
+    """Three still samples do not make a still window: it spans settle_s."""
+    tr = trace([Stay(0.0, 60), Stay(2 * CONFIG.min_transition_m, 60)], noise_pa=0.0)
+    arrived = tr.stays_s[1][0]
+    detector = OnlineFloorDetector(CONFIG)
+    known = None
+    for ti, pi in zip(tr.t_ns.tolist(), tr.pressure_pa.tolist(), strict=True):
+        detector.update(PressureSample(ti, pi, T_C))
+        if known is None and detector.phase is FloorPhase.STOPPED:
+            known = secs(ti)
+    assert known is not None
+    assert CONFIG.settle_s <= known - arrived < CONFIG.settle_s + 2 * CONFIG.level_tau_s
+
+
+def test_the_state_during_a_change_follows_the_pressure() -> None:
+    height = 2 * CONFIG.min_transition_m
+    tr = trace([Stay(0.0, 60), Stay(height, 60)], noise_pa=0.0)
+    detector = OnlineFloorDetector(CONFIG)
+    halfway = tr.stays_s[0][1] + height / 2  # the ride goes at 1 m/s
+    for ti, pi in zip(tr.t_ns.tolist(), tr.pressure_pa.tolist(), strict=True):
+        detector.update(PressureSample(ti, pi, T_C))
+        if secs(ti) >= halfway:
+            break
+    state = detector.state()
+    assert state.phase is FloorPhase.CHANGING and state.floor_id == 0
+    # the smoothed pressure lags the ride by about level_tau_s
+    assert state.level_m == pytest.approx(height / 2 - CONFIG.level_tau_s, abs=0.3)
+
+
+@pytest.mark.parametrize("where", ["stopped", "changing"])
+def test_the_input_ending_during_a_stop_or_a_change_decides_it(where: str) -> None:
+    """finish() decides a stop still waiting to be a visit, or a change that has not come
+    to rest, from what there was: an event marked at_end."""
+    height = 2 * CONFIG.min_transition_m
+    stays = [Stay(0.0, 60), Stay(height, CONFIG.min_visit_s / 2 if where == "stopped" else 0.2)]
+    tr = trace(stays, noise_pa=0.0)
+    detector = OnlineFloorDetector(CONFIG)
+    for ti, pi in zip(tr.t_ns.tolist(), tr.pressure_pa.tolist(), strict=True):
+        assert not any(
+            isinstance(e, FloorEvent) for e in detector.update(PressureSample(ti, pi, T_C))
+        )
+    assert detector.phase is (FloorPhase.STOPPED if where == "stopped" else FloorPhase.CHANGING)
+    published = detector.finish()
+    (event,) = [e for e in published if isinstance(e, FloorEvent)]
+    assert event.at_end and event.t_ns == tr.t_ns[-1] and moves([event]) == [(0, 1)]
+    assert [r.kind for r in published if isinstance(r, RideEvent)][-1] is RideEventKind.ENDED
+
+
+def replay_with_gap(
+    tr: Trace, after: Callable[[OnlineFloorDetector, float], bool], gap_s: float
+) -> OnlineFloorDetector:
+    """Replay ``tr`` (pressure only) with no samples for ``gap_s`` after the first sample
+    at which ``after(detector, seconds)`` holds."""
+    detector = OnlineFloorDetector(CONFIG)
+    gap_from = math.inf
+    for ti, pi in zip(tr.t_ns.tolist(), tr.pressure_pa.tolist(), strict=True):
+        s = secs(ti)
+        if math.isinf(gap_from) and after(detector, s):
+            gap_from = s
+        if gap_from < s < gap_from + gap_s:
+            continue
+        detector.update(PressureSample(ti, pi, T_C))
+    detector.finish()
+    return detector
+
+
+def test_a_gap_on_a_floor_then_a_storey_up_is_a_trip_from_before_the_gap() -> None:
+    """The robot may have moved during the gap: the trip began at the last sample before
+    it, and the ride (never seen) is announced with the floor event, upwards."""
+    height = 2 * CONFIG.min_transition_m
+    tr = trace([Stay(0.0, 60), Stay(height, 60)], noise_pa=0.0)
+    last_before = 50.0
+    gap = tr.stays_s[1][0] + 5.0 - last_before
+    detector = replay_with_gap(tr, lambda d, s: s >= last_before, gap)
+    (event,) = detector.events
+    assert moves([event]) == [(0, 1)] and event.t_start_ns == at(last_before)
+    started, ended = detector.rides
+    assert started.kind is RideEventKind.STARTED and ended.kind is RideEventKind.ENDED
+    assert started.direction is RideDirection.UP and started.t_start_ns == at(last_before)
+
+
+def test_a_gap_on_a_floor_the_robot_stays_on_is_no_event() -> None:
+    height = 2 * CONFIG.min_transition_m
+    tr = trace([Stay(0.0, 60), Stay(height, 120)], noise_pa=0.0)
+    detector = replay_with_gap(tr, lambda d, s: len(d.events) == 1, 3 * CONFIG.max_gap_s)
+    assert moves(detector.events) == [(0, 1)]
+    assert detector.phase is FloorPhase.SETTLED and detector.floor_id == 1
+
+
+def test_the_weather_drift_is_carried_over_a_gap_during_a_change() -> None:
+    """From the start floor too: the floor's level goes on with the weather over the gap,
+    so the step is measured from where the floor is now."""
+    height = 2 * CONFIG.min_transition_m
+    drift = MAX_WEATHER_RATE_PA_S / 2
+    tr = trace([Stay(0.0, 400), Stay(height, 60)], noise_pa=0.0, drift_pa_s=drift)
+    gap = 3 * CONFIG.max_gap_s
+    detector = replay_with_gap(tr, lambda d, s: d.phase is FloorPhase.CHANGING, gap)
+    (event,) = detector.events
+    assert event.from_id == 0 and event.to_id == 1
+    assert abs(event.delta_m - height) < drift * gap / GRADIENT / 10
