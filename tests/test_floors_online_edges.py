@@ -12,15 +12,16 @@ import numpy as np
 import pytest
 from structlog.testing import capture_logs
 
-from baromap.evaluation.floor_traces import TRACE_EPOCH_NS, Stay, Trace, trace
+from baromap.evaluation.floor_traces import DRIVE_M_S, TRACE_EPOCH_NS, Stay, Trace, trace
 from baromap.floors import FloorDetectorConfig, OnlineFloorDetector
 from baromap.floors.config import MAX_AIR_C, MIN_AIR_C
 from baromap.floors.height import pa_per_m, pressure_drop_pa
-from baromap.floors.online import MAX_WEATHER_RATE_PA_S
+from baromap.floors.online import MAX_CAR_ACCEL_M_S2, MAX_WEATHER_RATE_PA_S
 from baromap.floors.replay import replay
 from baromap.messages import (
     NS_PER_S,
     FloorEvent,
+    FloorEventKind,
     FloorPhase,
     PressureSample,
     RideDirection,
@@ -307,3 +308,147 @@ def test_the_weather_drift_is_carried_over_a_gap_during_a_change() -> None:
     (event,) = detector.events
     assert event.from_id == 0 and event.to_id == 1
     assert abs(event.delta_m - height) < drift * gap / GRADIENT / 10
+
+
+# -- when a change begins ----------------------------------------------------------------------
+
+
+def ramp_m(start_s: float, metres: float, m_s: float) -> Callable[[float], float]:
+    """Height above the start floor: still, then a move of ``metres`` at ``m_s`` from
+    ``start_s``."""
+
+    def height(s: float) -> float:
+        return math.copysign(min(abs(metres), m_s * max(0.0, s - start_s)), metres)
+
+    return height
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0], ids=["up", "down"])
+@pytest.mark.parametrize("where", ["settled", "stopped"])
+@pytest.mark.parametrize(
+    ("metres", "m_s"),
+    [
+        # fast and short: the rate passes start_rate_m_s; the level never moves start_m
+        (0.8 * CONFIG.start_m, 4 * CONFIG.start_rate_m_s),
+        # slow and long: the rate stays below start_rate_m_s; the level moves past start_m
+        (2 * CONFIG.start_m, 1.2 * CONFIG.settle_rate_m_s),
+    ],
+    ids=["on-the-rate", "on-the-level"],
+)
+def test_a_change_begins_on_the_rate_or_on_the_level_either_way(
+    metres: float, m_s: float, where: str, sign: float
+) -> None:
+    """On a floor and at a stop alike, a change begins as soon as either the Holt rate
+    passes start_rate_m_s or the level leaves by start_m, up or down."""
+    storey = 2 * CONFIG.min_transition_m
+    base = ramp_m(30.0, storey, 1.0) if where == "stopped" else (lambda s: 0.0)
+    begin = 30.0 + storey + 5.0  # a few seconds into the stop: not yet a visit
+    move = ramp_m(begin, sign * metres, m_s)
+    detector = OnlineFloorDetector(CONFIG)
+    feed(detector, 0.0, begin, lambda s: P0 - GRADIENT * base(s))
+    assert detector.phase is (FloorPhase.STOPPED if where == "stopped" else FloorPhase.SETTLED)
+    phases = []
+    for k in range(round(20 * RATE_HZ)):
+        s = begin + k / RATE_HZ
+        detector.update(PressureSample(at(s), P0 - GRADIENT * (base(s) + move(s)), T_C))
+        phases.append(detector.phase)
+    assert FloorPhase.CHANGING in phases
+
+
+# -- a car's stop ------------------------------------------------------------------------------
+
+
+def decided_after_arrival_s(tr: Trace, event: FloorEvent, stay: int) -> float:
+    return secs(event.t_ns) - tr.stays_s[stay][0]
+
+
+@pytest.mark.parametrize("share", [0.5, 1.5])
+def test_a_stop_is_decided_as_the_car_stops_only_after_a_ride_a_car_could_make(
+    share: float,
+) -> None:
+    """A car goes from rest to rest at MAX_CAR_ACCEL_M_S2 at most: a step of h metres takes
+    2 sqrt(h / that). In ``share`` of that time it is no ride in a car (a spike, a gust),
+    and the robot standing still is no visit either, until the input ends."""
+    height = 2 * CONFIG.min_transition_m
+    fastest_s = 2 * math.sqrt(height / MAX_CAR_ACCEL_M_S2)
+    ride_m_s = height / (share * fastest_s)
+    tr = trace([Stay(0.0, 60), Stay(height, 60)], ride_m_s=ride_m_s, noise_pa=0.0)
+    (event,) = live(tr).events
+    if share < 1.0:
+        assert event.at_end
+    else:
+        assert not event.at_end
+        assert decided_after_arrival_s(tr, event, 1) < CONFIG.stop_s + 1.0
+
+
+def test_a_slow_car_is_decided_where_it_stops_not_on_the_way() -> None:
+    """A car slower than stop_rate_m_s shows a still-looking window on the way (its
+    spread within stop_band_m): the rate tells it is still moving."""
+    tr = trace(
+        [Stay(0.0, 60), Stay(4 * CONFIG.min_transition_m, 60)],
+        ride_m_s=1.25 * CONFIG.stop_rate_m_s,
+        noise_pa=0.0,
+    )
+    detector = live(tr)
+    (event,) = detector.events
+    assert event.kind is FloorEventKind.TRANSITION and not event.at_end
+    assert decided_after_arrival_s(tr, event, 1) < CONFIG.stop_s + 1.0
+
+
+def test_a_car_that_pauses_short_of_a_storey_rides_one_trip_from_its_first_leg() -> None:
+    height = 2 * CONFIG.min_transition_m
+    pause = (CONFIG.min_transition_m / 2, CONFIG.landing_s / 3)
+    tr = trace([Stay(0.0, 60), Stay(*pause), Stay(height, 60)], noise_pa=0.0)
+    (event,) = live(tr).events
+    assert not event.at_end and decided_after_arrival_s(tr, event, 2) < CONFIG.stop_s + 1.0
+    assert secs(event.t_start_ns) < tr.stays_s[0][1] + 1.0  # dated from the first leg
+
+
+def test_a_car_going_on_is_corrected_as_it_stops_however_long_it_stood() -> None:
+    """The robot never leaves the car: the first stop is decided as the car stops, and each
+    leg on (half a minimum storey is enough) corrects it as the car stops again, also after
+    a halt longer than landing_s."""
+    storey = 2 * CONFIG.min_transition_m
+    on = 1.5 * CONFIG.min_transition_m
+    stays = [Stay(0.0, 60), Stay(storey, CONFIG.landing_s / 3)]
+    stays += [Stay(storey + on, 2 * CONFIG.landing_s), Stay(2 * storey + on, 60)]
+    tr = trace(stays, noise_pa=0.0)
+    detector = live(tr)
+    kinds = [e.kind for e in detector.events]
+    assert kinds == [FloorEventKind.TRANSITION] + [FloorEventKind.CORRECTION] * 2
+    first, *corrections = detector.events
+    assert 0.0 < decided_after_arrival_s(tr, first, 1) < CONFIG.stop_s + 1.0
+    for stay, event in enumerate(corrections, start=2):
+        # on the stop's short window, not the still test's settle_s and more
+        assert 0.0 < decided_after_arrival_s(tr, event, stay) < CONFIG.stop_s
+    assert moves(detector.transitions) == [(0, 1)]
+    assert detector.transitions[0].delta_m == pytest.approx(2 * storey + on, abs=0.1)
+
+
+def test_off_stairs_the_visit_is_decided_when_the_robot_has_driven_leave_m() -> None:
+    """Moving during the change (stairs, a ramp): no car; the stop becomes a visit when the
+    robot has driven leave_m from where it stood when the pressure came to rest."""
+    storey = 2 * CONFIG.min_transition_m
+    drive_after = 10.0
+    stays = [Stay(0.0, 60, drive_m=3.0, drive_after_s=58.0)]
+    stays += [Stay(storey, 60, drive_m=3.0, drive_after_s=drive_after)]
+    tr = trace(stays, noise_pa=0.0)
+    (event,) = live(tr).events
+    left = drive_after + CONFIG.leave_m / DRIVE_M_S
+    assert decided_after_arrival_s(tr, event, 1) == pytest.approx(left, abs=0.15)
+
+
+@pytest.mark.parametrize("share", [1.0, 0.99])
+def test_a_robot_that_moved_leave_m_during_the_ride_was_not_in_a_car(share: float) -> None:
+    """In a car means it moved less than leave_m while the pressure changed: exactly leave_m
+    is out of the car (and standing since, it has not driven off: no visit until the end)."""
+    storey = 2 * CONFIG.min_transition_m
+    tr = trace([Stay(0.0, 60), Stay(storey, 60)], noise_pa=0.0)
+    odo_t, _, odo_y = tr.odometry
+    moved_from = tr.stays_s[0][1] + 0.5  # half a second into the ride
+    odo_x = np.where((odo_t - TRACE_EPOCH_NS) / NS_PER_S > moved_from, share * CONFIG.leave_m, 0.0)
+    detector, _, _ = replay(
+        tr.t_ns, tr.pressure_pa, tr.temperature_c, CONFIG, odometry=(odo_t, odo_x, odo_y)
+    )
+    (event,) = detector.events
+    assert event.at_end is (share >= 1.0)
