@@ -452,3 +452,90 @@ def test_a_robot_that_moved_leave_m_during_the_ride_was_not_in_a_car(share: floa
     )
     (event,) = detector.events
     assert event.at_end is (share >= 1.0)
+
+
+@pytest.mark.parametrize("seal_share", [0.5, 1.5], ids=["below-start_m", "above-start_m"])
+def test_a_floor_decided_as_the_car_stops_is_measured_again_once_the_doors_open(
+    seal_share: float,
+) -> None:
+    """The car's doors hold the pressure off the floor's for a few seconds after the stop
+    (less or more than start_m): the decision sees that level, and the floor's level is
+    measured again once the pressure has been still on the floor, with no event."""
+    storey = 2 * CONFIG.min_transition_m
+    tr = trace([Stay(0.0, 60), Stay(storey, 60)], noise_pa=0.0)
+    s = tr.seconds()
+    arrived = tr.stays_s[1][0]
+    seal = seal_share * CONFIG.start_m * GRADIENT
+    p = tr.pressure_pa + np.where((s > arrived - 2.0) & (s < arrived + 3.0), seal, 0.0)
+    detector, _, _ = replay(tr.t_ns, p, tr.temperature_c, CONFIG, odometry=tr.odometry)
+    (event,) = detector.events
+    assert not event.at_end and secs(event.t_ns) < arrived + 3.0  # before the doors opened
+    assert event.level_pa == pytest.approx(p[-1] + seal, abs=seal / 2)
+    floor = tr.pressure_pa[-1] - tr.pressure_pa[0]
+    assert detector.registry.relative_pa(1) == pytest.approx(floor, abs=0.2)
+    state = detector.state()
+    assert state.phase is FloorPhase.SETTLED and state.floor_id == 1
+    assert state.level_m == pytest.approx(state.height_m, abs=0.01)
+    assert state.level_pa == pytest.approx(p[-1], abs=0.2)
+
+
+def test_a_leg_back_from_a_stop_decided_in_the_car_is_its_level_measured_again() -> None:
+    """After a ride down decided as the car stops, the pressure comes back up by less than a
+    minimum storey (the last of the car's motion), the robot still in the car however long
+    it stood: no correction, the floor's level is where it settled, and the ride announced
+    on the way is withdrawn, saying why."""
+    storey = 2 * CONFIG.min_transition_m
+    back = 0.9 * CONFIG.min_transition_m
+    stood = CONFIG.landing_s + 5.0
+    tr = trace([Stay(0.0, 60), Stay(-storey, stood), Stay(-storey + back, 60)], noise_pa=0.0)
+    detector = live(tr)
+    (event,) = detector.events
+    assert event.kind is FloorEventKind.TRANSITION and moves([event]) == [(0, 1)]
+    floor = tr.pressure_pa[-1] - tr.pressure_pa[0]
+    # measured on the still window that ended the leg: within its band
+    band = CONFIG.settle_rate_m_s * CONFIG.settle_s * GRADIENT
+    assert detector.registry.relative_pa(1) == pytest.approx(floor, abs=band)
+    state = detector.state()
+    assert state.level_m == pytest.approx(-storey + back, abs=0.05)
+    kinds = [(r.kind, r.direction) for r in detector.rides]
+    assert kinds == [
+        (RideEventKind.STARTED, RideDirection.DOWN),
+        (RideEventKind.ENDED, RideDirection.DOWN),
+        (RideEventKind.STARTED, RideDirection.UP),
+        (RideEventKind.RETRACTED, RideDirection.UP),
+    ]
+    assert detector.rides[-1].reason == "the pressure settled on the floor just decided: no ride"
+
+
+def test_the_weather_moves_a_stop_that_waits_for_the_robot_to_drive_off() -> None:
+    """Off stairs with the robot standing, the stop waits for it to drive off: meanwhile the
+    stop's level follows the weather as a floor's does, and the stop goes on, decided only
+    when the input ends."""
+    storey = 2 * CONFIG.min_transition_m
+    # long enough on the start floor for the drift tracker to learn the weather
+    stays = [Stay(0.0, 400, drive_m=3.0, drive_after_s=398.0), Stay(storey, 600)]
+    drift = MAX_WEATHER_RATE_PA_S / 2  # over the stop, far more than start_m
+    tr = trace(stays, noise_pa=0.0, drift_pa_s=drift)
+    assert drift * 600 > 3 * CONFIG.start_m * GRADIENT
+    detector = live(tr)
+    (event,) = detector.events
+    assert event.at_end and moves([event]) == [(0, 1)]
+    assert event.delta_m == pytest.approx(storey, abs=0.1)
+    assert secs(detector.rides[0].t_ns) < tr.stays_s[1][0]  # one ride, announced on the stairs
+
+
+def test_a_ride_that_turns_the_other_way_is_withdrawn_and_the_other_announced() -> None:
+    """A gust up and down of more than ride_m each way, back on the floor: two rides
+    announced, each withdrawn with its reason, no floor event."""
+    swing = 2.4 * CONFIG.ride_m
+    tr = trace([Stay(0.0, 60), Stay(swing, 0.5), Stay(-swing, 0.5), Stay(0.0, 60)], noise_pa=0.0)
+    detector = live(tr)
+    assert detector.events == []
+    rides = [(r.kind, r.direction, r.reason) for r in detector.rides]
+    turned = "the pressure turned the other way: a transient, not the car"
+    assert rides == [
+        (RideEventKind.STARTED, RideDirection.UP, ""),
+        (RideEventKind.RETRACTED, RideDirection.UP, turned),
+        (RideEventKind.STARTED, RideDirection.DOWN, ""),
+        (RideEventKind.RETRACTED, RideDirection.DOWN, "came to rest 0.0 m from floor 0: no ride"),
+    ]
