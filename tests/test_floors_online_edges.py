@@ -14,6 +14,7 @@ from structlog.testing import capture_logs
 
 from baromap.evaluation.floor_traces import DRIVE_M_S, TRACE_EPOCH_NS, Stay, Trace, trace
 from baromap.floors import FloorDetectorConfig, OnlineFloorDetector
+from baromap.floors.building_model import BuildingModel, ModelFloor
 from baromap.floors.config import MAX_AIR_C, MIN_AIR_C
 from baromap.floors.height import pa_per_m, pressure_drop_pa
 from baromap.floors.online import MAX_CAR_ACCEL_M_S2, MAX_WEATHER_RATE_PA_S
@@ -539,3 +540,103 @@ def test_a_ride_that_turns_the_other_way_is_withdrawn_and_the_other_announced() 
         (RideEventKind.STARTED, RideDirection.DOWN, ""),
         (RideEventKind.RETRACTED, RideDirection.DOWN, "came to rest 0.0 m from floor 0: no ride"),
     ]
+
+
+# -- where a trip began -------------------------------------------------------------------------
+
+RAMP_M = (CONFIG.start_m + CONFIG.min_transition_m) / 4  # more than start_m, two less than a storey
+
+
+@pytest.mark.parametrize(
+    ("heights", "first_leg"),
+    [
+        # two ramps up, each a short stop (a landing), then a storey up: from the first
+        ([RAMP_M, 2 * RAMP_M, 2 * RAMP_M + 2 * CONFIG.min_transition_m], 0),
+        # a ramp up, back down past the floor, then a storey down: from the turn
+        ([RAMP_M, -RAMP_M, -RAMP_M - 2 * CONFIG.min_transition_m], 1),
+        # a ramp up, then a storey down: the ramp was no part of the trip
+        ([RAMP_M, RAMP_M - 2 * CONFIG.min_transition_m], 1),
+    ],
+    ids=["on-the-same-way", "turned-back", "the-other-way"],
+)
+def test_a_trip_is_dated_from_its_first_leg_in_its_direction(
+    heights: list[float], first_leg: int
+) -> None:
+    """Legs shorter than a storey that stop for less than landing_s are landings of one
+    trip when they go the trip's way; a leg the other way starts the trip afresh."""
+    pause = CONFIG.landing_s / 3
+    stays = [Stay(0.0, 60)] + [Stay(h, pause) for h in heights[:-1]] + [Stay(heights[-1], 60)]
+    tr = trace(stays, noise_pa=0.0)
+    (event,) = live(tr, odometry=False).events
+    assert event.delta_m == pytest.approx(heights[-1], abs=0.1)
+    left = tr.stays_s[first_leg][1]  # the leg began as this stay ended
+    assert left - 0.5 < secs(event.t_start_ns) < left + 1.0
+
+
+# -- stops and floors ---------------------------------------------------------------------------
+
+
+def test_a_move_of_less_than_half_a_storey_from_a_stop_is_no_leg_of_the_trip() -> None:
+    """Without odometry, a stop is a visit once it lasted min_visit_s: a move back toward
+    the floor left by less than half a minimum storey (the doors' seal, a spike's tail) is
+    no leg, and the stop goes on from when it began."""
+    storey = 2 * CONFIG.min_transition_m
+    back = 0.4 * CONFIG.min_transition_m  # more than start_m: a change begins
+    assert back > CONFIG.start_m
+    tr = trace([Stay(0.0, 60), Stay(storey, 5), Stay(storey - back, 60)], noise_pa=0.0)
+    detector = OnlineFloorDetector(CONFIG)
+    since = None
+    stops = set()
+    for ti, pi in zip(tr.t_ns.tolist(), tr.pressure_pa.tolist(), strict=True):
+        detector.update(PressureSample(ti, pi, T_C))
+        if detector.phase is FloorPhase.STOPPED and not detector.events:
+            stops.add(detector.state().since_ns)
+            since = since or detector.state().since_ns
+    detector.finish()
+    (event,) = detector.events
+    assert stops == {since}  # the same stop before and after the move
+    assert event.t_ns - event.t_end_ns == round(CONFIG.min_visit_s * NS_PER_S)
+    assert event.t_end_ns < at(tr.stays_s[1][1])  # it came to rest before the move
+    assert event.delta_m == pytest.approx(storey - back, abs=0.1)
+
+
+def test_a_floor_within_a_minimum_storey_of_a_known_one_is_that_floor() -> None:
+    storey = 2 * CONFIG.min_transition_m
+    off = 0.8 * CONFIG.min_transition_m
+    stays = [Stay(0.0, 60), Stay(storey, 60), Stay(0.0, 60), Stay(storey + off, 60)]
+    detector = live(trace(stays, noise_pa=0.0), odometry=False)
+    assert moves(detector.events) == [(0, 1), (1, 0), (0, 1)]
+
+
+def test_a_floor_more_than_half_a_minimum_storey_off_the_building_model_is_counted() -> None:
+    """A model floor names a floor found within half a minimum storey of it; further off,
+    the name is counted (an estimate), and the ride's end says so as the event does."""
+    storey = 2 * CONFIG.min_transition_m
+    model = BuildingModel((ModelFloor("0", 0.0), ModelFloor("1", storey)))
+    config = FloorDetectorConfig(building=model)
+    for off, name, estimated in [(0.25, "1", False), (0.75, "2", True)]:
+        height = storey + off * CONFIG.min_transition_m
+        detector = live(trace([Stay(0.0, 60), Stay(height, 60)], noise_pa=0.0), config)
+        (event,) = detector.events
+        assert (event.to_name, event.estimated_name) == (name, estimated)
+        ended = detector.rides[-1]
+        assert ended.kind is RideEventKind.ENDED
+        assert (ended.to_name, ended.estimated_name) == (name, estimated)
+
+
+def test_a_stop_carries_the_weather_over_a_gap() -> None:
+    """A gap during a stop: when the pressure comes to rest again within half a minimum
+    storey of where the weather has taken the stop (here the robot moved a third of a
+    storey back toward the floor it left, less than the weather over the gap and that
+    together), it is the same stop, decided at the level it came to."""
+    storey = 2 * CONFIG.min_transition_m
+    drift = MAX_WEATHER_RATE_PA_S / 2
+    gap = 6 * CONFIG.max_gap_s
+    back = 0.35 * CONFIG.min_transition_m
+    assert back * GRADIENT + drift * gap > pressure_drop_pa(CONFIG.min_transition_m, P0, T_C) / 2
+    stays = [Stay(0.0, 400), Stay(storey, 5 + gap / 2), Stay(storey - back, 60)]
+    tr = trace(stays, noise_pa=0.0, drift_pa_s=drift)
+    stopped = tr.stays_s[1][0]
+    detector = replay_with_gap(tr, lambda d, s: s >= stopped + 5.0, gap)
+    (event,) = detector.events
+    assert event.delta_m == pytest.approx(storey - back, abs=0.1)
