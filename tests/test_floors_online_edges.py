@@ -640,3 +640,16 @@ def test_a_stop_carries_the_weather_over_a_gap() -> None:
     detector = replay_with_gap(tr, lambda d, s: s >= stopped + 5.0, gap)
     (event,) = detector.events
     assert event.delta_m == pytest.approx(storey - back, abs=0.1)
+
+
+def test_a_ramp_slower_than_the_settle_rate_announces_no_ride() -> None:
+    """Rides are announced on a pressure moving faster than settle_rate_m_s: a ramp at half
+    that, climbing most of a minimum storey, never is one."""
+    tr = trace(
+        [Stay(0.0, 60), Stay(0.8 * CONFIG.min_transition_m, 60)],
+        ride_m_s=CONFIG.settle_rate_m_s / 2,
+        noise_pa=0.0,
+    )
+    detector = live(tr)
+    assert detector.phase is FloorPhase.SETTLED and detector.floor_id == 0
+    assert detector.rides == [] and detector.events == []
