@@ -268,6 +268,35 @@ def test_branch_and_bound_finds_the_lattice_optimum(seed: int) -> None:
     assert found.pose == pytest.approx(exhaustive.pose, abs=1e-9)
 
 
+def test_a_branch_and_bound_node_scores_as_the_whole_lattice_does() -> None:
+    """The search's per-node scorer keeps each heading's rotated scan and prior; its scores
+    and penalties are those of the lattice functions to the bit, at every level's field, or
+    the search would no longer be the lattice's (the test above, up to its tolerance)."""
+    from baromap.mapping import scan_matcher
+
+    rng = np.random.default_rng(4)
+    refs = [np.array([2.0, 2.0, 0.0]), np.array([3.0, 1.5, 1.2])]
+    world = np.concatenate([se2.transform_points(p, block([p]).endpoints(0, 30.0)) for p in refs])
+    field = LikelihoodField.from_points(world, 0.05, 0.05)
+    scan = block([np.array([2.5, 2.0, 0.3])]).endpoints(0, 30.0)[::3]
+    angles = 0.3 + np.radians(np.arange(-6, 7, 1.5))
+    prior = scan_matcher.Prior(np.array([2.4, 2.1, 0.28]), 0.3, 0.05, 0.04)
+    nodes = scan_matcher._NodeScorer(field, scan, angles, prior)
+    for step in (4, 1):
+        level = scan_matcher._bound_field(field, step)
+        offsets = np.arange(-2, 3) * step
+        for _ in range(20):
+            a = int(rng.integers(len(angles)))
+            x, y = (float(v) for v in rng.uniform(1.0, 4.0, 2))
+            xs, ys = x + offsets * 0.05, y + offsets * 0.05
+            whole = scan_matcher._score_grid(
+                level, scan, np.array([x, y]), angles[a : a + 1], offsets
+            )
+            assert np.array_equal(nodes.scores(level, a, x, y, offsets), whole[0])
+            penalty = scan_matcher._prior_penalty(prior, angles[a : a + 1], xs, ys)
+            assert np.array_equal(nodes.penalty(a, xs, ys), np.asarray(penalty)[0])
+
+
 def _square_world() -> tuple[np.ndarray, PoseGraph]:
     rng = np.random.default_rng(1)
     truth = [np.zeros(3)]
