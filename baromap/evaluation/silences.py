@@ -3,7 +3,7 @@ leave in a recording.
 
 The daemon closes a device that stops, marks it down and opens it again (docs/daemon.md), so
 a recording can hold a stretch without scans while the robot drives on, or scans without
-odometry. :func:`without` writes a copy of a simulated recording with one topic left out for a
+odometry. :func:`silenced` writes a copy of a simulated recording with topics left out for a
 while; :func:`score_silence` maps it and scores it against the simulator's truth, over every
 scan and over the scans the odometry spoke for (the others are not mapped: see
 :func:`baromap.mapping.slam.run_slam`'s ``blind``).
@@ -12,6 +12,7 @@ scan and over the scans the odometry spoke for (the others are not mapped: see
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,33 +29,76 @@ from baromap.mapping.build import build_maps
 from baromap.messages import NS_PER_S
 from baromap.recording import read_messages, topics
 
-#: What a base's odometry does after a silence (:func:`without`'s ``counters``).
+#: What a base's odometry does after a silence (:class:`Silence`'s ``counters``).
 COUNTERS = ("kept", "zeroed", "joined")
 
 
-def without(
-    src: Path, dst: Path, topic: str, start_s: float, end_s: float, *, counters: str = "kept"
-) -> int:
-    """A copy of ``src`` with no ``topic`` message from ``start_s`` to ``end_s`` after its
-    first message (the device unplugged, power-cycled); returns how many were left out.
-    Everything else (schemas, channels, metadata, the other messages) is copied as it was.
+@dataclass(frozen=True, slots=True)
+class Silence:
+    """No ``topic`` message from ``start_s`` to ``end_s`` after the recording's first message
+    (the device unplugged, power-cycled).
 
     ``counters`` (``/odom`` only), the odometry after the silence: ``kept`` as it was (the
     base kept counting); ``zeroed``, from zero in a frame of its own (a power-cycled base
     under a recorder that does not join its tracks); ``joined``, that frame joined at the
     last pose before the silence (what baromapd records of a power-cycled base). ``/tf`` is
     copied as it was: the mapping reads ``/odom``."""
+
+    topic: str
+    start_s: float
+    end_s: float
+    counters: str = "kept"
+
+    def __post_init__(self) -> None:
+        if self.counters not in COUNTERS:
+            raise ValueError(f"counters must be one of {COUNTERS}, not {self.counters!r}")
+        if self.counters != "kept" and self.topic != topics.ODOM:
+            raise ValueError(f"only {topics.ODOM} has counters, not {self.topic}")
+
+
+class _Counters:
+    """One silence's odometry frame after it, as the poses reach it (through the silences
+    before it in the list, as if each were written into a copy of the one before)."""
+
+    def __init__(self, silence: Silence) -> None:
+        self.silence = silence
+        self._last: FloatArray | None = None  # the last pose before the silence
+        self._origin: FloatArray | None = None
+        self._anchor = np.zeros(3)
+
+    def moves(self, at_s: float) -> bool:
+        return at_s >= self.silence.start_s
+
+    def apply(self, at_s: float, pose: FloatArray) -> FloatArray:
+        if at_s < self.silence.start_s:
+            self._last = pose
+            return pose
+        if self._origin is None:
+            self._origin = pose
+            if self.silence.counters == "joined" and self._last is not None:
+                self._anchor = self._last
+        return se2.compose(self._anchor, se2.between(self._origin, pose))
+
+
+def without(
+    src: Path, dst: Path, topic: str, start_s: float, end_s: float, *, counters: str = "kept"
+) -> int:
+    """A copy of ``src`` with one :class:`Silence`; returns how many messages it left out."""
+    (dropped,) = silenced(src, dst, [Silence(topic, start_s, end_s, counters)])
+    return dropped
+
+
+def silenced(src: Path, dst: Path, silences: Sequence[Silence]) -> list[int]:
+    """A copy of ``src`` with every silence of ``silences``, in one pass (a pass over a long
+    recording is seconds); returns how many messages each left out. The copy is the one
+    :func:`without` would leave applied once per silence, in the list's order, each to the
+    copy before. Everything else (schemas, channels, metadata, the other messages) is copied
+    as it was."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
-    if counters not in COUNTERS:
-        raise ValueError(f"counters must be one of {COUNTERS}, not {counters!r}")
-    if counters != "kept" and topic != topics.ODOM:
-        raise ValueError(f"only {topics.ODOM} has counters, not {topic}")
-    dropped = 0
-    last: bytes | None = None  # the last odometry before the silence
-    origin: FloatArray | None = None
-    anchor = np.zeros(3)
+    dropped = [0] * len(silences)
+    stages = [_Counters(s) for s in silences if s.counters != "kept"]
     with src.open("rb") as f, dst.open("wb") as g:
         reader = make_reader(f)
         writer = Writer(g)
@@ -68,25 +112,30 @@ def without(
             first = message.log_time if first is None else first
             at = (message.log_time - first) / NS_PER_S
             data = message.data
-            if channel.topic == topic and start_s <= at < end_s:
-                dropped += 1
+            cut = next(
+                (
+                    k
+                    for k, s in enumerate(silences)
+                    if s.topic == channel.topic and s.start_s <= at < s.end_s
+                ),
+                None,
+            )
+            if cut is not None:
+                dropped[cut] += 1
                 continue
-            if counters != "kept" and channel.topic == topic:
+            if stages and channel.topic == topics.ODOM:
                 if channel.id not in decoders:
                     decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
                 decode = decoders[channel.id]
                 if decode is None:
-                    raise ValueError(f"{src}: cannot decode {topic}")
-                if at < start_s:
-                    last = data
-                else:
-                    odometry = decode(data)
-                    pose = _pose(odometry)
-                    if origin is None:
-                        origin = pose
-                        if counters == "joined" and last is not None:
-                            anchor = _pose(decode(last))
-                    data = _with_pose(odometry, se2.compose(anchor, se2.between(origin, pose)))
+                    raise ValueError(f"{src}: cannot decode {topics.ODOM}")
+                odometry = decode(data)
+                for stage in stages:
+                    moved = stage.moves(at)
+                    pose = stage.apply(at, _pose(odometry))
+                    if moved:  # written, and read back by the next, as a copy would be
+                        data = _with_pose(odometry, pose)
+                        odometry = decode(data)
             writer.add_message(
                 channels[channel.id], message.log_time, data, message.publish_time,
                 message.sequence,
