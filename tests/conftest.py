@@ -187,9 +187,11 @@ def default_logging() -> Iterator[None]:
 
 
 #: Where each test's cost is appended when set: ``BAROMAP_TEST_COST=cost.tsv make test`` (then
-#: ``sort -t$'\t' -k2 -rn cost.tsv | head``). CPU seconds are the worker's and its children's,
-#: so they hold on a loaded machine, where wall times do not. The pytest runs a test starts
-#: (tests/hardware/test_hil_on_twins.py) inherit the variable and append their tests too.
+#: ``sort -t$'\t' -k2 -rn cost.tsv | head``): test, CPU s, wall s, the worker and the time it
+#: started (Unix s), which show where a worker waited. CPU seconds are the worker's and its
+#: children's, so they hold on a loaded machine, where wall times do not. The pytest runs a
+#: test starts (tests/hardware/test_hil_on_twins.py) inherit the variable and append their
+#: tests too.
 COST_FILE = os.environ.get("BAROMAP_TEST_COST")
 
 
@@ -204,8 +206,12 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
         )
         return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
 
-    cpu0, wall0 = cpu(), time.monotonic()
+    cpu0, wall0, started = cpu(), time.monotonic(), time.time()
     result = yield
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
     with open(COST_FILE, "a") as out:
-        out.write(f"{item.nodeid}\t{cpu() - cpu0:.2f}\t{time.monotonic() - wall0:.2f}\n")
+        out.write(
+            f"{item.nodeid}\t{cpu() - cpu0:.2f}\t{time.monotonic() - wall0:.2f}\t{worker}"
+            f"\t{started:.1f}\n"
+        )
     return result
