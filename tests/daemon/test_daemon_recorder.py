@@ -13,6 +13,7 @@ from structlog.testing import capture_logs
 from baromap.errors import RecordingError, RecordingWriteError
 from baromap.messages import DeviceState, PressureSample
 from baromap.recording import RecordingWriter, read_messages, read_metadata, topics
+from baromap.recording.frames import LASER_MOUNT_KEY, LaserMount
 from baromapd import recorder as recorder_module
 from baromapd.config import ConfigProblems, RecordingConfig, parse_config
 from baromapd.recorder import LatencyHistogram, Recorder
@@ -628,3 +629,53 @@ def test_an_unreadable_file_is_said_and_the_others_still_looked_at(tmp_path: Pat
     (said,) = logged
     assert said["event"] == "recording not readable" and said["path"] == str(locked)
     assert "Is a directory" in said["error"] and said["log_level"] == "warning"
+
+
+def test_each_file_says_its_part_the_run_and_the_laser_mount(tmp_path: Path) -> None:
+    """Every file stands alone: the run's metadata with the file's part number, and where
+    the laser sits; each opening is logged with the file and its part."""
+    mount = LaserMount(0.12, -0.03, 0.05)
+    config = RecordingConfig(directory=tmp_path, min_free_mb=0.0)
+    rec = Recorder(
+        config, robot="r1", metadata={"role": "robot"}, run_name="r1_parts", laser_mount=mount
+    )
+    with capture_logs() as logged:
+        for _ in range(2):
+            rec._open()
+            rec._close()
+    assert [p.name for p in rec.files] == ["r1_parts_000.mcap", "r1_parts_001.mcap"]
+    for part, path in enumerate(rec.files):
+        meta = read_metadata(path)[topics.METADATA_NAME]
+        assert (meta["part"], meta["run"], meta["role"]) == (str(part), "r1_parts", "robot")
+        assert LaserMount.from_json(meta[LASER_MOUNT_KEY]) == mount
+    opened = [e for e in logged if e["event"] == "recording file opened"]
+    assert opened == [
+        {"event": "recording file opened", "log_level": "info", "path": str(p), "part": k}
+        for k, p in enumerate(rec.files)
+    ]
+
+
+def test_a_file_that_cannot_be_opened_is_a_fault_and_what_comes_meanwhile_is_lost(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def refuse(*args: object, **kwargs: object) -> RecordingWriter:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(recorder_module, "RecordingWriter", refuse)
+    rec = _recorder(tmp_path)
+    with capture_logs() as logged:
+        rec._open()
+        rec.handle(_samples(1)[0], None)
+    (fault,) = [e for e in logged if e["event"] == "recorder fault"]
+    assert fault["during"] == "open" and fault["reason"].startswith("disk full")
+    assert fault["error"] == "OSError: [Errno 28] No space left on device"
+    assert rec.files == [] and rec.faults == 1 and rec.lost == {"PressureSample": 1}
+    assert rec.health(0).state is DeviceState.DOWN
+
+
+def test_the_writer_thread_is_named_for_the_recorder(tmp_path: Path) -> None:
+    """Its name is what ps, top and a thread dump show of the recorder (the worker names its
+    thread baromapd-NAME), and the device its health is reported as."""
+    rec = _recorder(tmp_path)
+    assert rec.name == "recorder"
+    assert rec.health(0).device == "recorder"
