@@ -2,7 +2,7 @@
 laser logs, beside their ground-truth relation errors and their ATE against GMapping.
 
     .venv/bin/python bench/consistency.py [--logs intel,fr079,acapulco] [--seeds 0,1,2,3,4]
-                                          [--poses DIR] [--extra LABEL=DIR ...]
+                                          [--poses DIR] [--extra LABEL=DIR ...] [--gate DIR]
                                           [--no-loops] [--stretches N] [--window W]
                                           [--figures DIR] [--min-travel M] [--radius-scale F]
                                           [--truncate M]
@@ -12,8 +12,12 @@ alone (the synthesised odometry of each seed), ours (``run_log``, each seed; ``-
 keeps them as ``DIR/ours/NAME_SEED.npy`` and ``DIR/noloops/...`` and reuses them), ours
 without loop closures (``--no-loops``, seeds 0-1: a SLAM of the same kind with revisits left
 open), and any ``--extra LABEL=DIR`` of saved poses (``bench/mrpt_logs.py --save-poses
-DIR``: MRPT's icp-slam). The revisit partners are chosen once per log from GMapping's poses,
-so every trajectory is scored on the same pairs of scans.
+DIR``: MRPT's icp-slam). ``--gate DIR`` takes ours from a ``bench/gate.py --keep DIR`` run
+instead (each published log's case and seed, the gate's odometry, mapped by the CLI; no
+odometry rows, as the synthesis's odometry is not the gate's; ``bench/mrpt_logs.py
+--gate-odometry --save-poses`` gives MRPT the same odometry). The revisit partners are
+chosen once per log from GMapping's poses, so every trajectory is scored on the same pairs of
+scans.
 
 Each trajectory gets its consistency (lower is better) and its revisit moves (median over
 scans of how far a scan must move to lie on its partners; "beyond reach" where it does not
@@ -98,10 +102,29 @@ def _ours(log: PreparedLog, seed: int, store: Path | None, no_loops: bool) -> np
     return poses
 
 
+def _gate_poses(directory: Path, name: str, seed: int, scans: int) -> np.ndarray | None:
+    """The poses of ``bench/gate.py --keep DIR``'s case ``name`` (the log as published),
+    ``seed``: its ``trajectory.tum``, one line per scan in the log's order."""
+    path = directory / f"{name}-s{seed}" / "out" / "trajectory.tum"
+    if not path.exists():
+        return None
+    poses = np.loadtxt(path, usecols=(1, 2, 6, 7), ndmin=2)
+    if len(poses) != scans:
+        raise SystemExit(f"{path}: {len(poses)} poses for {scans} scans")
+    return np.column_stack([poses[:, 0], poses[:, 1], 2.0 * np.arctan2(poses[:, 2], poses[:, 3])])
+
+
 def trajectories(log: PreparedLog, args: argparse.Namespace) -> dict[str, np.ndarray]:
     name, reference = log.name, log.reference
     seeds = [int(s) for s in args.seeds.split(",")]
     out: dict[str, np.ndarray] = {"gmapping": reference}
+    if args.gate is not None:
+        # the gate's odometry is its own (log_variants), not the synthesis's: no odometry rows
+        for seed in seeds:
+            poses = _gate_poses(args.gate, name, seed, len(reference))
+            if poses is not None:
+                out[f"ours {seed}"] = poses
+        return _extra(out, name, seeds, args)
     for seed in seeds:
         out[f"odometry {seed}"] = synthesize_odometry(reference, seed)
     for seed in seeds:
@@ -109,6 +132,13 @@ def trajectories(log: PreparedLog, args: argparse.Namespace) -> dict[str, np.nda
     if args.no_loops:
         for seed in seeds[:2]:
             out[f"ours, no loops {seed}"] = _ours(log, seed, args.poses, no_loops=True)
+    return _extra(out, name, seeds, args)
+
+
+def _extra(
+    out: dict[str, np.ndarray], name: str, seeds: list[int], args: argparse.Namespace
+) -> dict[str, np.ndarray]:
+    """``out`` with the ``--extra LABEL=DIR`` trajectories of each seed that has one."""
     for extra in args.extra:
         label, _, directory = extra.partition("=")
         for seed in seeds:
@@ -355,6 +385,9 @@ def main() -> int:
     parser.add_argument("--seeds", default="0,1,2,3,4")
     parser.add_argument("--poses", type=Path, default=None, help="keep/reuse our SLAM's poses")
     parser.add_argument("--extra", action="append", default=[], metavar="LABEL=DIR")
+    parser.add_argument(
+        "--gate", type=Path, default=None, help="ours from bench/gate.py --keep DIR instead"
+    )
     parser.add_argument("--no-loops", action="store_true", help="ours without loop closures")
     parser.add_argument("--stretches", type=int, default=0)
     parser.add_argument("--window", type=int, default=25)

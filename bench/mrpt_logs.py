@@ -3,7 +3,8 @@ public laser logs.
 
     .venv/bin/python bench/mrpt_logs.py [--method icp|rbpf] [--logs fr079,acapulco]
                                         [--seeds 0,1,2] [--max-range M] [--keep DIR]
-                                        [--save-poses DIR] [ICP settings, see --help]
+                                        [--save-poses DIR] [--gate-odometry]
+                                        [ICP settings, see --help]
 
 Issue 14's ATE bar is measured against GMapping's corrected poses, which are an estimate
 themselves. Whether the bar is reachable at all is a question about the reference as much as
@@ -27,6 +28,11 @@ log's ranges and the synthesised odometry as both the laser and the robot pose, 
 CARMEN parser ignores the log's times), and icp-slam's odometry extrapolation then drops every
 odometry step as a zero time difference; the rawlog's timestamps are rewritten in place to the
 log's own times (each object's 8-byte stamp, all equal after conversion, found by its value).
+``--gate-odometry`` feeds the odometry ``bench/gate.py`` makes for the case named as the log
+(``baromap.evaluation.log_variants``, its default error model) instead, so MRPT's figure sits
+beside the gate's row for that case and seed; ``--logs`` takes every log of
+``baromap.evaluation.laser_logs.LOGS``, the three published with broken stamps
+(``belgioioso``, ``corridor``, ``campus``) timed by their scan order as the importer times them.
 Beams beyond ``--max-range`` (default 20 m; baromap's ``SlamConfig.max_range_m`` is 30 m, so
 compare like with like when changing either) are no return: Acapulco's scanner reports no
 return as 50-51.2 m, which ICP otherwise takes for walls.
@@ -230,7 +236,14 @@ def run_mrpt(work: Path, name: str, seed: int, args: argparse.Namespace) -> dict
     carmen = read_carmen(LASER / spec.log_file)
     times = carmen.scan_times_ns()
     reference = carmen.reference_poses()
-    odom = reference.copy() if args.perfect_odometry else synthesize_odometry(reference, seed)
+    if args.perfect_odometry:
+        odom = reference.copy()
+    elif args.gate_odometry:
+        from baromap.evaluation.log_variants import ODOMETRY, degrade
+
+        odom = degrade(reference, seed, ODOMETRY["default"])
+    else:
+        odom = synthesize_odometry(reference, seed)
     tag = f"{name}{seed}"
     log = work / f"{tag}.log"
     rawlog = work / f"{tag}.rawlog"
@@ -329,6 +342,11 @@ def main() -> int:
     parser.add_argument("--icp-deg", type=float, default=5.0, help="its growth with range")
     parser.add_argument("--min-goodness", type=float, default=0.4, help="ICP matches accepted")
     parser.add_argument("--perfect-odometry", action="store_true", help="a check: no error")
+    parser.add_argument(
+        "--gate-odometry",
+        action="store_true",
+        help="the odometry of bench/gate.py's case LOG at the same seed, not the synthesis's",
+    )
     parser.add_argument("--keep", type=Path, default=None, help="keep inputs and outputs here")
     parser.add_argument("--save-poses", type=Path, default=None, help="NAME_SEED.npy per run")
     args = parser.parse_args()

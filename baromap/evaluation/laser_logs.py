@@ -88,11 +88,16 @@ class LaserLog:
 #: scans and poses as the originals, with the timestamps the relations refer to.
 #: ``bigloop``: a synthetic corridor ring of 60-120 m a side driven once round and 40 m on
 #: (:mod:`baromap.sim.big_loop`), its true poses as the corrected ones: the first revisit
-#: after hundreds of metres, which the public logs never make.
+#: after hundreds of metres, which the public logs never make. ``belgioioso``, ``corridor``
+#: and ``campus`` are published with broken stamps, timed by :func:`read_carmen` from their
+#: scan order.
 LOGS = {
     "intel": LaserLog("intel", "intel-corrected-abstime.log.gz", "intel.relations"),
     "fr079": LaserLog("fr079", "freiburg-079-corrected-abstime.log.gz", "fr079.relations"),
     "acapulco": LaserLog("acapulco", "acapulco-corrected.log.gz", None),
+    "belgioioso": LaserLog("belgioioso", "belgioioso-corrected.log.gz", None),
+    "corridor": LaserLog("corridor", "infinite-corridor-corrected.log.gz", None),
+    "campus": LaserLog("campus", "freiburg-campus-corrected.log.gz", None),
     "bigloop": LaserLog("bigloop", "bigloop-v1-world0.log.gz", None, world=0),
 }
 
