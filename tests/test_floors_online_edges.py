@@ -653,3 +653,18 @@ def test_a_ramp_slower_than_the_settle_rate_announces_no_ride() -> None:
     detector = live(tr)
     assert detector.phase is FloorPhase.SETTLED and detector.floor_id == 0
     assert detector.rides == [] and detector.events == []
+
+
+def test_a_car_ride_inside_a_gap_is_decided_on_a_whole_short_window_after_it() -> None:
+    """The robot stood in the car while the samples stopped: the stop is decided as a car's,
+    once the samples after the gap span stop_s, dated from the last sample before it."""
+    storey = 2 * CONFIG.min_transition_m
+    tr = trace([Stay(0.0, 60), Stay(storey, 60)], noise_pa=0.0)
+    s = tr.seconds()
+    keep = (s < 55.0) | (s > 70.0)
+    t, p = tr.t_ns[keep], tr.pressure_pa[keep]
+    detector, _, _ = replay(t, p, tr.temperature_c[keep], CONFIG, odometry=tr.odometry)
+    (event,) = detector.events
+    before, after = (int(x) for x in t[np.flatnonzero(np.diff(t) > NS_PER_S)[0] + np.arange(2)])
+    assert event.t_start_ns == before and not event.at_end
+    assert event.t_ns - after == round(CONFIG.stop_s * NS_PER_S)
