@@ -5,6 +5,7 @@ constants and the configuration, so a retune moves the tests with it."""
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 
@@ -24,6 +25,7 @@ from baromap.messages import (
     FloorEvent,
     FloorEventKind,
     FloorPhase,
+    Odometry,
     PressureSample,
     RideDirection,
     RideEvent,
@@ -668,3 +670,135 @@ def test_a_car_ride_inside_a_gap_is_decided_on_a_whole_short_window_after_it() -
     before, after = (int(x) for x in t[np.flatnonzero(np.diff(t) > NS_PER_S)[0] + np.arange(2)])
     assert event.t_start_ns == before and not event.at_end
     assert event.t_ns - after == round(CONFIG.stop_s * NS_PER_S)
+
+
+# -- a floor decided as the car stops, until landing_s after ---------------------------------
+
+#: The samples' spacing, ns.
+STEP_NS = round(NS_PER_S / RATE_HZ)
+
+
+def feed_in_car(
+    detector: OnlineFloorDetector, stamps: list[int], pressure: Callable[[int], float]
+) -> list[FloorEvent | RideEvent]:
+    """A robot standing still (its odometry at each stamp, then its pressure sample there);
+    returns the events published meanwhile."""
+    out: list[FloorEvent | RideEvent] = []
+    for t in stamps:
+        detector.update_odometry(Odometry(t, 0.0, 0.0, 0.0))
+        out += detector.update(PressureSample(t, pressure(t), T_C))
+    return out
+
+
+def decided_in_the_car() -> tuple[OnlineFloorDetector, int, float]:
+    """A ride two minimum storeys up in the car, decided as it stops: the detector fed up
+    to that decision, the end of the time its floor's level is measured again
+    (``landing_s`` after it), and the floor's pressure."""
+    storey = 2 * CONFIG.min_transition_m
+    height = ramp_m(60.0, storey, 1.0)
+    detector = OnlineFloorDetector(CONFIG)
+    for k in range(round(120 * RATE_HZ)):
+        t = at(0.0) + k * STEP_NS
+        published = feed_in_car(detector, [t], lambda t: P0 - GRADIENT * height(secs(t)))
+        if any(isinstance(e, FloorEvent) for e in published):
+            (event,) = detector.events
+            assert not event.at_end
+            return detector, t + round(CONFIG.landing_s * NS_PER_S), P0 + storeys_pa(2.0)
+    raise AssertionError("the car's stop was not decided")
+
+
+def stepped(before_pa: float, at_ns: int, step_pa: float) -> Callable[[int], float]:
+    """A pressure of ``before_pa`` that steps by ``step_pa`` at ``at_ns``."""
+    return lambda t: before_pa + (step_pa if t >= at_ns else 0.0)
+
+
+def stamps_around(until: int, first: int, last: int) -> list[int]:
+    """Sample stamps ``until + j * STEP_NS`` for j in [first, last]."""
+    return [until + j * STEP_NS for j in range(first, last + 1)]
+
+
+@pytest.mark.parametrize("late", [0, 1], ids=["at-landing_s", "one-sample-after"])
+def test_a_move_short_of_a_storey_until_landing_s_after_a_cars_stop_is_its_level(
+    late: int,
+) -> None:
+    """A change that settles less than half a minimum storey away up to and including
+    ``landing_s`` after a floor was decided as the car stopped is that floor's level measured
+    again (the doors' seal, the sensor's lag); one sample later it is a move on the floor (a
+    ramp, a landing), kept as an offset from its level."""
+    detector, until, floor_p = decided_in_the_car()
+    jump_m = 1.5 * CONFIG.start_m  # a change begins, and it is no leg of a trip
+    assert jump_m < CONFIG.min_transition_m / 2
+    first = -((until - detector.events[0].t_ns) // STEP_NS) + 1
+    # the jump from which the change settles exactly ``late`` samples after ``until``
+    for jump in range(-1, first, -1):
+        trial = copy.deepcopy(detector)
+        feed_in_car(
+            trial,
+            stamps_around(until, first, late + 10),
+            stepped(floor_p, until + jump * STEP_NS, jump_m * GRADIENT),
+        )
+        state = trial.state()
+        if state.phase is FloorPhase.SETTLED and state.since_ns == until + late * STEP_NS:
+            break
+    else:
+        raise AssertionError("no jump settles at that sample")
+    assert [e.kind for e in trial.events] == [FloorEventKind.TRANSITION]
+    floor = storeys_pa(2.0)  # the floor's level, measured again once the car stood still
+    if late == 0:
+        assert state.level_m == pytest.approx(state.height_m, abs=0.01)
+        assert trial.registry.relative_pa(1) == pytest.approx(floor + jump_m * GRADIENT, abs=0.2)
+    else:
+        assert state.level_m == pytest.approx(state.height_m - jump_m, abs=0.05)
+        assert trial.registry.relative_pa(1) == pytest.approx(floor, abs=0.1)
+
+
+def test_rides_are_held_to_the_stop_band_until_landing_s_after_a_cars_stop() -> None:
+    """Until ``landing_s`` after a floor was decided as the car stopped (that instant
+    included), a ride is announced only beyond ``ride_m + stop_band_m``; after it, beyond
+    ``ride_m``."""
+    detector, until, floor_p = decided_in_the_car()
+    # a ramp down at half a metre per second reaching ride_m + stop_band_m / 2 at ``until``
+    speed = 0.5
+    top_m = CONFIG.ride_m + CONFIG.stop_band_m / 2
+    begin = until - round(top_m / speed * NS_PER_S)
+
+    def pressure(t: int) -> float:
+        return floor_p + GRADIENT * speed * max(0.0, (t - begin) / NS_PER_S)
+
+    first = -((until - detector.events[0].t_ns) // STEP_NS) + 1
+    assert feed_in_car(detector, stamps_around(until, first, 0), pressure) == []
+    state = detector.state()
+    assert state.phase is FloorPhase.CHANGING
+    # beyond ride_m already: only the band held it back
+    assert CONFIG.ride_m < state.height_m - state.level_m < CONFIG.ride_m + CONFIG.stop_band_m
+    (started,) = feed_in_car(detector, [until + STEP_NS], pressure)
+    assert isinstance(started, RideEvent) and started.kind is RideEventKind.STARTED
+    assert started.direction is RideDirection.DOWN
+
+
+def test_while_its_level_is_measured_again_a_moving_pressure_is_no_measurement() -> None:
+    """After a car's stop, the floor's level is taken again only from settle_s of samples
+    that were still on both counts (their smoothed pressure in the band, their slope below
+    settle_rate_m_s): a step of the raw pressure, its slope steep while the smoothed
+    pressure has hardly moved, leaves the level where the step's first sample took it
+    (its window still looked still) until settle_s after the step."""
+    detector, until, floor_p = decided_in_the_car()
+    step_at = until - round(CONFIG.landing_s / 2 * NS_PER_S)
+    step_pa = 0.5 * CONFIG.start_m * GRADIENT  # neither its level nor its rate starts a change
+    pressure = stepped(floor_p, step_at, step_pa)
+
+    first = -((until - detector.events[0].t_ns) // STEP_NS) + 1
+    stamps = stamps_around(until, first, 0)
+    feed_in_car(detector, [t for t in stamps if t < step_at], pressure)
+    measured = detector.registry.relative_pa(1)
+    assert measured == pytest.approx(storeys_pa(2.0), abs=0.1)
+    # what the smoothed pressure moves on the step's first sample
+    dt = STEP_NS / NS_PER_S
+    first_share = step_pa * dt / (CONFIG.level_tau_s + dt)
+    settled_at = step_at + round(CONFIG.settle_s * NS_PER_S)
+    for t in (t for t in stamps if t >= step_at):
+        feed_in_car(detector, [t], pressure)
+        assert detector.phase is FloorPhase.SETTLED
+        if t < settled_at:
+            assert abs(detector.registry.relative_pa(1) - measured) <= first_share + 1e-6
+    assert detector.registry.relative_pa(1) == pytest.approx(measured + step_pa, abs=0.2)
