@@ -802,3 +802,65 @@ def test_while_its_level_is_measured_again_a_moving_pressure_is_no_measurement()
         if t < settled_at:
             assert abs(detector.registry.relative_pa(1) - measured) <= first_share + 1e-6
     assert detector.registry.relative_pa(1) == pytest.approx(measured + step_pa, abs=0.2)
+
+
+def test_a_new_detector_has_no_pressure_level_until_a_usable_sample() -> None:
+    detector = OnlineFloorDetector(CONFIG)
+    detector.update(PressureSample(at(0.0), math.nan, T_C))
+    assert math.isnan(detector.level) and math.isnan(detector.smoothed)
+    assert detector.rate == 0.0
+
+
+def test_a_stop_left_on_the_sample_it_resumed_goes_on_as_one_trip() -> None:
+    """The base's odometry stopped arriving before the ride (the detector goes on on the
+    pressure alone). A move back of less than half a minimum storey from a stop is no leg:
+    the stop resumes; a jump a storey on at the very next sample begins a change from that
+    moment, and the trip goes on from its first leg, a visit min_visit_s after it came to
+    rest."""
+    storey = 2 * CONFIG.min_transition_m
+    back = 0.4 * CONFIG.min_transition_m
+    stays = [Stay(0.0, 60), Stay(storey, 5), Stay(storey - back, 60)]
+    tr = trace(stays, noise_pa=0.0)
+    p = tr.pressure_pa.copy()
+    detector = OnlineFloorDetector(CONFIG)
+    for k in range(round(30 * RATE_HZ)):  # odometry for the first half minute only
+        detector.update_odometry(Odometry(at(k / RATE_HZ), 0.0, 0.0, 0.0))
+    phases = [detector.phase]
+    jumped_at = None
+    for i, t in enumerate(tr.t_ns.tolist()):
+        detector.update(PressureSample(t, float(p[i]), T_C))
+        if detector.phase is not phases[-1]:
+            phases.append(detector.phase)
+            if phases[1:] == [FloorPhase.SETTLED] + [FloorPhase.CHANGING, FloorPhase.STOPPED] * 2:
+                assert detector.events == []  # the stop resumed, not yet a visit
+                p[i + 1 :] += storeys_pa(2.0)  # a storey up at the next sample
+                jumped_at = tr.t_ns[i + 1]
+        if jumped_at == t:
+            assert detector.phase is FloorPhase.CHANGING
+    assert jumped_at is not None
+    (event,) = detector.events
+    assert not event.at_end and moves([event]) == [(0, 1)]
+    assert event.delta_m == pytest.approx(2 * storey - back, abs=0.1)
+    assert event.t_ns - event.t_end_ns == round(CONFIG.min_visit_s * NS_PER_S)
+    left = tr.stays_s[0][1]  # the trip's first leg began as the start floor's stay ended
+    assert left - 0.5 < secs(event.t_start_ns) < left + 1.0
+
+
+def test_a_new_floor_the_car_goes_on_from_to_within_a_storey_of_a_known_one_is_merged() -> None:
+    """A floor decided as the car stopped, new (more than a minimum storey from every known
+    floor), then the car going on by less than a minimum storey to a level nearer a known
+    floor: the trip ended at that floor, so the new one was a landing and is merged into it
+    (two floors closer than min_transition_m cannot both exist), by a correction."""
+    m = CONFIG.min_transition_m
+    known, decided, ended = 2.5 * m, 1.2 * m, 2.0 * m
+    assert abs(decided - known) >= m and abs(ended - decided) < m
+    assert abs(ended - known) < abs(ended - decided)  # nearer the known floor
+    assert ended - decided > m / 2  # a leg of the trip
+    stays = [Stay(0.0, 60), Stay(known, 60, drive_m=3.0, drive_after_s=20.0)]
+    stays += [Stay(0.0, 60, drive_m=3.0, drive_after_s=20.0), Stay(decided, 5), Stay(ended, 60)]
+    detector = live(trace(stays, noise_pa=0.0))
+    kinds = [e.kind for e in detector.events]
+    assert kinds == [FloorEventKind.TRANSITION] * 3 + [FloorEventKind.CORRECTION]
+    assert moves(detector.events) == [(0, 1), (1, 0), (0, 2), (0, 1)]
+    assert moves(detector.transitions) == [(0, 1), (1, 0), (0, 1)]
+    assert detector.registry.known == 2 and detector.floor_id == 1
