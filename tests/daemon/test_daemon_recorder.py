@@ -679,3 +679,110 @@ def test_the_writer_thread_is_named_for_the_recorder(tmp_path: Path) -> None:
     rec = _recorder(tmp_path)
     assert rec.name == "recorder"
     assert rec.health(0).device == "recorder"
+
+
+def test_a_syncer_asked_nothing_syncs_nothing(tmp_path: Path) -> None:
+    from baromapd.recorder import Syncer
+
+    with capture_logs() as logged:
+        syncer = Syncer()
+        syncer.close(2.0)
+    assert not syncer._thread.is_alive()
+    assert (syncer.syncs, syncer.errors) == (0, 0)
+    assert [e for e in logged if e["event"] == "fsync failed"] == []
+
+
+def test_a_recorder_that_never_started_finishes_cleanly(tmp_path: Path) -> None:
+    """The worker finishes a recorder whose thread failed before its first file (its fsync
+    thread could not start): nothing to close, nothing raised over the first failure."""
+    rec = _recorder(tmp_path)
+    rec.finished()
+    assert rec.files == [] and rec.faults == 0
+
+
+def test_after_a_guard_pause_below_a_megabyte_the_guard_alone_sets_the_resumption(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The full disk's resumption level (FULL_DISK_RESUME_MB) is for a disk that filled; a
+    pause of the guard resumes at min_free_mb and its headroom, however small."""
+    limit = recorder_module.FULL_DISK_RESUME_MB / 2
+    free = [limit]
+    monkeypatch.setattr(Recorder, "_free_mb", lambda self: free[0])
+    config = RecordingConfig(directory=tmp_path, min_free_mb=limit)
+    rec = Recorder(config, robot="r1", metadata={}, run_name="r1_small")
+    rec._open()
+    free[0] = limit / 2
+    rec._guard_disk()
+    assert rec._writer is None and rec.paused is not None
+    free[0] = limit * recorder_module.RESUME_HEADROOM
+    assert free[0] < recorder_module.FULL_DISK_RESUME_MB
+    rec._guard_disk()
+    assert rec._writer is not None and rec.paused is None and len(rec.files) == 2
+    rec._close()
+
+
+def test_a_recorder_whose_first_file_could_not_be_opened_opens_one_when_it_can(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The disk was full as the recorder started: it goes on waking (its flush and free
+    space checks run with no file yet) and opens its first file once there is room."""
+
+    def refuse(*args: object, **kwargs: object) -> RecordingWriter:
+        raise OSError(28, "No space left on device")
+
+    free = [0.0]
+    monkeypatch.setattr(Recorder, "_free_mb", lambda self: free[0])
+    monkeypatch.setattr(recorder_module, "RecordingWriter", refuse)
+    rec = _recorder(tmp_path, flush_interval_s=0.05)
+    rec._open()
+    assert rec.fault is not None and rec.files == []
+    rec.idle()
+    assert rec.files == []
+    monkeypatch.setattr(recorder_module, "RecordingWriter", RecordingWriter)
+    free[0] = 100.0
+
+    def opened() -> bool:
+        rec.idle()
+        return len(rec.files) == 1
+
+    _wait(opened)
+    assert rec.fault is None and rec.paused is None
+    rec._close()
+
+
+def test_the_flush_and_the_free_space_check_come_exactly_one_flush_interval_after_opening(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    clock = [10**15]
+    monkeypatch.setattr(recorder_module.time, "monotonic_ns", lambda: clock[0])
+    looked: list[int] = []
+
+    def free_mb(self: Recorder) -> float:
+        looked.append(clock[0])
+        return 1000.0
+
+    monkeypatch.setattr(Recorder, "_free_mb", free_mb)
+    rec = _recorder(tmp_path)
+    rec._open()
+    opened = clock[0]
+    flush_ns = round(rec.config.flush_interval_s * 1e9)
+    clock[0] = opened + flush_ns - recorder_module.IDLE_CHECK_NS
+    rec.idle()
+    assert looked == []
+    clock[0] = opened + flush_ns
+    rec.idle()
+    assert looked == [opened + flush_ns]
+    rec._close()
+
+
+def test_a_file_is_rotated_exactly_rotate_minutes_after_it_was_opened(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    clock = [10**15]
+    monkeypatch.setattr(recorder_module.time, "monotonic_ns", lambda: clock[0])
+    rec = _recorder(tmp_path)
+    rec._open()
+    rotate_ns = round(rec.config.rotate_minutes * 60 * 1_000_000_000)
+    assert not rec._rotation_due(clock[0] + rotate_ns - 1)
+    assert rec._rotation_due(clock[0] + rotate_ns)
+    rec._close()
