@@ -4,7 +4,8 @@ them, compared with a baseline kept in the repository.
 
     .venv/bin/python bench/gate.py [--quick] [--cases REGEX] [--seeds 0,1,2] [--workers N]
                                    [--tree PATH] [--baseline FILE] [--write-baseline FILE]
-                                   [--runs K] [--keep DIR] [--list] [--table FILE]
+                                   [--runs K] [--keep DIR] [--extra CASE] [--list]
+                                   [--table FILE]
 
 A case is a log, a part and stride of it, an odometry error model and a way of timing and
 stamping its lines (baromap.evaluation.log_variants): ``intel``, ``fr079/10:slip``,
@@ -22,6 +23,11 @@ half the baseline's seed range, 5 % and a floor (3 mm ATE, 0.5 mm relations), or
 missing, warnings appear or a command fails that did not before. The exit status is 1 then,
 0 otherwise. ``--write-baseline FILE`` writes what this run measured, one line per case and
 seed; change the repository's baseline (bench/gate-baseline.tsv) only in a commit that says why.
+
+``--extra CASE`` runs a case the gate does not hold as well, over ``--seeds`` (0-2 by
+default), with no baseline: ``corridor:exact`` maps with the reference itself as odometry
+(``log_variants.ODOMETRY["exact"]``), which tells what the scans alone move the SLAM off the
+reference from what odometry's errors leave in it.
 
 ``--quick`` runs the cases marked quick with seed 0 only (about 3 minutes on two idle cores);
 the full gate every case over its seeds (about 20). ``--tree PATH`` runs the commands of
@@ -307,6 +313,22 @@ def _tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.array(times, dtype=np.int64), np.array(poses).reshape(-1, 3)
 
 
+def scan_rows(variant, t: np.ndarray) -> np.ndarray | None:  # type: ignore[no-untyped-def]
+    """Each of the variant's scans' row in a trajectory stamped ``t`` (-1: not in it), or
+    None where scans are missing and the stamps do not say which."""
+    n = len(variant.reference)
+    if variant.scan_ns is not None:
+        # the scans' own stamps (a variant's added scans are not among them)
+        pos = np.clip(np.searchsorted(t, variant.scan_ns), 0, max(len(t) - 1, 0))
+        hit = (len(t) > 0) & (t[pos] == variant.scan_ns) if len(t) else np.zeros(n, bool)
+        return np.where(hit, pos, -1)
+    if len(t) == n + variant.extra_scans and variant.extra_scans == 0:
+        return np.arange(n)  # stamps made by the importer: the scans in order
+    if len(t) < n:
+        return None
+    return np.full(n, -1)
+
+
 def score(spec: CaseSpec, seed: int, case_dir: Path, prepared) -> Outcome:  # type: ignore[no-untyped-def]
     from baromap.evaluation.trajectory import trajectory_error
     from baromap.mapping.relations import relation_pairs
@@ -323,15 +345,8 @@ def score(spec: CaseSpec, seed: int, case_dir: Path, prepared) -> Outcome:  # ty
         return out
     t, poses = _tum(tum)
     n = len(variant.reference)
-    found = np.full(n, -1)
-    if variant.scan_ns is not None:
-        # the scans' own stamps (a variant's added scans are not among them)
-        pos = np.clip(np.searchsorted(t, variant.scan_ns), 0, max(len(t) - 1, 0))
-        hit = (len(t) > 0) & (t[pos] == variant.scan_ns) if len(t) else np.zeros(n, bool)
-        found = np.where(hit, pos, -1)
-    elif len(t) == n + variant.extra_scans and variant.extra_scans == 0:
-        found = np.arange(n)  # stamps made by the importer: the scans in order
-    elif len(t) < n:
+    found = scan_rows(variant, t)
+    if found is None:
         out.failed = f"{n - len(t)} scans missing and the stamps do not say which"
         out.lost = n - len(t)
         return out
@@ -521,6 +536,13 @@ def main() -> int:
         metavar="K",
         help="build-maps --runs K (default 1, build-maps' own default)",
     )
+    parser.add_argument(
+        "--extra",
+        action="append",
+        default=[],
+        metavar="CASE",
+        help="also run CASE, one of no gate case (e.g. corridor:exact), over its --seeds",
+    )
     parser.add_argument("--list", action="store_true", help="list the cases and exit")
     parser.add_argument(
         "--table", type=Path, default=None, metavar="FILE", help="print FILE as Markdown and exit"
@@ -538,6 +560,7 @@ def main() -> int:
         for name, seeds, quick in CASES
         if (quick or not args.quick) and (args.cases is None or re.search(args.cases, name))
     ]
+    chosen += [(parse_case(name), (0, 1, 2)) for name in args.extra]
     only = {int(s) for s in args.seeds.split(",")} if args.seeds else None
     cases = [
         (spec, seed)

@@ -130,6 +130,9 @@ ODOMETRY = {
     "drift": OdometryErrors(scale=0.02, creep_deg_per_m=1.0, wander=1.5),
     "slip": OdometryErrors(slips_per_100m=5.0),
     "noisy": OdometryErrors(noise=3.0),
+    # the reference itself: how far the scans alone move a SLAM off the reference, apart from
+    # what odometry's errors leave in it (a diagnosis, in no gate case)
+    "exact": OdometryErrors(scale=0.0, creep_deg_per_m=0.0, noise=0.0),
 }
 
 
