@@ -38,7 +38,7 @@ import numpy as np
 import numpy.typing as npt
 
 from baromap.errors import InputFormatError
-from baromap.floors.detection import FloorDetection
+from baromap.floors.detection import FloorDetection, Transition
 from baromap.messages import NS_PER_S
 
 TOLERANCE_S = 2.0
@@ -169,15 +169,17 @@ class Score(DetectionRates):
         return float(np.max(self.delays_s)) if self.delays_s else float("nan")
 
 
-def score(
+def match(
     detection: FloorDetection,
     truth: FloorTruth,
     tolerance_s: float = TOLERANCE_S,
     max_delay_s: float | None = None,
-) -> Score:
+) -> list[tuple[TrueTransition, Transition]]:
+    """The detected transitions matched to the true ones (see the module docstring), as
+    ``(true, detected)`` pairs in the truth's order; the unmatched are left out."""
     tol = round(tolerance_s * NS_PER_S)
     late = None if max_delay_s is None else round(max_delay_s * NS_PER_S)
-    detected = list(detection.transitions)
+    detected = detection.transitions
     used = [False] * len(detected)
     matches = []
     for true in truth.transitions:
@@ -191,6 +193,17 @@ def score(
                 used[j] = True
                 matches.append((true, det))
                 break
+    return matches
+
+
+def score(
+    detection: FloorDetection,
+    truth: FloorTruth,
+    tolerance_s: float = TOLERANCE_S,
+    max_delay_s: float | None = None,
+) -> Score:
+    detected = detection.transitions
+    matches = match(detection, truth, tolerance_s, max_delay_s)
     direction = sum(
         1
         for true, det in matches
