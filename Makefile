@@ -17,11 +17,16 @@ TAP_CFLAGS := -std=gnu11 -O2 -Wall -Wextra -Werror
 demo: $(STAMP) $(TAP)
 	$(BIN)/baromap demo
 
+# mypy (one core, half a minute from a clean clone) runs beside the firmware build (the
+# sanitized host tests are one compiler on the other core); its output follows the build's.
 test: $(TEST_STAMP) $(TAP) viewer-client
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(BIN)/mypy
-	@if command -v avr-gcc >/dev/null 2>&1; then $(MAKE) -C firmware; else echo "firmware: build skipped (avr-gcc not found; install gcc-avr avr-libc arduino-core-avr)"; fi
+	@echo "$(BIN)/mypy (beside the firmware build)"; \
+	log=$$(mktemp); $(BIN)/mypy >"$$log" 2>&1 & types=$$!; \
+	$(MAKE) firmware; built=$$?; \
+	wait $$types; typed=$$?; cat "$$log"; rm -f "$$log"; \
+	test $$typed -eq 0 && test $$built -eq 0
 	$(BIN)/pytest $(XDIST) -m "not heavy" $(PYTEST_ARGS)
 
 # Whole real logs and the 46-minute simulated run through the SLAM (minutes of CPU). Run it,
@@ -44,6 +49,9 @@ lint: $(TEST_STAMP)
 
 setup: $(TEST_STAMP) $(TAP)
 
+firmware:
+	@if command -v avr-gcc >/dev/null 2>&1; then $(MAKE) -C firmware; else echo "firmware: build skipped (avr-gcc not found; install gcc-avr avr-libc arduino-core-avr)"; fi
+
 system-deps:
 	@scripts/system-deps.sh
 
@@ -51,19 +59,26 @@ system-deps:
 # not compile, compileall does it once on both cores: where PYTHONDONTWRITEBYTECODE is set (as
 # on CI machines) nothing would ever be cached, and every process the demo and the tests start
 # would compile matplotlib and scipy again (about 1.4 s of CPU each).
-COMPILE := $(BIN)/python -m compileall -q -j 0 $(VENV)/lib >/dev/null || echo "compileall: some files left to compile on import"
+# Packages' own tests and the tools that run once (pip, mypy) are left out: half the bytes.
+COMPILE_SKIP := /(tests|pip|mypy|mypyc|setuptools|pkg_resources|pygments)/
+COMPILE := $(BIN)/python -m compileall -q -j 0 -x '$(COMPILE_SKIP)' $(VENV)/lib >/dev/null || echo "compileall: some files left to compile on import"
 
-$(STAMP): pyproject.toml scripts/system-deps.sh
+# The venv with baromap (and its test tools for `make test`: one pip run, one compile, which
+# holds what the demo needs too).
+define INSTALL
 	@scripts/system-deps.sh
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install -q --no-compile -e .
+	$(BIN)/python -m pip install -q --no-compile -e '$(1)'
 	$(COMPILE)
+endef
+
+$(STAMP): pyproject.toml scripts/system-deps.sh
+	$(call INSTALL,.)
 	touch $@
 
-$(TEST_STAMP): $(STAMP)
-	$(BIN)/python -m pip install -q --no-compile -e '.[test]'
-	$(COMPILE)
-	touch $@
+$(TEST_STAMP): pyproject.toml scripts/system-deps.sh
+	$(call INSTALL,.[test])
+	touch $(STAMP) $@
 
 # The laser's tap in C (daemon/tap.c; daemon/baromapd/tap.py says why there is a tap): built beside the
 # venv's interpreter, where baromapd.tap looks for it (the README's install: `make tap
