@@ -54,8 +54,8 @@ SHARED_DATA = find_shared_data()
 #: nature, so ``make check`` (``-m "not slow"``) leaves them to ``make test``. A test elsewhere
 #: that takes more than a few seconds of CPU carries ``@pytest.mark.slow`` itself.
 INTEGRATION_DIRS = ("daemon", "e2e", "firmware", "hardware", "live", "liveview")
-#: Tests that run a real log or the 46-minute simulated run through the SLAM, pinned to one
-#: log, stride and seed (seconds to a minute of CPU each): ``make test`` leaves them to
+#: Tests that run a whole real log or the 46-minute simulated run through the SLAM, several
+#: times over (a minute of CPU each, four of them): ``make test`` leaves them to
 #: ``make test-heavy``, as it leaves the maps' quality over every log and variant to
 #: bench/gate.py.
 HEAVY = "heavy"

@@ -941,7 +941,6 @@ def _robot_behind_the_laser(source: Path, target: Path, mount: tuple[float, floa
 
 
 @pytest.mark.slow
-@pytest.mark.heavy
 def test_a_log_whose_laser_sits_off_the_robot_centre_maps_the_robot(
     shared_data: Path, tmp_path: Path
 ) -> None:
@@ -968,7 +967,6 @@ def test_a_log_whose_laser_sits_off_the_robot_centre_maps_the_robot(
 
 
 @pytest.mark.slow
-@pytest.mark.heavy
 def test_a_log_of_a_short_range_laser_maps_without_its_no_return_code_as_walls(
     shared_data: Path, tmp_path: Path
 ) -> None:
@@ -1162,7 +1160,6 @@ def test_a_sparse_scan_that_fits_along_a_ridge_is_matched_not_left_to_odometry(
 
 
 @pytest.mark.slow
-@pytest.mark.heavy
 def test_a_closure_beyond_the_drift_model_puts_a_wrong_front_end_turn_right(
     shared_data: Path,
 ) -> None:
@@ -1182,7 +1179,6 @@ def test_a_closure_beyond_the_drift_model_puts_a_wrong_front_end_turn_right(
 
 
 @pytest.mark.slow
-@pytest.mark.heavy
 def test_one_scan_matching_two_submaps_beyond_the_drift_model_confirms_itself(
     shared_data: Path,
 ) -> None:
@@ -1205,7 +1201,6 @@ def test_one_scan_matching_two_submaps_beyond_the_drift_model_confirms_itself(
 
 
 @pytest.mark.slow
-@pytest.mark.heavy
 def test_a_closure_beyond_the_drift_model_is_looked_for_again_where_it_puts_the_robot(
     shared_data: Path,
 ) -> None:
@@ -1220,7 +1215,6 @@ def test_a_closure_beyond_the_drift_model_is_looked_for_again_where_it_puts_the_
 
 
 @pytest.mark.slow
-@pytest.mark.heavy
 def test_a_front_end_match_odometry_cannot_explain_yields_in_the_last_solve(
     shared_data: Path,
 ) -> None:
