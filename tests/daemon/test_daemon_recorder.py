@@ -375,9 +375,9 @@ def test_a_full_disk_is_never_fatal(tmp_path: Path) -> None:
     assert rec.paused == "recorder fault: disk full: [Errno 28] No space left on device"
 
 
-def _cut_file(path: Path) -> None:
+def _cut_file(path: Path, n: int = 50) -> None:
     writer = RecordingWriter(path, robot="r1", flush_interval_s=3600)
-    for sample in _samples(50):
+    for sample in _samples(n):
         writer.write(sample)
     writer.flush()
     writer.write(_samples(1, t0=1_800_000_000_000_000_000)[0])
@@ -786,3 +786,181 @@ def test_a_file_is_rotated_exactly_rotate_minutes_after_it_was_opened(
     assert not rec._rotation_due(clock[0] + rotate_ns - 1)
     assert rec._rotation_due(clock[0] + rotate_ns)
     rec._close()
+
+
+def test_health_gives_each_topics_latency_percentiles_in_whole_microseconds(
+    tmp_path: Path,
+) -> None:
+    rec = _recorder(tmp_path)
+    hist = rec.latency["/t"] = LatencyHistogram()
+    bin_ns = recorder_module.LATENCY_BIN_NS
+    for i in range(99):  # one latency in each of the first 99 bins
+        hist.add(i * bin_ns + 1)
+    hist.add(5_000_123)  # and one far out
+    counters = rec.health(0).counters
+    p50, p99 = counters["latency_p50_us/t"], counters["latency_p99_us/t"]
+    assert (p50, p99) == (50 * bin_ns // 1000, 99 * bin_ns // 1000)
+    assert isinstance(p50, int) and isinstance(p99, int)
+
+
+def test_every_message_a_failing_writer_refuses_is_counted_lost(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    failing = _FailingWrites(monkeypatch, RuntimeError("FoxgloveError: MCAP error: I/O error"))
+    failing.failing = True
+    rec = _recorder(tmp_path)
+    for _ in range(2):  # a file refuses a message; the next file refuses one too
+        rec._open()
+        rec.handle(_samples(1)[0], None)
+    assert rec.lost == {"PressureSample": 2} and rec.faults == 2
+
+
+def test_a_message_is_written_on_the_topic_it_was_offered_on(tmp_path: Path) -> None:
+    rec = _recorder(tmp_path)
+    rec._open()
+    rec.handle(_samples(1)[0], None, topic=topics.REFERENCE_PRESSURE)
+    rec._close()
+    (record,) = read_messages(rec.files[0], [topics.REFERENCE_PRESSURE])
+    assert record.message == _samples(1)[0]
+
+
+def test_a_pause_of_the_guard_is_logged_as_an_error_with_its_reason(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(Recorder, "_free_mb", lambda self: 5.0)
+    config = RecordingConfig(directory=tmp_path, min_free_mb=10.0)
+    rec = Recorder(config, robot="r1", metadata={}, run_name="r1_paused")
+    rec._open()
+    with capture_logs() as logged:
+        rec._guard_disk()
+    (paused,) = [e for e in logged if e["event"] == "recording paused"]
+    assert paused["log_level"] == "error"
+    assert paused["reason"] == "disk guard: 5 MB free, below min_free_mb 10" == rec.paused
+
+
+def test_a_fault_names_the_file_it_stopped(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    failing = _FailingWrites(monkeypatch, RuntimeError("FoxgloveError: MCAP error: I/O error"))
+    rec = _recorder(tmp_path)
+    rec._open()
+    failing.failing = True
+    with capture_logs() as logged:
+        rec.handle(_samples(1)[0], None)
+    (fault,) = [e for e in logged if e["event"] == "recorder fault"]
+    assert fault["path"] == str(rec.files[0])
+
+
+def test_a_metadata_record_the_writer_refuses_is_a_fault_during_its_write(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def refuse(writer: RecordingWriter, record: str, data: object) -> None:
+        raise RuntimeError("FoxgloveError: MCAP error: I/O error")
+
+    rec = _recorder(tmp_path)
+    rec._open()
+    monkeypatch.setattr(RecordingWriter, "write_metadata", refuse)
+    rec.set_device_metadata("laser", {"serial": "1"})
+    with capture_logs() as logged:
+        rec.idle()
+    (fault,) = [e for e in logged if e["event"] == "recorder fault"]
+    assert fault["during"] == "write metadata"
+    assert fault["error"] == "RuntimeError: FoxgloveError: MCAP error: I/O error"
+    assert rec.faults == 1 and rec._writer is None
+
+
+def test_recording_resumes_saying_the_free_space_to_a_tenth_of_a_megabyte(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """After the guard's pause and after a fault's retry alike."""
+    free = [120.04]
+    monkeypatch.setattr(Recorder, "_free_mb", lambda self: free[0])
+    config = RecordingConfig(directory=tmp_path, min_free_mb=100.0)
+    rec = Recorder(config, robot="r1", metadata={}, run_name="r1_free")
+    rec.paused = "disk guard: 99 MB free, below min_free_mb 100"
+    with capture_logs() as logged:
+        rec._guard_disk()
+    rec._fault("write", OSError(5, "bad block"))
+    free[0] = 237.26
+    clock = [rec._retry_ns]
+    monkeypatch.setattr(recorder_module.time, "monotonic_ns", lambda: clock[0])
+    with capture_logs() as retried:
+        rec._guard_disk()
+    said = [e["free_mb"] for e in logged + retried if e["event"] == "recording resumes"]
+    assert said == [120.0, 237.3]
+    rec._close()
+
+
+def test_after_a_full_disk_was_resumed_a_guard_pause_resumes_at_the_guards_level(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    limit = recorder_module.FULL_DISK_RESUME_MB / 2
+    free = [0.0]
+    monkeypatch.setattr(Recorder, "_free_mb", lambda self: free[0])
+    config = RecordingConfig(directory=tmp_path, min_free_mb=limit)
+    rec = Recorder(config, robot="r1", metadata={}, run_name="r1_full")
+    rec._open()
+    rec._fault("write", OSError(28, "No space left on device"))
+    free[0] = recorder_module.FULL_DISK_RESUME_MB * recorder_module.RESUME_HEADROOM
+    rec._guard_disk()
+    assert rec._writer is not None
+    free[0] = limit / 2
+    rec._guard_disk()
+    assert rec._writer is None and rec.paused is not None
+    free[0] = limit * recorder_module.RESUME_HEADROOM
+    rec._guard_disk()
+    assert rec._writer is not None and len(rec.files) == 3
+    rec._close()
+
+
+def test_the_syncer_counts_every_sync_and_every_failure(tmp_path: Path) -> None:
+    from baromapd.recorder import Syncer
+
+    present = tmp_path / "a.mcap"
+    present.write_bytes(b"x")
+    syncer = Syncer()
+    for k in (1, 2):
+        syncer.request(present)
+        _wait(lambda k=k: syncer.syncs == k)  # type: ignore[misc]
+    with capture_logs():
+        for k in (1, 2):
+            syncer.request(tmp_path / "gone.mcap")
+            _wait(lambda k=k: syncer.errors == k)  # type: ignore[misc]
+    syncer.close(2.0)
+    assert (syncer.syncs, syncer.errors) == (2, 2)
+
+
+def test_a_chunk_ends_more_often_than_the_flush_interval() -> None:
+    """What a power cut loses is at most the flush interval: the writer ends its chunks
+    CHUNKS_PER_FLUSH_INTERVAL times as often."""
+    for flush_s in (0.05, 1.0):
+        chunk_s = recorder_module.chunk_interval_s(flush_s)
+        assert chunk_s == pytest.approx(flush_s / recorder_module.CHUNKS_PER_FLUSH_INTERVAL)
+        assert chunk_s < flush_s
+
+
+def test_cut_files_are_looked_for_past_one_already_recovered(tmp_path: Path) -> None:
+    _cut_file(tmp_path / "r1_a_000.mcap")
+    _cut_file(tmp_path / "r1_b_000.mcap")
+    (tmp_path / "r1_a_000.recovered.mcap").write_bytes(b"")
+    assert recorder_module.cut_recordings(tmp_path) == [tmp_path / "r1_b_000.mcap"]
+
+
+def test_a_cut_file_too_big_for_the_free_space_is_skipped_and_the_next_recovered(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A copy needs the file's size free, beyond min_free_mb (here 0): a file exactly that
+    size is recovered; a bigger one is skipped, saying its size to a tenth of a megabyte, and
+    the next one is still looked at."""
+    big, small = tmp_path / "r1_big_000.mcap", tmp_path / "r1_small_000.mcap"
+    _cut_file(big, n=20_000)
+    _cut_file(small)
+    big_mb, small_mb = (p.stat().st_size / 1e6 for p in (big, small))
+    assert round(big_mb, 1) not in (round(big_mb, 2), round(big_mb))
+    monkeypatch.setattr(Recorder, "_free_mb", lambda self: small_mb)
+    rec = _recorder(tmp_path)
+    with capture_logs() as logged:
+        rec._recover([big, small])
+    skipped, recovered = logged
+    assert skipped["event"] == "cut recording not recovered: not enough free space"
+    assert skipped["path"] == str(big) and skipped["size_mb"] == round(big_mb, 1)
+    assert recovered["event"] == "cut recording recovered" and recovered["path"] == str(small)
+    assert rec.recovered == [tmp_path / "r1_small_000.recovered.mcap"]
