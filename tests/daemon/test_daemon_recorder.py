@@ -964,3 +964,129 @@ def test_a_cut_file_too_big_for_the_free_space_is_skipped_and_the_next_recovered
     assert skipped["path"] == str(big) and skipped["size_mb"] == round(big_mb, 1)
     assert recovered["event"] == "cut recording recovered" and recovered["path"] == str(small)
     assert rec.recovered == [tmp_path / "r1_small_000.recovered.mcap"]
+
+
+def test_a_cut_file_left_for_want_of_space_says_the_free_space_to_a_tenth(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _cut_file(tmp_path / "r1_old_000.mcap")
+    monkeypatch.setattr(Recorder, "_free_mb", lambda self: 12.345)
+    config = RecordingConfig(directory=tmp_path, min_free_mb=50.0)
+    rec = Recorder(config, robot="r1", metadata={}, run_name="r1_free")
+    with capture_logs() as logged:
+        rec._recover([tmp_path / "r1_old_000.mcap"])
+    (said,) = logged
+    assert said["event"] == "cut recording not recovered: not enough free space"
+    assert said["free_mb"] == 12.3
+
+
+def test_the_size_is_looked_at_once_a_size_check_and_rotates_at_exactly_rotate_size_mb(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    clock = [10**15]
+    monkeypatch.setattr(recorder_module.time, "monotonic_ns", lambda: clock[0])
+    rec = _recorder(tmp_path)
+    rec._open()
+    limit = round(rec.config.rotate_size_mb * recorder_module.MB)
+    sizes = [limit - 1]
+    looked: list[int] = []
+
+    def size(self: Recorder) -> int:
+        looked.append(clock[0])
+        return sizes[0]
+
+    monkeypatch.setattr(Recorder, "_size", size)
+    t0 = clock[0]
+    check = min(recorder_module.SIZE_CHECK_NS, round(rec.config.flush_interval_s * 1e9))
+
+    def due(at: int) -> bool:
+        clock[0] = at
+        return rec._rotation_due(at)
+
+    assert not due(t0)
+    assert not due(t0 + check - 1)
+    sizes[0] = limit
+    assert due(t0 + check)
+    assert looked == [t0, t0 + check]
+    rec._close()
+
+
+def test_a_fault_exactly_a_window_after_the_last_keeps_the_doubled_pause(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The retry pause starts afresh only after a fault more than FAULT_WINDOW_NS past;
+    FATAL_FAULTS faults within the window, its edge included, are fatal."""
+    clock = [10**15]
+    monkeypatch.setattr(recorder_module.time, "monotonic_ns", lambda: clock[0])
+    first = recorder_module.FAULT_RETRY_NS
+    window = recorder_module.FAULT_WINDOW_NS
+    with capture_logs():
+        rec = _recorder(tmp_path)
+        rec._fault("write", OSError(5, "bad block"))
+        clock[0] += 1
+        rec._fault("write", OSError(5, "bad block"))
+        assert rec._retry_ns == clock[0] + 2 * first  # the second pause is twice the first
+        clock[0] += window
+        rec._fault("write", OSError(5, "bad block"))
+        assert rec._retry_ns == clock[0] + 4 * first and rec.fatal is None
+        fatal = _recorder(tmp_path)
+        start = clock[0]
+        for k in range(recorder_module.FATAL_FAULTS):
+            clock[0] = start + (window if k == recorder_module.FATAL_FAULTS - 1 else k)
+            fatal._fault("write", OSError(5, "bad block"))
+    assert fatal.fatal is not None
+
+
+def test_an_idle_recorder_wakes_its_checks_once_an_idle_check_and_syncs_when_a_flush_is_due(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    clock = [10**15]
+    monkeypatch.setattr(recorder_module.time, "monotonic_ns", lambda: clock[0])
+    looked: list[int] = []
+
+    def free_mb(self: Recorder) -> float:
+        looked.append(clock[0])
+        return 1000.0
+
+    monkeypatch.setattr(Recorder, "_free_mb", free_mb)
+    rec = _recorder(tmp_path)
+    rec.started()
+    opened = clock[0]
+    flush_ns = round(rec.config.flush_interval_s * 1e9)
+    check = recorder_module.IDLE_CHECK_NS
+    assert check < flush_ns
+    try:
+        clock[0] = opened + flush_ns - 1
+        rec.idle()  # not due: the next check comes an idle check later
+        clock[0] = opened + flush_ns
+        rec.idle()
+        assert looked == [] and rec._syncer is not None and rec._syncer.syncs == 0
+        clock[0] = opened + flush_ns - 1 + check
+        rec.idle()
+        assert looked == [clock[0]]
+        syncer = rec._syncer
+        _wait(lambda: syncer.syncs == 1)
+    finally:
+        rec.finished()
+
+
+def test_cut_files_are_recovered_on_a_daemon_thread_named_for_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """ps and a thread dump show it; it never holds up the daemon's exit."""
+    import threading
+
+    _cut_file(tmp_path / "r1_old_000.mcap")
+    seen: list[tuple[str, bool]] = []
+
+    def recover(self: Recorder, paths: list[Path]) -> None:
+        seen.append((threading.current_thread().name, threading.current_thread().daemon))
+
+    monkeypatch.setattr(Recorder, "_recover", recover)
+    rec = _recorder(tmp_path)
+    rec.start()
+    try:
+        _wait(lambda: seen)
+    finally:
+        rec.close()
+    assert seen == [("baromapd-recover", True)]
