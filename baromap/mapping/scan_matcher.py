@@ -569,7 +569,6 @@ def branch_and_bound_search(
     best cell found so far is returned. The runner-up is the best cell distinct from the best
     (:func:`_distinct`), kept while no node left can reach ``RUNNER_UP_FLOOR`` of the best.
     """
-    budget = BNB_BUDGET if budget is None else budget
     res = field.resolution
     angles = _window_angles(guess, window)
     levels = [_bound_field(field, step) for step in BNB_STEPS]
@@ -584,37 +583,74 @@ def branch_and_bound_search(
     )
     flat_bounds = bounds.ravel()
     order = np.argsort(flat_bounds)[::-1]
-    best: tuple[float, float, FloatArray] | None = None  # objective, score, pose
-    runner_up = -np.inf  # objective of the best cell distinct from the best
-    runner_pose: FloatArray | None = None
-    split = 0
-    nodes = _NodeScorer(field, points, angles, prior)
-    # cell offsets of a node's children, and their distances, per level split
-    children = [
-        np.arange(-(parent // 2), parent // 2 + 1, child)
-        for parent, child in itertools.pairwise(BNB_STEPS)
-    ]
-    children_m: list[FloatArray] = [
-        (level_offsets * res).astype(np.float64) for level_offsets in children
-    ]
+    search = _DepthFirst(
+        levels, _NodeScorer(field, points, angles, prior), angles, res,
+        BNB_BUDGET if budget is None else budget,
+    )  # fmt: skip
     # the top nodes best bound first, each searched depth first before the next
     for top_node in order:
-        if split >= budget:
+        if search.exhausted():
             break
-        if best is not None and flat_bounds[top_node] <= max(runner_up, RUNNER_UP_FLOOR * best[0]):
+        if search.beaten(flat_bounds[top_node]):
             break  # every remaining top node is bounded lower still
         a, iy, ix = np.unravel_index(top_node, bounds.shape)
-        stack = [(float(flat_bounds[top_node]), 0, int(a), float(xs[ix]), float(ys[iy]))]
-        while stack and split < budget:
+        search.descend(float(flat_bounds[top_node]), int(a), float(xs[ix]), float(ys[iy]))
+    return search.result(guess)
+
+
+class _DepthFirst:
+    """What one branch-and-bound search has found so far (the best cell, the best cell
+    distinct from it) and the nodes it may still split, shared by the descents from each top
+    node."""
+
+    def __init__(
+        self,
+        levels: list[LikelihoodField],
+        nodes: _NodeScorer,
+        angles: FloatArray,
+        resolution: float,
+        budget: int,
+    ) -> None:
+        self._levels = levels
+        self._nodes = nodes
+        self._angles = angles
+        self._budget = budget
+        self.split = 0
+        self.best: tuple[float, float, FloatArray] | None = None  # objective, score, pose
+        self.runner_up = -np.inf  # objective of the best cell distinct from the best
+        self.runner_pose: FloatArray | None = None
+        # cell offsets of a node's children, and their distances, per level split
+        self._children = [
+            np.arange(-(parent // 2), parent // 2 + 1, child)
+            for parent, child in itertools.pairwise(BNB_STEPS)
+        ]
+        self._children_m: list[FloatArray] = [
+            (level_offsets * resolution).astype(np.float64) for level_offsets in self._children
+        ]
+
+    def exhausted(self) -> bool:
+        return self.split >= self._budget
+
+    def beaten(self, bound: float) -> bool:
+        """Whether a node bounded by ``bound`` can hold neither a better best nor a runner-up
+        that matters (:data:`RUNNER_UP_FLOOR`)."""
+        best = self.best
+        return best is not None and bound <= max(self.runner_up, RUNNER_UP_FLOOR * best[0])
+
+    def descend(self, bound: float, a: int, x: float, y: float) -> None:
+        """Split the top node at heading ``a`` centred on (x, y), depth first, best child
+        first, while the budget lasts."""
+        stack = [(bound, 0, a, x, y)]
+        while stack and not self.exhausted():
             bound, level, a, x, y = stack.pop()
-            if best is not None and bound <= max(runner_up, RUNNER_UP_FLOOR * best[0]):
+            if self.beaten(bound):
                 continue
-            split += 1
-            child_offsets = children[level]
-            cx: FloatArray = x + children_m[level]
-            cy: FloatArray = y + children_m[level]
-            scores = nodes.scores(levels[level + 1], a, x, y, child_offsets)
-            objective = scores - nodes.penalty(a, cx, cy)
+            self.split += 1
+            child_offsets = self._children[level]
+            cx: FloatArray = x + self._children_m[level]
+            cy: FloatArray = y + self._children_m[level]
+            scores = self._nodes.scores(self._levels[level + 1], a, x, y, child_offsets)
+            objective = scores - self._nodes.penalty(a, cx, cy)
             ranked = np.argsort(objective.ravel())  # worst first
             if level + 1 < len(BNB_STEPS) - 1:
                 for flat in ranked:  # the best child ends on top of the stack
@@ -622,23 +658,42 @@ def branch_and_bound_search(
                     value = float(objective[jy, jx])
                     stack.append((value, level + 1, a, float(cx[jx]), float(cy[jy])))
                 continue
-            # cells: exact values, best first
-            for flat in ranked[::-1]:
-                jy, jx = divmod(int(flat), len(child_offsets))
-                value = float(objective[jy, jx])
-                pose = np.array([cx[jx], cy[jy], angles[a]])
-                if best is None or value > best[0]:
-                    if best is not None and _distinct(pose, best[2]) and best[0] > runner_up:
-                        runner_up, runner_pose = best[0], best[2]
-                    best = (value, float(scores[jy, jx]), pose)
-                elif value <= runner_up:
-                    break  # the rest of this node's cells are lower still
-                elif _distinct(pose, best[2]):
-                    runner_up, runner_pose = value, pose
-    if best is None:
-        return SearchResult(np.asarray(guess, dtype=np.float64).copy(), 0.0, 0.0)
-    runner = best[1] - (best[0] - runner_up) if np.isfinite(runner_up) else 0.0
-    return SearchResult(best[2], best[1], max(runner, 0.0), runner_pose)
+            self._take_cells(a, cx, cy, objective=objective, scores=scores, best_first=ranked[::-1])
+
+    def _take_cells(
+        self,
+        a: int,
+        cx: FloatArray,
+        cy: FloatArray,
+        *,
+        objective: npt.NDArray[np.floating[Any]],
+        scores: Float32Array,
+        best_first: npt.NDArray[np.intp],
+    ) -> None:
+        """A node's single cells, whose values are exact: each may become the best or the
+        runner-up."""
+        width = len(cx)
+        for flat in best_first:
+            jy, jx = divmod(int(flat), width)
+            value = float(objective[jy, jx])
+            pose = np.array([cx[jx], cy[jy], self._angles[a]])
+            best = self.best
+            if best is None or value > best[0]:
+                if best is not None and _distinct(pose, best[2]) and best[0] > self.runner_up:
+                    self.runner_up, self.runner_pose = best[0], best[2]
+                self.best = (value, float(scores[jy, jx]), pose)
+            elif value <= self.runner_up:
+                break  # the rest of this node's cells are lower still
+            elif _distinct(pose, best[2]):
+                self.runner_up, self.runner_pose = value, pose
+
+    def result(self, guess: FloatArray) -> SearchResult:
+        best = self.best
+        if best is None:
+            return SearchResult(np.asarray(guess, dtype=np.float64).copy(), 0.0, 0.0)
+        runner_up = self.runner_up
+        runner = best[1] - (best[0] - runner_up) if np.isfinite(runner_up) else 0.0
+        return SearchResult(best[2], best[1], max(runner, 0.0), self.runner_pose)
 
 
 @dataclass(slots=True)
@@ -652,6 +707,52 @@ class _Fit:
     score: float
     scan_hessian: FloatArray
     scan_cost: float
+
+
+class _ScanCost:
+    """The cost :func:`refine` lowers at a pose: the scan's misfit in the field and, with a
+    prior, the same pull towards it as in the lattice search."""
+
+    def __init__(self, field: LikelihoodField, points: FloatArray, prior: Prior | None) -> None:
+        self._field = field
+        self._n = len(points)
+        self._px, self._py = points[:, 0], points[:, 1]
+        self._prior = prior
+        self._stiff = np.zeros(3)
+        if prior is not None:
+            self._stiff = (self._n * prior.weight) / np.array(
+                [prior.sigma_xy**2, prior.sigma_xy**2, prior.sigma_theta**2]
+            )
+
+    def evaluate(self, p: FloatArray) -> _Fit:
+        n, px, py = self._n, self._px, self._py
+        c, s = math.cos(p[2]), math.sin(p[2])
+        world = np.empty((n, 2))
+        world[:, 0] = p[0] + c * px - s * py
+        world[:, 1] = p[1] + s * px + c * py
+        value, gx, gy = self._field.interpolate(world)
+        jac = np.empty((3, n))
+        jac[0], jac[1] = gx, gy
+        jac[2] = gx * (-s * px - c * py) + gy * (c * px - s * py)
+        residual = 1.0 - value
+        scan_h = jac @ jac.T
+        scan_cost = float(residual @ residual)
+        h, g, cost = scan_h.copy(), jac @ residual, scan_cost
+        if self._prior is not None:
+            dev = p - self._prior.pose
+            dev[2] = math.remainder(dev[2], math.tau)
+            h[[0, 1, 2], [0, 1, 2]] += self._stiff
+            g = g - self._stiff * dev
+            cost += float(self._stiff @ dev**2)
+        return _Fit(cost, h, g, float(value.mean()) if n else 0.0, scan_h, scan_cost)
+
+    def information(self, fit: _Fit) -> FloatArray:
+        """Gauss-Newton covariance sigma_r^2 (J^T J)^-1 of the scan alone (the prior is the
+        odometry edge's business), as its inverse: the residual variance makes a poor fit
+        (clutter, partial overlap) count for less."""
+        sigma2 = max(fit.scan_cost / max(self._n - 3, 1), 1e-6)
+        out: FloatArray = fit.scan_hessian / sigma2
+        return out
 
 
 def refine(
@@ -672,47 +773,10 @@ def refine(
     receives the score and information at the starting pose (what the search found).
     """
     current = np.asarray(pose, dtype=np.float64).copy()
-    n = len(points)
-    px, py = points[:, 0], points[:, 1]
-    stiff = np.zeros(3)
-    if prior is not None:
-        # the same pull as in the lattice search, in the normal equations
-        stiff = (n * prior.weight) / np.array(
-            [prior.sigma_xy**2, prior.sigma_xy**2, prior.sigma_theta**2]
-        )
-
-    def evaluate(p: FloatArray) -> _Fit:
-        c, s = math.cos(p[2]), math.sin(p[2])
-        world = np.empty((n, 2))
-        world[:, 0] = p[0] + c * px - s * py
-        world[:, 1] = p[1] + s * px + c * py
-        value, gx, gy = field.interpolate(world)
-        jac = np.empty((3, n))
-        jac[0], jac[1] = gx, gy
-        jac[2] = gx * (-s * px - c * py) + gy * (c * px - s * py)
-        residual = 1.0 - value
-        scan_h = jac @ jac.T
-        scan_cost = float(residual @ residual)
-        h, g, cost = scan_h.copy(), jac @ residual, scan_cost
-        if prior is not None:
-            dev = p - prior.pose
-            dev[2] = math.remainder(dev[2], math.tau)
-            h[[0, 1, 2], [0, 1, 2]] += stiff
-            g = g - stiff * dev
-            cost += float(stiff @ dev**2)
-        return _Fit(cost, h, g, float(value.mean()) if n else 0.0, scan_h, scan_cost)
-
-    def information(fit: _Fit) -> FloatArray:
-        # Gauss-Newton covariance sigma_r^2 (J^T J)^-1 of the scan alone (the prior is the
-        # odometry edge's business), as its inverse: the residual variance makes a poor fit
-        # (clutter, partial overlap) count for less
-        sigma2 = max(fit.scan_cost / max(n - 3, 1), 1e-6)
-        out: FloatArray = fit.scan_hessian / sigma2
-        return out
-
-    fit = evaluate(current)
+    cost = _ScanCost(field, points, prior)
+    fit = cost.evaluate(current)
     if start is not None:
-        start.extend([fit.score, information(fit)])
+        start.extend([fit.score, cost.information(fit)])
     lam = 1e-3
     for _ in range(iterations):
         damped = fit.hessian + lam * np.diag(np.diag(fit.hessian) + 1e-9)
@@ -721,7 +785,7 @@ def refine(
         except np.linalg.LinAlgError:
             break
         candidate = current + delta
-        trial = evaluate(candidate)
+        trial = cost.evaluate(candidate)
         if trial.cost < fit.cost:
             converged = (fit.cost - trial.cost) < CONVERGED_COST * fit.cost
             current, fit = candidate, trial
@@ -736,7 +800,7 @@ def refine(
             if lam > 1e3:
                 break
     current[2] = math.remainder(current[2], math.tau)
-    return current, fit.score, information(fit)
+    return current, fit.score, cost.information(fit)
 
 
 def score_at(field: LikelihoodField, points: FloatArray, pose: FloatArray) -> float:
