@@ -21,7 +21,6 @@ from baromap.floors import (
     load_building_model,
 )
 from baromap.floors.building_model import BuildingModel, ModelFloor
-from baromap.floors.replay import replay
 from baromap.messages import (
     NS_PER_S,
     FloorEvent,
@@ -39,14 +38,7 @@ STOREY_M = 3.2
 def live(
     tr: Trace, config: FloorDetectorConfig | None = None, *, odometry: bool = True
 ) -> OnlineFloorDetector:
-    detector, _, _ = replay(
-        tr.t_ns,
-        tr.pressure_pa,
-        tr.temperature_c,
-        config,
-        odometry=tr.odometry if odometry else None,
-    )
-    return detector
+    return tr.detected(config, odometry=odometry)
 
 
 def secs(t_ns: int) -> float:

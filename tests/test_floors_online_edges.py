@@ -65,16 +65,9 @@ def storeys_pa(storeys: float) -> float:
 
 
 def live(
-    tr: Trace, config: FloorDetectorConfig = CONFIG, *, odometry: bool = True
+    tr: Trace, config: FloorDetectorConfig | None = CONFIG, *, odometry: bool = True
 ) -> OnlineFloorDetector:
-    detector, _, _ = replay(
-        tr.t_ns,
-        tr.pressure_pa,
-        tr.temperature_c,
-        config,
-        odometry=tr.odometry if odometry else None,
-    )
-    return detector
+    return tr.detected(config, odometry=odometry)
 
 
 def moves(events: list[FloorEvent] | tuple[FloorEvent, ...]) -> list[tuple[int, int]]:

@@ -11,7 +11,10 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from baromap.floors.config import FloorDetectorConfig
 from baromap.floors.height import scale_height_m
+from baromap.floors.online import OnlineFloorDetector
+from baromap.floors.replay import replay
 from baromap.messages import NS_PER_S
 
 #: Where scripted runs start: a Monday morning in 2023 (any epoch would do).
@@ -46,6 +49,20 @@ class Trace:
     def seconds(self) -> npt.NDArray[np.float64]:
         out: npt.NDArray[np.float64] = (self.t_ns - self.t_ns[0]) / NS_PER_S
         return out
+
+    def detected(
+        self, config: FloorDetectorConfig | None = None, *, odometry: bool = True
+    ) -> OnlineFloorDetector:
+        """The live detector after the whole trace, sample by sample as the daemon feeds it:
+        with the robot's odometry, or without it (a base that publishes none)."""
+        detector, _, _ = replay(
+            self.t_ns,
+            self.pressure_pa,
+            self.temperature_c,
+            config,
+            odometry=self.odometry if odometry else None,
+        )
+        return detector
 
 
 def trace(
