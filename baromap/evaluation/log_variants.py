@@ -130,9 +130,12 @@ ODOMETRY = {
     "drift": OdometryErrors(scale=0.02, creep_deg_per_m=1.0, wander=1.5),
     "slip": OdometryErrors(slips_per_100m=5.0),
     "noisy": OdometryErrors(noise=3.0),
-    # the reference itself: how far the scans alone move a SLAM off the reference, apart from
-    # what odometry's errors leave in it (a diagnosis, in no gate case)
+    # diagnoses, in no gate case: the reference itself (how far the scans alone move a SLAM
+    # off the reference, apart from what odometry's errors leave in it); the default's scale
+    # and creep without its noise; its noise without scale or creep
     "exact": OdometryErrors(scale=0.0, creep_deg_per_m=0.0, noise=0.0),
+    "noiseless": OdometryErrors(noise=0.0),
+    "unbiased": OdometryErrors(scale=0.0, creep_deg_per_m=0.0),
 }
 
 
