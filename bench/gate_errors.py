@@ -39,18 +39,6 @@ import gate
 STRAIGHT_DEG = 10.0
 
 
-def similarity_ate(est: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
-    """RMS position error after the similarity that brings ``est`` (N, 2) closest to ``ref``,
-    and its scale (Umeyama)."""
-    a, b = ref - ref.mean(axis=0), est - est.mean(axis=0)
-    u, d, vt = np.linalg.svd(a.T @ b / len(a))
-    flip = np.diag([1.0, -1.0 if np.linalg.det(u) * np.linalg.det(vt) < 0 else 1.0])
-    rotation = u @ flip @ vt
-    scale = float(np.trace(np.diag(d) @ flip) / b.var(axis=0).sum())
-    fitted = scale * b @ rotation.T + ref.mean(axis=0)
-    return float(np.sqrt(np.mean(np.sum((fitted - ref) ** 2, axis=1)))), scale
-
-
 def window_errors(est: np.ndarray, ref: np.ndarray, window_m: float) -> dict[str, np.ndarray]:
     """Ours against the reference over every window of ``window_m`` of the reference's travel:
     along and across the reference's motion (m), heading (deg), the reference's travel and turn."""
@@ -80,7 +68,7 @@ def _rms(values: np.ndarray) -> float:
 
 def describe(name: str, seed: int, case_dir: Path, args: argparse.Namespace) -> list[str]:
     from baromap.evaluation.log_variants import Variant, make_variant
-    from baromap.evaluation.trajectory import trajectory_error
+    from baromap.evaluation.trajectory import similarity_error, trajectory_error
 
     spec = gate.parse_case(name)
     source, _ = SOURCES.get(spec.log)
@@ -93,7 +81,7 @@ def describe(name: str, seed: int, case_dir: Path, args: argparse.Namespace) -> 
         return [f"{name} seed {seed}: scans missing from the trajectory, not described"]
     est, ref = poses[rows], variant.reference
     ate = trajectory_error(est, ref)
-    sim, scale = similarity_ate(est[:, :2], ref[:, :2])
+    sim, scale = similarity_error(est, ref)
     travel = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(ref[:, :2], axis=0).T))])
     lines = [
         f"{name} seed {seed}: ATE {ate.rms_m:.3f} m (max {ate.max_m:.3f}), after a similarity "

@@ -169,7 +169,21 @@ STRONG_ODOMETRY = OdometryErrorModel(
     sigma_rot_per_rad=0.03,
 )
 #: Odometry error models by name, for the bench.
-ODOMETRY_MODELS = {"default": OdometryErrorModel(), "strong": STRONG_ODOMETRY}
+#: ``exact``: the corrected poses themselves, no error (what the scans alone move the SLAM
+#: off them; on ``bigloop`` what our SLAM does to a true trajectory).
+EXACT_ODOMETRY = OdometryErrorModel(
+    scale=0.0,
+    drift_rad_per_m=0.0,
+    sigma_trans_per_m=0.0,
+    sigma_side_per_m=0.0,
+    sigma_rot_per_m=0.0,
+    sigma_rot_per_rad=0.0,
+)
+ODOMETRY_MODELS = {
+    "default": OdometryErrorModel(),
+    "strong": STRONG_ODOMETRY,
+    "exact": EXACT_ODOMETRY,
+}
 
 #: The family :func:`varied_odometry` draws from, (low, high) magnitudes. Issue 14's hidden
 #: logs carry "an error model of a similar size" to the default (5 % long, no turn error,

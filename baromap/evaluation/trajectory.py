@@ -58,6 +58,22 @@ def trajectory_error(estimated: FloatArray, reference: FloatArray) -> Trajectory
     )
 
 
+def similarity_error(estimated: FloatArray, reference: FloatArray) -> tuple[float, float]:
+    """Position RMS of poses (N, 3) against reference poses (N, 3) after the similarity (a
+    rigid 2D motion and one scale, Umeyama) that brings them closest, and that scale: what
+    of an ATE a uniform stretch of the whole trajectory explains (a scale below 1: the
+    estimate is the larger)."""
+    est = np.asarray(estimated, dtype=np.float64)[:, :2]
+    ref = np.asarray(reference, dtype=np.float64)[:, :2]
+    a, b = ref - ref.mean(axis=0), est - est.mean(axis=0)
+    u, d, vt = np.linalg.svd(a.T @ b / len(a))
+    flip = np.diag([1.0, -1.0 if np.linalg.det(u) * np.linalg.det(vt) < 0 else 1.0])
+    rotation = u @ flip @ vt
+    scale = float(np.trace(np.diag(d) @ flip) / b.var(axis=0).sum())
+    fitted = scale * b @ rotation.T + ref.mean(axis=0)
+    return float(np.sqrt(np.mean(np.sum((fitted - ref) ** 2, axis=1)))), scale
+
+
 def mean_pose_error(estimated: FloatArray, true: FloatArray) -> tuple[float, float]:
     """Mean distance [m] and mean absolute heading difference [deg] of matched poses.
 
