@@ -41,8 +41,8 @@ MIN_POINTS = 20
 #: start than the front end's widest search (1.5 m, 45 deg) found other walls, not the
 #: same ones better: a scan with little to turn it by (one wall, a corner seen from afar)
 #: can be turned anywhere along the field's ridges, and Levenberg-Marquardt with its damping
-#: relaxed will go there (the small ring, world 1 seed 2: two keyframes turned 113 and 168
-#: deg, held there against their odometry, 2.3 m off). Such a fit is not usable.
+#: relaxed will go there (keyframes turned by a hundred degrees and more, held there
+#: against their odometry, metres off). Such a fit is not usable.
 MAX_SHIFT_M = 1.5
 MAX_TURN_RAD = np.radians(45.0)
 
@@ -95,8 +95,8 @@ class Pull:
     point (scan_matcher.Prior's 0.01) makes the pull of the scans between keyframes several
     times stronger than its sigmas say, holding them to the interpolation between keyframes,
     which is worse than their fit; with the weighting of a Gaussian and odometry's fitted
-    noise as sigmas, Freiburg 079's relations are 0.0487 m, 0.510 deg against 0.0510 m,
-    0.563 deg (seeds 0-4, docs/decisions.md, "The last alignment against a finer field").
+    noise as sigmas the local accuracy is better (docs/decisions.md, "The last alignment
+    against a finer field").
     """
 
     sigma_xy: FloatArray  # (K,)

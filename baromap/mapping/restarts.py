@@ -45,12 +45,11 @@ log = structlog.get_logger(__name__)
 #: "Restarts").
 RESTART_JITTER = 1e-6
 #: A later run replaces the first only if its revisits agree better by more than this share.
-#: Runs of one quality differ by up to 1 % (Acapulco, Intel and Freiburg 079 as published:
-#: 0.1-1.0 % over four runs, their ATE within its spread of a centimetre), a run gone wrong
-#: at a revisit by 8-90 %; when the runs agree about equally the score cannot tell them
-#: apart, and the first run, the odometry as given, is kept. Over four draws of 57 runs of
-#: sparse and published logs, 2 % costs 0-5 mm of the mean ATE against no margin
-#: (fr079/30 strong 0.172 m against 0.167) and still keeps every run gone wrong out.
+#: Runs of one quality differ by up to 1 % (their ATE within a centimetre of each other), a
+#: run gone wrong at a revisit by 8-90 %; when the runs agree about equally the score cannot
+#: tell them apart, and the first run, the odometry as given, is kept. 2 % costs a few
+#: millimetres of the mean ATE against no margin and still keeps every run gone wrong out
+#: (docs/decisions.md, "The best agreeing of K runs, judged without a reference").
 RESTART_MARGIN = 0.02
 #: Mixed into the seed of each run's jitter, so it is its own stream, apart from the bench's
 #: draws (``laser_logs.perturbed``).

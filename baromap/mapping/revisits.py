@@ -4,8 +4,8 @@ needs no reference, so the SLAM can use it to choose between runs of itself
 reference is itself an estimate.
 
 The public logs' absolute trajectory error is measured against GMapping's poses, an estimate
-itself; where there are no ground-truth relations (Acapulco) nothing says whether a
-disagreement with it is our error or GMapping's. The scans say it: a wall seen twice must lie
+itself; where there are no ground-truth relations nothing says whether a disagreement with
+it is our error or GMapping's. The scans say it: a wall seen twice must lie
 in one place under the right poses.
 
 Choices, and why:
@@ -13,9 +13,9 @@ Choices, and why:
 - Revisits only. Each scan is compared with scans taken near it (within its own median range
   of it, facing within ``max_turn_deg``) after the robot had driven at least ``min_travel_m``
   away and back. Near is relative to what the scan sees: moved by less than the typical
-  distance to its walls, most of a view is shared; in a corridor (Freiburg 079 and Intel:
-  median range 1.9-2.0 m, median over scans) that is a metre or two, in a convention hall
-  (Acapulco: 6.5 m) several metres, where a fixed 2 m found revisits for 36 of 861 scans.
+  distance to its walls, most of a view is shared; in a corridor (median range about 2 m)
+  that is a metre or two, in a convention hall (6.5 m) several metres, where a fixed 2 m
+  finds revisits for a few scans in a hundred.
   Consecutive scans agree under any trajectory a scan matcher produced, because the matcher
   made them agree; what the absolute error is made of (a corridor bent, a loop closed off by
   some centimetres) shows only where a place is seen again after a long way round.
@@ -34,10 +34,10 @@ Choices, and why:
   size, the same offset for all trajectories compared. The disagreements in question (the
   ATE against GMapping is 0.06-0.14 m) count in full below 0.2 m, and two different surfaces
   are rarely that close. Not a median per scan: a scan overlapping its partners by less than
-  half would score its non-overlap, and on Freiburg 079 those scans would make most of the
-  mean over scans (68-72 mm, where the median scan scores 9-12 mm); nor a median over scans,
-  which hides a trajectory misplaced in one part of the building (MRPT's icp-slam on seed 1,
-  relations 0.118 m against 0.046-0.049 m on the other seeds, scores as well as those).
+  half would score its non-overlap, and on a log of narrow corridors those scans make most
+  of the mean over scans (several times what the median scan scores); nor a median over
+  scans, which hides a trajectory misplaced in one part of the building (one with twice the
+  relations' error of the others scores as well as they do).
 
 It measures self-consistency, not truth: a trajectory bent smoothly between two revisits, or
 along a corridor seen once, is as consistent as a straight one. Whether it ranks trajectories

@@ -53,7 +53,7 @@ def stamp(
     """
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     # a kernel's cells cost ~1 KB a point in flight: a whole run's points at once (the last
-    # solve's field of every scan, Acapulco driven four times) hold 0.6 GB; a maximum is
+    # solve's field of every scan, a large hall driven four times) hold 0.6 GB; a maximum is
     # the same taken in parts
     for start in range(0, len(pts), STAMP_CHUNK):
         _stamp_part(data, origin_xy, resolution, sigma, pts[start : start + STAMP_CHUNK])

@@ -126,18 +126,16 @@ class FinalSolve(SlamPart):
         corridor (the next door along) or turned by 10-20 degrees where corrected odometry
         is 0.03-0.15 m and 1-5 degrees off; the next keyframe's match, against the submap,
         puts the robot back, so two match edges hold the wrong pose in place against two
-        odometry edges, and no closure can move it. With GMapping's steps in place of those
-        matches `intel/4` seed 2 is at 0.061 m instead of 0.258 and `fr079/30` seed 3 at
-        0.094 m instead of 0.443: they are what is left.
+        odometry edges, and no closure can move it. Given the reference's steps in place of
+        those matches, such runs come out within a decimetre: those matches are what is left.
 
         A match is doubted when it and corrected odometry disagree by more than both can be
         wrong together: the miss weighed by the match's own covariance plus odometry's noise
         as fitted to the matched steps (:func:`fit_noise`), beyond NOISE_OUTLIER_SIGMAS (where
         that fit itself counts a step as a wrong match). Odometry's noise alone is not the
-        test: on the simulated building it is 7 mm a half-metre step, and by it 45 matches
-        along corridors, 3-5 cm along the corridor where the match itself is weak, are
-        doubted and the building bends (seed 0: 0.042 m RMS instead of 0.033, max 0.157 m
-        instead of 0.102). A doubted edge keeps its weight while the graph agrees with it
+        test: a calibrated base's is millimetres a step, and by it matches a few centimetres
+        along a corridor, where the match itself is weak, are doubted and the map bends. A
+        doubted edge keeps its weight while the graph agrees with it
         and yields to odometry and the closures where they disagree; where match and
         odometry agree, the chain stays as stiff as plain least squares holds it.
 
@@ -145,10 +143,9 @@ class FinalSolve(SlamPart):
         that holds it and move with it as one piece, and the graph starts where the front end
         left them, at the doubted edges' own solution; where odometry's noise is several
         degrees (a turn) a Cauchy edge's pull, fading only as one over its residual, keeps
-        them there (`fr079/30` seed 1: six keyframes stay turned by 15 degrees). Leaving the
-        doubted edges out of the solve mends that, but turns a floor of the simulated
-        building by a tenth of a degree (docs/decisions.md, "Doubt a match that odometry
-        contradicts").
+        them there (keyframes can stay turned by degrees). Leaving the doubted edges out of
+        the solve mends that, but turns a floor of the simulated building by a tenth of a
+        degree (docs/decisions.md, "Doubt a match that odometry contradicts").
         """
         edges = self.chain.graph.edges
         doubted = 0
@@ -177,10 +174,9 @@ class FinalSolve(SlamPart):
         (MATCH_COV_SCALE, MATCH_SIGMA_M, LOOP_SIGMA_M...): a guess at how far the shared
         errors of neighbouring beams spread it, made once for the front end's matches, loop
         closures and the car alike. Against the solved graph they show a sixth to a thirtieth
-        of the variance they claim (median), and not one factor for all: on the simulated
-        run (seeds 0-4) front-end matches 0.062-0.067, loop closures 0.107-0.161, car matches
-        0.031-0.059 and odometry at its fitted noise 0.051-0.069; on the Intel log matches and
-        closures 0.11-0.12 and odometry 0.33-0.36. Every kind with enough edges to say is
+        of the variance they claim (median), and not one factor for all: in one run the kinds
+        differ by up to five times, and one kind by several times between the runs of
+        different robots. Every kind with enough edges to say is
         scaled to its median scatter and the graph solved again, so the kinds weigh against
         each other as the run shows, the way odometry's noise is fitted to the matched steps
         (:func:`fit_noise`). The robust kernels' scale is in sigmas, so a closure that
@@ -213,8 +209,8 @@ class FinalSolve(SlamPart):
             # the fits are poses in the map's frame, so they fix the frame themselves: pinning
             # the first keyframe where the graph solve left it as well (the solver's usual
             # anchor) would keep the run's start off its own map, the place a run comes back
-            # to at its end (Acapulco seed 0: pinned, scan 0 lies 75 mm from its revisits;
-            # free, 26 mm; GMapping's poses 28 mm)
+            # to at its end (pinned, the first scan lies several times further from its
+            # revisits than free)
             graph.optimize(iterations=FINAL_ITERATIONS, anchor=None if len(fits.nodes) else 0)
             self.chain.graph = graph
         self.stats["refined"] = len(fits.nodes)

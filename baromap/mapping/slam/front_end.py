@@ -164,11 +164,10 @@ class FrontEnd(SlamPart):
         scoring of the two is kept unless it is ambiguous.
 
         On a sparse log a turn of 100-170 degrees between two scans is where the front end
-        fails without it: odometry is several degrees off over such a turn (8-9 on
-        `fr079/30`), and the scan, looking back, overlaps the submap of the last metres
-        (seen looking forward) too little to match. With the retry the heading error of the
-        steps where it is taken is 2.5 degrees instead of 5.6 (mean, `fr079/30` seeds 0-2),
-        3.9 instead of 4.8 (`intel/4`).
+        fails without it: odometry is several degrees off over such a turn, and the scan,
+        looking back, overlaps the submap of the last metres (seen looking forward) too
+        little to match. The retry roughly halves the heading error of the steps where it is
+        taken (docs/decisions.md, "The front end takes weak matches").
         """
         wider = self._recent_field(k, anchor)
         if wider is None:
@@ -225,12 +224,11 @@ class FrontEnd(SlamPart):
         tens of metres long) fits about as well anywhere over a few decimetres: the search's
         best and a runner-up 0.3 m off score alike, and both hold the heading. Refused, the
         keyframe stands where odometry puts it, degrees off after a turn, and the next scans
-        match against it (`acapulco/2` seed 0 of the varied odometry: one such keyframe 3.8
-        deg off turns the first 200 m of the run, 0.96 m ATE). Two peaks with a valley
+        match against it: one such keyframe a few degrees off turns hundreds of metres of the
+        run. Two peaks with a valley
         between them (the next door along a corridor) stay ambiguous, and so do two answers
         turned against each other: a scan that cannot tell its heading to 5 degrees has not
-        measured it (taken, such keyframes of `intel/4` land 3.3-15.7 degrees off where
-        odometry is 0.3-2.5 degrees off).
+        measured it (taken, such keyframes land further off than odometry puts them).
         """
         other = result.runner_up_pose
         if other is None or abs(float(se2.wrap(other[2] - result.pose[2]))) > DISTINCT_RAD:

@@ -176,9 +176,8 @@ class LoopCloser(SlamPart):
         estimate further off than the loop window, which is sized by the drift model, can
         reach: a keyframe that finds the correction anyway (beyond, proposed) needs another
         that agrees, and the next keyframes, searching around the same wrong estimate,
-        cannot see it (`fr079/30` varied seed 1: a keyframe scores 0.79 at a 22 degree
-        correction, the next windows reach 16-17 degrees, and unfollowed the run ends 2 m
-        off).
+        cannot see it (a keyframe scores well at a correction of tens of degrees, the next
+        windows reach a few degrees less, and unfollowed the run ends metres off).
         Searched around where the proposal puts keyframe k (the window sized by the drift
         since the proposal, never wide), the next scan either fits there as a loop does
         (score past loop_min_score, unambiguous, within that drift) and the two must still
@@ -409,12 +408,10 @@ class LoopCloser(SlamPart):
         never confirms another of its scan. But a front end turned by a wrong match is
         found this way on the sparse logs: the keyframe that first sees a revisited
         stretch matches two of its submaps, both right, and the next keyframes search
-        around the turned estimate and confirm neither (Intel every fourth scan, strong
-        odometry, seed 2: one keyframe matches two submaps at 0.67 and 0.61, 0.36 and 0.04 m
-        from the truth; left waiting, they lose to two weak closures 2 m off, ATE 0.709 m).
-        Of 64 beyond-drift proposals in 30 runs of the sparse logs one is wrong by more than
-        half a metre (1.0 m, score 0.55); of the 11 pairs one scan makes in 55 runs, none
-        (docs/decisions.md, "Closures that need a second opinion")."""
+        around the turned estimate and confirm neither; left waiting, the two lose to weak
+        closures metres off. Beyond-drift proposals are rarely wrong, and the pairs one scan
+        makes were never wrong where measured (docs/decisions.md, "Closures that need a
+        second opinion")."""
         beyond = {id(e) for e in self.beyond}
         return (
             a.i != b.i
@@ -431,13 +428,11 @@ class LoopCloser(SlamPart):
         where it began) can only be matched against a map the run frames on one side: the
         scan, truly a little behind where the run began, sees walls beside it the map never
         saw, and slid a metre or two along the corridor onto the map it scores better than
-        where it is (the big loop with varied odometry, seed 0: taken at once, one such
-        closure lands 1.4 m along and the capped closures after it follow it, ATE 0.62 m
-        instead of 0.39). Where
-        the run goes on, a closure framed on both sides comes and decides instead, as if
-        these were never made; where it ends, these are all there is, and they are right
-        far more often than not (the big loop driven 6 m past its start: ATE 1.5-5.7 m
-        without them, 0.40-0.60 m with them)."""
+        where it is (taken at once, one such closure lands a metre or more along and the
+        capped closures after it follow it). Where the run goes on, a closure framed on both
+        sides comes and decides instead, as if these were never made; where it ends, these
+        are all there is, and they are right far more often than not (a loop driven a few
+        metres past its start ends metres off without them, decimetres with them)."""
         deferred = [(e, s) for e, s in self.deferred if e.j > self.chain.last_closure]
         self.deferred = []
         if len(deferred) < 2:

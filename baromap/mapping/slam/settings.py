@@ -27,11 +27,9 @@ class SlamConfig:
     keyframe_m: float = 0.5
     keyframe_deg: float = 25.0
     #: beams beyond this are ignored. Far returns are sparse (0.5 m apart at 30 m with 1
-    #: degree beams) and often graze a wall, but across a hall they are what pins the heading:
-    #: at 30 m instead of 20 Acapulco's ATE is 0.114 m instead of 0.127 (seeds 0-4; 0.114 at
-    #: 40 m too), Freiburg 079's 0.062 instead of 0.066 m, Intel's 0.051 instead of 0.053 m,
-    #: while the relations, local, differ by under 3 % (Intel 0.0224 against 0.0219 m mean).
-    #: A laser in its 8 m mode (the simulated robot's) never reaches it
+    #: degree beams) and often graze a wall, but across a hall they are what pins the heading,
+    #: while the local accuracy hardly changes (docs/decisions.md, "Beams to 30 m"). A laser
+    #: in its 8 m mode (the simulated robot's) never reaches it
     max_range_m: float = 30.0
     #: cell of the likelihood fields and of the scan's voxel filter; also the field's sigma
     resolution_m: float = 0.05
@@ -58,12 +56,12 @@ class SlamConfig:
     #: least mean likelihood of a match's points to accept it (front end, loop closure).
     #: The front end's is a floor for "the scan barely overlaps its submap" (under one point
     #: in seven explained), not a test of right and wrong: a scan two or three metres on
-    #: sees much its submap never saw, so a correct match there scores 0.2-0.3, and on the
-    #: Intel log with every third scan wrong matches (0.3 m or 3 deg from GMapping's) were
-    #: as frequent among scores over 0.55 as among 0.2-0.3. Refusing those drives the front
-    #: end on odometry and the map falls apart (metres); the ambiguity test and odometry's
-    #: window are what keep wrong matches out. A loop closure, judged against a map it may
-    #: only partly share, keeps a high bar: at 0.35 Freiburg 079 bends.
+    #: sees much its submap never saw, so a correct match there scores 0.2-0.3, and wrong
+    #: matches of sparse scans score over 0.55 as often. Refusing those drives the front end
+    #: on odometry and the map falls apart (metres); the ambiguity test and odometry's window
+    #: are what keep wrong matches out (docs/decisions.md, "The front end takes weak
+    #: matches"). A loop closure, judged against a map it may only partly share, keeps a high
+    #: bar: a lower one lets wrong closures bend the map.
     front_min_score: float = 0.15
     loop_min_score: float = 0.55
 
@@ -238,8 +236,8 @@ SUBMAP_MAX_KEYFRAMES = 30
 #: released and stamped again when a loop closure needs them.
 SUBMAP_MEMORY_BYTES = 256 * 2**20
 #: Scans between keyframes are matched against the finished map with up to this many beams,
-#: every beam of any laser the logs have: of Freiburg 079's 360, 60 left its ground-truth
-#: relations at 0.0468-0.0470 m (seeds 0-2), all of them 0.0433-0.0437 m, at the same time.
+#: every beam of any laser there is: a subsample of them costs local accuracy and saves no
+#: measurable time.
 #: REGISTER_CHUNK scans are fitted at a time (each on its own: the same poses, bounded memory).
 REGISTER_BEAMS = 720
 REGISTER_CHUNK = 2000
@@ -257,16 +255,13 @@ MIN_NOISE_STEPS = 30
 #: they are the fit itself (then every kind scaled to its scatter). The fit mixes the matches'
 #: errors into odometry's (it cannot tell them apart), and the map fits carry covariances
 #: several times their real error (MATCH_COV_SCALE and the floors above); at the fit itself in
-#: the refinement too, odometry outweighs good fits: the Intel relations lose a quarter (0.030
-#: m against 0.023, seed 0). Of the fit itself, 2 and 3, in both solves or in one, 3 in the
-#: refinement only holds best (Intel seeds 0-4 at 0.021-0.024 m, the simulated building
-#: 0.035-0.056 m RMS over seeds 0-4). Weighing the map fits, the core and odometry in the
-#: refinement by their own scatter (as the solve before it does) with this factor at 1 does
-#: not replace it: the building gains (seed 2 0.030 m RMS) but the Intel relations lose
-#: (seeds 0-4 at 0.033-0.034 m): there odometry shows under half the variance it claims and the
-#: fits a quarter, yet the relations want odometry weaker still (why, whether its errors are
-#: not independent step to step or the fits' residuals shrink where they decide their
-#: keyframes, is not measured).
+#: the refinement too, odometry outweighs good fits and the local accuracy suffers. Weighing
+#: the refinement's edges by their own scatter instead does not replace the factor: odometry
+#: shows under half the variance it claims and the fits a quarter, yet the local accuracy
+#: wants odometry weaker still (whether because odometry's errors are not independent step
+#: to step or because the fits' residuals shrink where they decide their keyframes is not
+#: measured; docs/decisions.md, "Odometry weighed by its measured noise, every edge kind by
+#: its scatter").
 REFINE_ODOMETRY_INFLATION = 3.0
 #: Matching against a finished map (the refinement, the elevator core, the scans between
 #: keyframes) uses a field this fraction of the front end's cell and sigma. The front end's
@@ -274,12 +269,8 @@ REFINE_ODOMETRY_INFLATION = 3.0
 #: wants a basin a few cells wide, and a 5 cm sigma is five times a laser's range noise. Once
 #: the graph has put every keyframe within a cell of where it belongs, only Gauss-Newton from
 #: there is left, and a field that wide blurs the walls it aligns to. At half (2.5 cm, still
-#: above a SICK's 1-2 cm noise and the map's own spread) the ground-truth relations are
-#: better on both logs that have them, beyond the spread of five draws of a seed (Intel
-#: seeds 0-4 mean 0.0202 m against 0.0224 at the full cell, worst over the draws 0.0215
-#: against 0.0242 m; Freiburg 079 mean 0.0469 against 0.0490 m), the simulated building's RMS
-#: is lower on five of six recordings (mean 0.035 against 0.040 m), the ATE against
-#: GMapping's poses holds (Acapulco mean 0.113 against 0.115 m), at the same time and memory
+#: above a SICK's 1-2 cm noise and the map's own spread) the maps are sharper and the local
+#: accuracy better beyond the spread of seeds, at the same time and memory
 #: (docs/decisions.md, "The last alignment against a finer field").
 FINISHED_MAP_FIELD_SCALE = 0.5
 #: In the graph solve before the refinement every kind of edge with at least this many edges
