@@ -36,14 +36,14 @@ from baromap.building import (
 from baromap.errors import ConfigError
 from baromap.floors.names import names_by_height
 from baromap.mapping import export, figures
-from baromap.mapping.foxglove_maps import write_maps_mcap
+from baromap.mapping.foxglove_maps import FloorMap, MapsRun, write_maps_mcap
 from baromap.mapping.keyframes import motion_spaced
 from baromap.mapping.live_names import live_floor_names, recorded_floor_events
 from baromap.mapping.occupancy import OccupancyGrid, build_grid
 from baromap.mapping.restarts import check_runs, run_slam_best_of
 from baromap.mapping.run_data import RunData, load_scans, load_series, run_data
 from baromap.mapping.scans import ScanBlock
-from baromap.mapping.segmentation import Segmentation, segment_run
+from baromap.mapping.segmentation import FloorInfo, Segmentation, segment_run
 from baromap.mapping.slam import BETWEEN_FLOORS, SlamConfig, SlamResult
 from baromap.recording.run_parts import Recording, run_parts
 
@@ -356,40 +356,25 @@ def write_outputs(
     """
     seg = result.segmentation
     files: list[Path] = []
-    floor_entries: list[BuildingFloor] = []
-    kf_floor = seg.scan_floor[result.slam.keyframes]
     # the names the daemon published (its [floors] settings), else the replay's own
     live = {info.index: info.name for info in seg.floors if info.name}
     if seg.detection is not None:
         live |= live_floor_names(recorded_floor_events(parts), seg.detection.segments)
     names = _names_by_height(seg, live)
-    for info in seg.floors:
-        job = _grid_job(
-            result.run, seg, result.slam, info.index, resolution=resolution, config=config
+    floor_entries = [
+        _floor_outputs(
+            result,
+            info,
+            out,
+            painter,
+            files,
+            name=names.get(info.index, str(info.index)),
+            live_name=live.get(info.index),
+            resolution=resolution,
+            config=config,
         )
-        grid = None if job is None else floor_grid(*job)
-        name = names.get(info.index, str(info.index))
-        entry: dict[str, Any] = {
-            "index": info.index,
-            "name": name,
-            "live_name": live.get(info.index) if live.get(info.index) != name else None,
-            "elevation_m": round(info.elevation_m, 3),
-            "mean_pressure_pa": None if info.level_pa is None else round(info.level_pa, 2),
-            "visits": info.visits,
-            "keyframes": int(np.sum(kf_floor == info.index)),
-            "scans": int(np.sum(seg.scan_floor == info.index)),
-        }
-        if grid is not None:
-            result.grids[info.index] = grid
-            stem = f"floor_{info.index}"
-            png = out / f"{stem}.png"
-            painter.submit(
-                export.write_png, grid, png, f"floor {info.index} ({info.elevation_m:+.2f} m)"
-            )
-            pgm, yml = export.write_map_server(grid, out, stem)
-            files += [pgm, yml, png]
-            entry.update({"map": yml.name, "image": pgm.name, "png": png.name})
-        floor_entries.append(BuildingFloor(**entry))
+        for info in seg.floors
+    ]
     order = [f for f in seg.floors if f.index in result.grids]
     # the poses the SLAM estimated: a scan the odometry said nothing about is not mapped, its
     # pose only drawn across the gap (metres off); the trajectory, the paths and the picture
@@ -412,13 +397,83 @@ def write_outputs(
     tum = out / "trajectory.tum"
     export.write_tum(tum, result.run.scans.t_ns[kept], result.slam.scan_poses[kept], z[kept])
     files.append(tum)
-    building = Building(
+    building_yaml = out / "building.yaml"
+    write_building(building_yaml, _building(result, parts, floor_entries, resolution))
+    files.append(building_yaml)
+    maps = out / "maps.mcap"
+    write_maps_mcap(
+        maps,
+        int(result.run.scans.t_ns[0]),
+        [FloorMap(f.index, result.grids[f.index], f.elevation_m) for f in order],
+        MapsRun(
+            poses=result.slam.scan_poses,
+            z_m=z,
+            floor=np.where(seg.scan_floor == BETWEEN_FLOORS, -1, seg.scan_floor),
+            t_ns=result.run.scans.t_ns,
+            odom=result.run.odom,
+            transform_at=result.slam.keyframes,
+            estimated=kept,
+        ),
+    )
+    files.append(maps)
+    return files
+
+
+def _floor_outputs(
+    result: BuildResult,
+    info: FloorInfo,
+    out: Path,
+    painter: _Painter,
+    files: list[Path],
+    *,
+    name: str,
+    live_name: str | None,
+    resolution: float,
+    config: SlamConfig | None,
+) -> BuildingFloor:
+    """One floor's grid (into ``result.grids``), its map_server files and picture (into
+    ``files``, the picture drawn by the painter), and its entry in building.yaml."""
+    seg = result.segmentation
+    job = _grid_job(result.run, seg, result.slam, info.index, resolution=resolution, config=config)
+    grid = None if job is None else floor_grid(*job)
+    entry: dict[str, Any] = {
+        "index": info.index,
+        "name": name,
+        "live_name": live_name if live_name != name else None,
+        "elevation_m": round(info.elevation_m, 3),
+        "mean_pressure_pa": None if info.level_pa is None else round(info.level_pa, 2),
+        "visits": info.visits,
+        "keyframes": int(np.sum(seg.scan_floor[result.slam.keyframes] == info.index)),
+        "scans": int(np.sum(seg.scan_floor == info.index)),
+    }
+    if grid is not None:
+        result.grids[info.index] = grid
+        stem = f"floor_{info.index}"
+        png = out / f"{stem}.png"
+        painter.submit(
+            export.write_png, grid, png, f"floor {info.index} ({info.elevation_m:+.2f} m)"
+        )
+        pgm, yml = export.write_map_server(grid, out, stem)
+        files += [pgm, yml, png]
+        entry.update({"map": yml.name, "image": pgm.name, "png": png.name})
+    return BuildingFloor(**entry)
+
+
+def _building(
+    result: BuildResult,
+    parts: tuple[Path, ...],
+    floors: list[BuildingFloor],
+    resolution: float,
+) -> Building:
+    """building.yaml's content: the floors' entries, the rides, the closures, what is untied."""
+    seg = result.segmentation
+    return Building(
         source=str(parts[0]),
         parts=[str(p) for p in parts] if len(parts) > 1 else None,
         frame="one frame for all floors: the robot's start pose on its first floor",
         resolution_m=resolution,
         segmentation=seg.source,
-        floors=floor_entries,
+        floors=floors,
         rides=[BuildingRide(r.t_start_ns, r.t_end_ns, r.from_floor, r.to_floor) for r in seg.rides],
         loop_closures=LoopClosures(
             within_floors=len(result.slam.loop_edges),
@@ -429,26 +484,6 @@ def write_outputs(
         keyframes=len(result.slam.keyframes),
         scans=len(result.run.scans),
     )
-    building_yaml = out / "building.yaml"
-    write_building(building_yaml, building)
-    files.append(building_yaml)
-    maps = out / "maps.mcap"
-    write_maps_mcap(
-        maps,
-        int(result.run.scans.t_ns[0]),
-        floors=[f.index for f in order],
-        grids=[result.grids[f.index] for f in order],
-        elevations_m=[f.elevation_m for f in order],
-        scan_poses=result.slam.scan_poses,
-        scan_z_m=z,
-        scan_floor=np.where(seg.scan_floor == BETWEEN_FLOORS, -1, seg.scan_floor),
-        scan_t_ns=result.run.scans.t_ns,
-        odom=result.run.odom,
-        transform_at=result.slam.keyframes,
-        estimated=kept,
-    )
-    files.append(maps)
-    return files
 
 
 def _names_by_height(seg: Segmentation, live: dict[int, str]) -> dict[int, str]:

@@ -19,12 +19,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from baromap.arrays import FloatArray
+from baromap.arrays import BoolArray, FloatArray, IntArray
 from baromap.mapping import se2
 from baromap.mapping.occupancy import OccupancyGrid
 from baromap.recording import topics
@@ -39,116 +41,143 @@ def occupancy_int8(grid: OccupancyGrid) -> npt.NDArray[np.int8]:
     return out
 
 
-def write_maps_mcap(
-    path: Path,
-    t_ns: int,
-    *,
-    floors: Sequence[int],
-    grids: Sequence[OccupancyGrid],
-    elevations_m: Sequence[float],
-    scan_poses: FloatArray,
-    scan_z_m: FloatArray,
-    scan_floor: npt.NDArray[np.int64],
-    scan_t_ns: npt.NDArray[np.int64],
-    odom: FloatArray,
-    transform_at: npt.NDArray[np.int64],
-    estimated: npt.NDArray[np.bool_] | None = None,
-) -> None:
+@dataclass(frozen=True, slots=True)
+class FloorMap:
+    """One floor's finished grid and the elevation its pose lifts it to."""
+
+    index: int
+    grid: OccupancyGrid
+    elevation_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class MapsRun:
+    """The run as ``maps.mcap`` draws it, one row per scan: its corrected pose, its floor's
+    elevation and index (-1 between floors), its stamp and odometry pose; ``transform_at``:
+    the scans whose map -> odom is written; ``estimated``: the scans whose poses the SLAM
+    estimated (default all). The others are only drawn across a gap in the odometry, metres
+    off, so the paths leave them out as ``trajectory.tum`` does."""
+
+    poses: FloatArray
+    z_m: FloatArray
+    floor: IntArray
+    t_ns: IntArray
+    odom: FloatArray
+    transform_at: IntArray
+    estimated: BoolArray | None = None
+
+
+def write_maps_mcap(path: Path, t_ns: int, floors: Sequence[FloorMap], run: MapsRun) -> None:
     """``t_ns``: when the maps and paths are stamped (the run's start, so a player shows them
-    from the first instant on); ``transform_at``: the scans whose map -> odom is written;
-    ``estimated``: the scans whose poses the SLAM estimated (default all). The others are
-    only drawn across a gap in the odometry, metres off, so the paths leave them out as
-    ``trajectory.tum`` does."""
+    from the first instant on)."""
     import foxglove
-    from foxglove.channels import FrameTransformChannel, GridChannel, PosesInFrameChannel
-    from foxglove.messages import (
-        FrameTransform,
-        Grid,
-        PackedElementField,
-        PackedElementFieldNumericType,
-        Pose,
-        PosesInFrame,
-        Quaternion,
-        Timestamp,
-        Vector2,
-        Vector3,
-    )
-
-    def stamp(t: int) -> Timestamp:
-        sec, nsec = divmod(int(t), 1_000_000_000)
-        return Timestamp(sec=sec, nsec=nsec)
-
-    def yaw(theta: float) -> Quaternion:
-        return Quaternion(x=0.0, y=0.0, z=math.sin(theta / 2), w=math.cos(theta / 2))
-
-    def pose(x: float, y: float, z: float, theta: float) -> Pose:
-        return Pose(position=Vector3(x=x, y=y, z=z), orientation=yaw(theta))
 
     context = foxglove.Context()
     writer = foxglove.open_mcap(str(path), allow_overwrite=True, context=context)
     try:
-        # channels are named by floor index, which skips a floor that has no map
-        for k, grid, z in zip(floors, grids, elevations_m, strict=True):
-            w = grid.shape[1]
-            channel = GridChannel(f"/map/floor_{k}", context=context)
-            channel.log(
-                Grid(
-                    timestamp=stamp(t_ns),
-                    frame_id=FRAME,
-                    pose=pose(grid.origin_xy[0], grid.origin_xy[1], float(z), 0.0),
-                    column_count=w,
-                    cell_size=Vector2(x=grid.resolution, y=grid.resolution),
-                    row_stride=w,
-                    cell_stride=1,
-                    fields=[
-                        PackedElementField(
-                            name="occupancy", offset=0, type=PackedElementFieldNumericType.Int8
-                        )
-                    ],
-                    data=occupancy_int8(grid).tobytes(),
-                ),
-                log_time=t_ns,
-            )
-        shown = np.arange(len(scan_poses)) if estimated is None else np.flatnonzero(estimated)
-        sel = shown[:: max(1, len(shown) // 5000)]
-        path_channel = PosesInFrameChannel("/path", context=context)
-        path_channel.log(
-            PosesInFrame(
-                timestamp=stamp(t_ns),
+        _log_grids(context, t_ns, floors)
+        _log_paths(context, t_ns, floors, run)
+        _log_transforms(context, run)
+    finally:
+        writer.close()
+
+
+def _stamp(t: int) -> Any:
+    from foxglove.messages import Timestamp
+
+    sec, nsec = divmod(int(t), 1_000_000_000)
+    return Timestamp(sec=sec, nsec=nsec)
+
+
+def _yaw(theta: float) -> Any:
+    from foxglove.messages import Quaternion
+
+    return Quaternion(x=0.0, y=0.0, z=math.sin(theta / 2), w=math.cos(theta / 2))
+
+
+def _pose(x: float, y: float, z: float, theta: float) -> Any:
+    from foxglove.messages import Pose, Vector3
+
+    return Pose(position=Vector3(x=x, y=y, z=z), orientation=_yaw(theta))
+
+
+def _log_grids(context: Any, t_ns: int, floors: Sequence[FloorMap]) -> None:
+    """Each floor's grid on ``/map/floor_<k>``: channels are named by floor index, which
+    skips a floor that has no map."""
+    from foxglove.channels import GridChannel
+    from foxglove.messages import Grid, PackedElementField, PackedElementFieldNumericType, Vector2
+
+    for floor in floors:
+        grid = floor.grid
+        w = grid.shape[1]
+        channel = GridChannel(f"/map/floor_{floor.index}", context=context)
+        channel.log(
+            Grid(
+                timestamp=_stamp(t_ns),
                 frame_id=FRAME,
-                poses=[
-                    pose(scan_poses[i, 0], scan_poses[i, 1], float(scan_z_m[i]), scan_poses[i, 2])
-                    for i in sel
+                pose=_pose(grid.origin_xy[0], grid.origin_xy[1], float(floor.elevation_m), 0.0),
+                column_count=w,
+                cell_size=Vector2(x=grid.resolution, y=grid.resolution),
+                row_stride=w,
+                cell_stride=1,
+                fields=[
+                    PackedElementField(
+                        name="occupancy", offset=0, type=PackedElementFieldNumericType.Int8
+                    )
                 ],
+                data=occupancy_int8(grid).tobytes(),
             ),
             log_time=t_ns,
         )
-        for k, z in zip(floors, elevations_m, strict=True):
-            mine = sel[scan_floor[sel] == k]
-            PosesInFrameChannel(f"/path/floor_{k}", context=context).log(
-                PosesInFrame(
-                    timestamp=stamp(t_ns),
-                    frame_id=FRAME,
-                    poses=[
-                        pose(scan_poses[i, 0], scan_poses[i, 1], float(z), scan_poses[i, 2])
-                        for i in mine
-                    ],
-                ),
-                log_time=t_ns,
-            )
-        tf = FrameTransformChannel(topics.TF, context=context)
-        correction = se2.compose(scan_poses[transform_at], se2.inverse(odom[transform_at]))
-        for k, (x, y, theta) in zip(transform_at, correction, strict=True):
-            t = int(scan_t_ns[k])
-            tf.log(
-                FrameTransform(
-                    timestamp=stamp(t),
-                    parent_frame_id=topics.MAP_FRAME,
-                    child_frame_id=topics.ODOM_FRAME,
-                    translation=Vector3(x=float(x), y=float(y), z=float(scan_z_m[k])),
-                    rotation=yaw(float(theta)),
-                ),
-                log_time=t,
-            )
-    finally:
-        writer.close()
+
+
+def _log_paths(context: Any, t_ns: int, floors: Sequence[FloorMap], run: MapsRun) -> None:
+    """The estimated poses, at most about 5000 of them, on ``/path`` at their heights and on
+    ``/path/floor_<k>`` at their floor's."""
+    from foxglove.channels import PosesInFrameChannel
+    from foxglove.messages import PosesInFrame
+
+    poses = run.poses
+    shown = np.arange(len(poses)) if run.estimated is None else np.flatnonzero(run.estimated)
+    sel = shown[:: max(1, len(shown) // 5000)]
+    PosesInFrameChannel("/path", context=context).log(
+        PosesInFrame(
+            timestamp=_stamp(t_ns),
+            frame_id=FRAME,
+            poses=[_pose(poses[i, 0], poses[i, 1], float(run.z_m[i]), poses[i, 2]) for i in sel],
+        ),
+        log_time=t_ns,
+    )
+    for floor in floors:
+        mine = sel[run.floor[sel] == floor.index]
+        z = float(floor.elevation_m)
+        PosesInFrameChannel(f"/path/floor_{floor.index}", context=context).log(
+            PosesInFrame(
+                timestamp=_stamp(t_ns),
+                frame_id=FRAME,
+                poses=[_pose(poses[i, 0], poses[i, 1], z, poses[i, 2]) for i in mine],
+            ),
+            log_time=t_ns,
+        )
+
+
+def _log_transforms(context: Any, run: MapsRun) -> None:
+    """``map -> odom`` at each of ``run.transform_at``, lifted to the scan's elevation."""
+    from foxglove.channels import FrameTransformChannel
+    from foxglove.messages import FrameTransform, Vector3
+
+    tf = FrameTransformChannel(topics.TF, context=context)
+    at = run.transform_at
+    correction = se2.compose(run.poses[at], se2.inverse(run.odom[at]))
+    for k, (x, y, theta) in zip(at, correction, strict=True):
+        t = int(run.t_ns[k])
+        tf.log(
+            FrameTransform(
+                timestamp=_stamp(t),
+                parent_frame_id=topics.MAP_FRAME,
+                child_frame_id=topics.ODOM_FRAME,
+                translation=Vector3(x=float(x), y=float(y), z=float(run.z_m[k])),
+                rotation=_yaw(float(theta)),
+            ),
+            log_time=t,
+        )
