@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from pathlib import Path
 
@@ -1090,3 +1091,78 @@ def test_cut_files_are_recovered_on_a_daemon_thread_named_for_it(
     finally:
         rec.close()
     assert seen == [("baromapd-recover", True)]
+
+
+def test_a_reference_stations_sample_is_recorded_on_its_topic(tmp_path: Path) -> None:
+    rec = _recorder(tmp_path)
+    sample = _samples(1)[0]
+    rec.start()
+    rec.offer_reference(sample)
+    rec.close()
+    (record,) = read_messages(rec.files[0], [topics.REFERENCE_PRESSURE])
+    assert record.message == sample
+
+
+def _stalled_fsync(
+    monkeypatch: pytest.MonkeyPatch,
+) -> tuple[threading.Event, threading.Event, threading.Timer]:
+    """Makes the fsync thread's fsync hang until the returned release is set (by the test, or
+    by the timer after 5 s, so that a close that waits for it ends); returns (entered,
+    release, timer)."""
+    entered, release = threading.Event(), threading.Event()
+    real = recorder_module.fsync_path
+
+    def stalling(path: Path) -> None:
+        if threading.current_thread().name != "baromapd-fsync":
+            real(path)
+            return
+        entered.set()
+        release.wait(10.0)
+
+    monkeypatch.setattr(recorder_module, "fsync_path", stalling)
+    timer = threading.Timer(5.0, release.set)
+    timer.daemon = True
+    timer.start()
+    return entered, release, timer
+
+
+def _let_go(release: threading.Event, timer: threading.Timer, thread: threading.Thread) -> None:
+    release.set()
+    timer.cancel()
+    timer.join(2.0)
+    thread.join(2.0)
+
+
+def test_closing_the_syncer_leaves_a_stalled_fsync_behind(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from baromapd.recorder import Syncer
+
+    entered, release, timer = _stalled_fsync(monkeypatch)
+    syncer = Syncer()
+    try:
+        syncer.request(tmp_path)
+        assert entered.wait(5.0)
+        syncer.close(0.2)
+        assert syncer._thread.is_alive()
+    finally:
+        _let_go(release, timer, syncer._thread)
+
+
+def test_a_recorder_finishing_leaves_a_stalled_fsync_behind(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Its join is bounded by SYNCER_JOIN_S: the daemon exits within its stop timeout."""
+    monkeypatch.setattr(recorder_module, "SYNCER_JOIN_S", 0.2)
+    entered, release, timer = _stalled_fsync(monkeypatch)
+    rec = _recorder(tmp_path)
+    rec.started()
+    syncer = rec._syncer
+    assert syncer is not None
+    try:
+        syncer.request(rec.files[0])
+        assert entered.wait(5.0)
+        rec.finished()
+        assert syncer._thread.is_alive()
+    finally:
+        _let_go(release, timer, syncer._thread)
