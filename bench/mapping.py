@@ -6,7 +6,7 @@ timed against issue 14's bar.
                                       [--sim-seeds 0,1,2]
                                       [--minutes M] [--skip-logs] [--skip-sim] [--keep DIR]
                                       [--log-file NAME=PATH[,RELATIONS] ...] [--draws K]
-                                      [--runs K] [--workers N]
+                                      [--runs K] [--workers N] [--slam-resolution M]
                                       (--logs also takes bigloop: a synthetic 434 m loop)
 
 Public logs (../shared/data/laser, or $BAROMAP_SHARED_DATA/laser): for each seed, odometry
@@ -27,9 +27,10 @@ the front end and the odometry calibration hold the map; ``--odometry strong`` u
 error model of other signs (laser_logs.STRONG_ODOMETRY), ``--odometry varied`` a model drawn
 per seed from a family of the default's size with random signs (laser_logs.varied_odometry),
 printed under the seed's figures beside what the SLAM's calibration learnt of it;
-``--odometry exact`` feeds the corrected poses themselves (no error). Under each seed's row
-its shape: the ATE left after a similarity (one scale besides the rigid motion) and the size
-of our trajectory against the reference's. Their
+``--odometry exact`` feeds the corrected poses themselves (no error); ``--slam-resolution
+M`` maps the logs with the SLAM's cell (its fields' cell and sigma, its voxel filter) at M. Under
+each seed's row its shape: the ATE left after a similarity (one scale besides the rigid
+motion) and the size of our trajectory against the reference's. The harder inputs'
 figures are printed without a verdict: the bar is issue 14's, on the logs as published with
 the default model.
 
@@ -250,8 +251,12 @@ def bench_logs(
     draws: int = 1,
     runs: int = 1,
     workers: int = 1,
+    slam_resolution: float | None = None,
 ) -> bool:
     _quiet()
+    from baromap.mapping.slam.settings import SlamConfig
+
+    config = SlamConfig() if slam_resolution is None else SlamConfig(resolution_m=slam_resolution)
     from baromap.evaluation.laser_logs import (
         LOGS,
         PreparedLog,
@@ -280,6 +285,7 @@ def bench_logs(
             rep = run_prepared(
                 prepared,
                 seed,
+                config=config,
                 odometry=model,
                 score_consistency=True,
                 runs=runs,
@@ -341,7 +347,13 @@ def bench_logs(
                 d_ate, d_t, d_r = [ates[-1]], rel_t[-1:], rel_r[-1:]
                 for draw in range(1, draws):
                     more = run_prepared(
-                        prepared, seed, odometry=model, draw=draw, runs=runs, workers=workers
+                        prepared,
+                        seed,
+                        config=config,
+                        odometry=model,
+                        draw=draw,
+                        runs=runs,
+                        workers=workers,
                     )
                     d_ate.append(more.slam_ate.rms_m)
                     if more.slam_relations is not None:
@@ -436,6 +448,13 @@ def main() -> int:
     parser.add_argument(
         "--odometry", default="default", choices=("default", "strong", "varied", "exact")
     )
+    parser.add_argument(
+        "--slam-resolution",
+        type=float,
+        default=None,
+        metavar="M",
+        help="the SLAM's cell on the logs (SlamConfig.resolution_m)",
+    )
     parser.add_argument("--sim-seeds", default="0,1,2")
     parser.add_argument("--minutes", type=float, default=46.0)
     parser.add_argument("--skip-logs", action="store_true")
@@ -519,6 +538,7 @@ def main() -> int:
                 draws=args.draws,
                 runs=args.runs,
                 workers=args.workers,
+                slam_resolution=args.slam_resolution,
             )
     # figures are printed either way; the exit status says whether every target was met
     return 0 if ok else 1
