@@ -27,18 +27,14 @@ from foxglove.channels import (
 )
 from foxglove.messages import (
     FrameTransform,
-    Grid,
-    PackedElementField,
-    PackedElementFieldNumericType,
     Pose,
     PosesInFrame,
-    Vector2,
     Vector3,
 )
 
 from baromap import jsonmsg, messages
 from baromap.liveview.floor_map import LiveMapInfo, LiveMapSnapshot
-from baromap.mapping.foxglove_maps import occupancy_int8
+from baromap.mapping.foxglove_maps import grid_message
 from baromap.recording import foxglove_wire, topics
 from baromap.recording.frames import LaserMount
 from baromap.recording.writer import (
@@ -125,29 +121,7 @@ class ViewChannels:
         info = snapshot.info
         t_ns = info.t_ns
         z = info.height_m
-        grid = snapshot.grid
-        h, w = grid.shape
-        self._grid.log(
-            Grid(
-                timestamp=stamp(t_ns),
-                frame_id=topics.MAP_FRAME,
-                pose=Pose(
-                    position=Vector3(x=grid.origin_xy[0], y=grid.origin_xy[1], z=z),
-                    orientation=yaw_quaternion(0.0),
-                ),
-                column_count=w,
-                cell_size=Vector2(x=grid.resolution, y=grid.resolution),
-                row_stride=w,
-                cell_stride=1,
-                fields=[
-                    PackedElementField(
-                        name="occupancy", offset=0, type=PackedElementFieldNumericType.Int8
-                    )
-                ],
-                data=occupancy_int8(grid).tobytes() if h and w else b"",
-            ),
-            log_time=t_ns,
-        )
+        self._grid.log(grid_message(snapshot.grid, z, t_ns), log_time=t_ns)
         self._path.log(
             PosesInFrame(
                 timestamp=stamp(t_ns),

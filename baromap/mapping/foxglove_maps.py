@@ -17,19 +17,30 @@ second of driving); Foxglove interpolates between them.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
+import foxglove
 import numpy as np
 import numpy.typing as npt
+from foxglove.channels import FrameTransformChannel, GridChannel, PosesInFrameChannel
+from foxglove.messages import (
+    FrameTransform,
+    Grid,
+    PackedElementField,
+    PackedElementFieldNumericType,
+    Pose,
+    PosesInFrame,
+    Vector2,
+    Vector3,
+)
 
 from baromap.arrays import BoolArray, FloatArray, IntArray
 from baromap.mapping import se2
 from baromap.mapping.occupancy import OccupancyGrid
 from baromap.recording import topics
+from baromap.recording.writer import stamp, yaw_quaternion
 
 FRAME = topics.MAP_FRAME
 
@@ -70,8 +81,6 @@ class MapsRun:
 def write_maps_mcap(path: Path, t_ns: int, floors: Sequence[FloorMap], run: MapsRun) -> None:
     """``t_ns``: when the maps and paths are stamped (the run's start, so a player shows them
     from the first instant on)."""
-    import foxglove
-
     context = foxglove.Context()
     writer = foxglove.open_mcap(str(path), allow_overwrite=True, context=context)
     try:
@@ -82,67 +91,48 @@ def write_maps_mcap(path: Path, t_ns: int, floors: Sequence[FloorMap], run: Maps
         writer.close()
 
 
-def _stamp(t: int) -> Any:
-    from foxglove.messages import Timestamp
-
-    sec, nsec = divmod(int(t), 1_000_000_000)
-    return Timestamp(sec=sec, nsec=nsec)
+def _pose(x: float, y: float, z: float, theta: float) -> Pose:
+    return Pose(position=Vector3(x=x, y=y, z=z), orientation=yaw_quaternion(theta))
 
 
-def _yaw(theta: float) -> Any:
-    from foxglove.messages import Quaternion
+def grid_message(grid: OccupancyGrid, z_m: float, t_ns: int) -> Grid:
+    """A floor's grid as a ``foxglove.Grid`` lifted to ``z_m``: occupancy percentages read
+    as int8 (-1 unknown), the convention Foxglove's "map" colour mode expects."""
+    h, w = grid.shape
+    return Grid(
+        timestamp=stamp(t_ns),
+        frame_id=FRAME,
+        pose=_pose(grid.origin_xy[0], grid.origin_xy[1], z_m, 0.0),
+        column_count=w,
+        cell_size=Vector2(x=grid.resolution, y=grid.resolution),
+        row_stride=w,
+        cell_stride=1,
+        fields=[
+            PackedElementField(name="occupancy", offset=0, type=PackedElementFieldNumericType.Int8)
+        ],
+        data=occupancy_int8(grid).tobytes() if h and w else b"",
+    )
 
-    return Quaternion(x=0.0, y=0.0, z=math.sin(theta / 2), w=math.cos(theta / 2))
 
-
-def _pose(x: float, y: float, z: float, theta: float) -> Any:
-    from foxglove.messages import Pose, Vector3
-
-    return Pose(position=Vector3(x=x, y=y, z=z), orientation=_yaw(theta))
-
-
-def _log_grids(context: Any, t_ns: int, floors: Sequence[FloorMap]) -> None:
+def _log_grids(context: foxglove.Context, t_ns: int, floors: Sequence[FloorMap]) -> None:
     """Each floor's grid on ``/map/floor_<k>``: channels are named by floor index, which
     skips a floor that has no map."""
-    from foxglove.channels import GridChannel
-    from foxglove.messages import Grid, PackedElementField, PackedElementFieldNumericType, Vector2
-
     for floor in floors:
-        grid = floor.grid
-        w = grid.shape[1]
         channel = GridChannel(f"/map/floor_{floor.index}", context=context)
-        channel.log(
-            Grid(
-                timestamp=_stamp(t_ns),
-                frame_id=FRAME,
-                pose=_pose(grid.origin_xy[0], grid.origin_xy[1], float(floor.elevation_m), 0.0),
-                column_count=w,
-                cell_size=Vector2(x=grid.resolution, y=grid.resolution),
-                row_stride=w,
-                cell_stride=1,
-                fields=[
-                    PackedElementField(
-                        name="occupancy", offset=0, type=PackedElementFieldNumericType.Int8
-                    )
-                ],
-                data=occupancy_int8(grid).tobytes(),
-            ),
-            log_time=t_ns,
-        )
+        channel.log(grid_message(floor.grid, float(floor.elevation_m), t_ns), log_time=t_ns)
 
 
-def _log_paths(context: Any, t_ns: int, floors: Sequence[FloorMap], run: MapsRun) -> None:
+def _log_paths(
+    context: foxglove.Context, t_ns: int, floors: Sequence[FloorMap], run: MapsRun
+) -> None:
     """The estimated poses, at most about 5000 of them, on ``/path`` at their heights and on
     ``/path/floor_<k>`` at their floor's."""
-    from foxglove.channels import PosesInFrameChannel
-    from foxglove.messages import PosesInFrame
-
     poses = run.poses
     shown = np.arange(len(poses)) if run.estimated is None else np.flatnonzero(run.estimated)
     sel = shown[:: max(1, len(shown) // 5000)]
     PosesInFrameChannel("/path", context=context).log(
         PosesInFrame(
-            timestamp=_stamp(t_ns),
+            timestamp=stamp(t_ns),
             frame_id=FRAME,
             poses=[_pose(poses[i, 0], poses[i, 1], float(run.z_m[i]), poses[i, 2]) for i in sel],
         ),
@@ -153,7 +143,7 @@ def _log_paths(context: Any, t_ns: int, floors: Sequence[FloorMap], run: MapsRun
         z = float(floor.elevation_m)
         PosesInFrameChannel(f"/path/floor_{floor.index}", context=context).log(
             PosesInFrame(
-                timestamp=_stamp(t_ns),
+                timestamp=stamp(t_ns),
                 frame_id=FRAME,
                 poses=[_pose(poses[i, 0], poses[i, 1], z, poses[i, 2]) for i in mine],
             ),
@@ -161,11 +151,8 @@ def _log_paths(context: Any, t_ns: int, floors: Sequence[FloorMap], run: MapsRun
         )
 
 
-def _log_transforms(context: Any, run: MapsRun) -> None:
+def _log_transforms(context: foxglove.Context, run: MapsRun) -> None:
     """``map -> odom`` at each of ``run.transform_at``, lifted to the scan's elevation."""
-    from foxglove.channels import FrameTransformChannel
-    from foxglove.messages import FrameTransform, Vector3
-
     tf = FrameTransformChannel(topics.TF, context=context)
     at = run.transform_at
     correction = se2.compose(run.poses[at], se2.inverse(run.odom[at]))
@@ -173,11 +160,11 @@ def _log_transforms(context: Any, run: MapsRun) -> None:
         t = int(run.t_ns[k])
         tf.log(
             FrameTransform(
-                timestamp=_stamp(t),
+                timestamp=stamp(t),
                 parent_frame_id=topics.MAP_FRAME,
                 child_frame_id=topics.ODOM_FRAME,
                 translation=Vector3(x=float(x), y=float(y), z=float(run.z_m[k])),
-                rotation=_yaw(float(theta)),
+                rotation=yaw_quaternion(float(theta)),
             ),
             log_time=t,
         )
