@@ -25,6 +25,27 @@ def _recorder(tmp_path: Path, **settings: float) -> Recorder:
     return Recorder(config, robot="r1", metadata={"role": "robot"}, run_name="r1_test")
 
 
+@pytest.fixture
+def clock(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """The recorder's monotonic clock in the test's hand: ``clock[0]`` is now, in ns."""
+    now = [10**15]
+    monkeypatch.setattr(recorder_module.time, "monotonic_ns", lambda: now[0])
+    return now
+
+
+@pytest.fixture
+def free_space_looks(monkeypatch: pytest.MonkeyPatch, clock: list[int]) -> list[int]:
+    """When (``clock[0]``) the recorder looked at the free space: 1000 MB each time."""
+    looked: list[int] = []
+
+    def free_mb(self: Recorder) -> float:
+        looked.append(clock[0])
+        return 1000.0
+
+    monkeypatch.setattr(Recorder, "_free_mb", free_mb)
+    return looked
+
+
 def _samples(n: int, t0: int = 1_700_000_000_000_000_000) -> list[PressureSample]:
     return [
         PressureSample(t0 + i * 20_000_000, 100000.0 + i, 20.0, i % 65536, i * 20_000)
@@ -752,35 +773,24 @@ def test_a_recorder_whose_first_file_could_not_be_opened_opens_one_when_it_can(
 
 
 def test_the_flush_and_the_free_space_check_come_exactly_one_flush_interval_after_opening(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, clock: list[int], free_space_looks: list[int]
 ) -> None:
-    clock = [10**15]
-    monkeypatch.setattr(recorder_module.time, "monotonic_ns", lambda: clock[0])
-    looked: list[int] = []
-
-    def free_mb(self: Recorder) -> float:
-        looked.append(clock[0])
-        return 1000.0
-
-    monkeypatch.setattr(Recorder, "_free_mb", free_mb)
     rec = _recorder(tmp_path)
     rec._open()
     opened = clock[0]
     flush_ns = round(rec.config.flush_interval_s * 1e9)
     clock[0] = opened + flush_ns - recorder_module.IDLE_CHECK_NS
     rec.idle()
-    assert looked == []
+    assert free_space_looks == []
     clock[0] = opened + flush_ns
     rec.idle()
-    assert looked == [opened + flush_ns]
+    assert free_space_looks == [opened + flush_ns]
     rec._close()
 
 
 def test_a_file_is_rotated_exactly_rotate_minutes_after_it_was_opened(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, clock: list[int]
 ) -> None:
-    clock = [10**15]
-    monkeypatch.setattr(recorder_module.time, "monotonic_ns", lambda: clock[0])
     rec = _recorder(tmp_path)
     rec._open()
     rotate_ns = round(rec.config.rotate_minutes * 60 * 1_000_000_000)
@@ -982,10 +992,8 @@ def test_a_cut_file_left_for_want_of_space_says_the_free_space_to_a_tenth(
 
 
 def test_the_size_is_looked_at_once_a_size_check_and_rotates_at_exactly_rotate_size_mb(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, clock: list[int], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    clock = [10**15]
-    monkeypatch.setattr(recorder_module.time, "monotonic_ns", lambda: clock[0])
     rec = _recorder(tmp_path)
     rec._open()
     limit = round(rec.config.rotate_size_mb * recorder_module.MB)
@@ -1013,12 +1021,10 @@ def test_the_size_is_looked_at_once_a_size_check_and_rotates_at_exactly_rotate_s
 
 
 def test_a_fault_exactly_a_window_after_the_last_keeps_the_doubled_pause(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, clock: list[int]
 ) -> None:
     """The retry pause starts afresh only after a fault more than FAULT_WINDOW_NS past;
     FATAL_FAULTS faults within the window, its edge included, are fatal."""
-    clock = [10**15]
-    monkeypatch.setattr(recorder_module.time, "monotonic_ns", lambda: clock[0])
     first = recorder_module.FAULT_RETRY_NS
     window = recorder_module.FAULT_WINDOW_NS
     with capture_logs():
@@ -1039,17 +1045,8 @@ def test_a_fault_exactly_a_window_after_the_last_keeps_the_doubled_pause(
 
 
 def test_an_idle_recorder_wakes_its_checks_once_an_idle_check_and_syncs_when_a_flush_is_due(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, clock: list[int], free_space_looks: list[int]
 ) -> None:
-    clock = [10**15]
-    monkeypatch.setattr(recorder_module.time, "monotonic_ns", lambda: clock[0])
-    looked: list[int] = []
-
-    def free_mb(self: Recorder) -> float:
-        looked.append(clock[0])
-        return 1000.0
-
-    monkeypatch.setattr(Recorder, "_free_mb", free_mb)
     rec = _recorder(tmp_path)
     rec.started()
     opened = clock[0]
@@ -1061,10 +1058,10 @@ def test_an_idle_recorder_wakes_its_checks_once_an_idle_check_and_syncs_when_a_f
         rec.idle()  # not due: the next check comes an idle check later
         clock[0] = opened + flush_ns
         rec.idle()
-        assert looked == [] and rec._syncer is not None and rec._syncer.syncs == 0
+        assert free_space_looks == [] and rec._syncer is not None and rec._syncer.syncs == 0
         clock[0] = opened + flush_ns - 1 + check
         rec.idle()
-        assert looked == [clock[0]]
+        assert free_space_looks == [clock[0]]
         syncer = rec._syncer
         _wait(lambda: syncer.syncs == 1)
     finally:
