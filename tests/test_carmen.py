@@ -357,15 +357,9 @@ def test_synth_odometry_is_seeded() -> None:
 @given(st.integers(0, 2**32 - 1))
 def test_synth_odometry_without_error_is_the_reference(seed: int) -> None:
     ref = _reference_path(20)
-    model = OdometryErrorModel(
-        scale=0.0,
-        drift_rad_per_m=0.0,
-        sigma_trans_per_m=0.0,
-        sigma_side_per_m=0.0,
-        sigma_rot_per_m=0.0,
-        sigma_rot_per_rad=0.0,
+    np.testing.assert_allclose(
+        synthesize_odometry(ref, seed, OdometryErrorModel.exact()), ref, atol=1e-9
     )
-    np.testing.assert_allclose(synthesize_odometry(ref, seed, model), ref, atol=1e-9)
 
 
 def _moving_log(path: Path, pose: str) -> Path:

@@ -171,14 +171,7 @@ STRONG_ODOMETRY = OdometryErrorModel(
 #: Odometry error models by name, for the bench.
 #: ``exact``: the corrected poses themselves, no error (what the scans alone move the SLAM
 #: off them; on ``bigloop`` what our SLAM does to a true trajectory).
-EXACT_ODOMETRY = OdometryErrorModel(
-    scale=0.0,
-    drift_rad_per_m=0.0,
-    sigma_trans_per_m=0.0,
-    sigma_side_per_m=0.0,
-    sigma_rot_per_m=0.0,
-    sigma_rot_per_rad=0.0,
-)
+EXACT_ODOMETRY = OdometryErrorModel.exact()
 ODOMETRY_MODELS = {
     "default": OdometryErrorModel(),
     "strong": STRONG_ODOMETRY,

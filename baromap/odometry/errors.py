@@ -52,6 +52,18 @@ class OdometryErrorModel:
             raise ConfigError("odometry noise levels must not be negative")
 
     @classmethod
+    def exact(cls) -> OdometryErrorModel:
+        """No error at all: odometry that reads the true motion."""
+        return cls(
+            scale=0.0,
+            drift_rad_per_m=0.0,
+            sigma_trans_per_m=0.0,
+            sigma_side_per_m=0.0,
+            sigma_rot_per_m=0.0,
+            sigma_rot_per_rad=0.0,
+        )
+
+    @classmethod
     def random(cls, rng: np.random.Generator) -> OdometryErrorModel:
         """One simulated P3-AT: scale 0.5-2 %, rotation 1-4 %, drift 0.2-0.8 deg/m, random walk."""
 
