@@ -122,7 +122,10 @@ def test_the_detector_is_causal() -> None:
     detector = OnlineFloorDetector()
     early = []
     for ti, pi in zip(t[:cut].tolist(), p[:cut].tolist(), strict=True):
-        early += detector.update(PressureSample(ti, pi))
+        decided = detector.update(PressureSample(ti, pi))
+        # stamped with the sample that decided it: nothing is dated before it was known
+        assert [e.t_ns for e in decided] == [ti] * len(decided)
+        early += decided
     floor_events = [e for e in early if isinstance(e, FloorEvent)]
     assert floor_events, "the cut falls after the first decision, or this compares nothing"
     assert floor_events == [e for e in all_events if e.t_ns < t[cut]]
