@@ -73,6 +73,9 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
     return None
 
 
+# Before pytest-xdist's own hook, which reads the groups marked here into the node ids it
+# schedules by: after it, the groups are marked too late and every test is scheduled alone.
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     tests_dir = Path(__file__).resolve().parent
     for item in items:
