@@ -361,20 +361,20 @@ def write_outputs(
     if seg.detection is not None:
         live |= live_floor_names(recorded_floor_events(parts), seg.detection.segments)
     names = _names_by_height(seg, live)
-    floor_entries = [
-        _floor_outputs(
+    floor_entries: list[BuildingFloor] = []
+    for info in seg.floors:
+        entry, written = _floor_outputs(
             result,
             info,
             out,
             painter,
-            files,
             name=names.get(info.index, str(info.index)),
             live_name=live.get(info.index),
             resolution=resolution,
             config=config,
         )
-        for info in seg.floors
-    ]
+        floor_entries.append(entry)
+        files += written
     order = [f for f in seg.floors if f.index in result.grids]
     # the poses the SLAM estimated: a scan the odometry said nothing about is not mapped, its
     # pose only drawn across the gap (metres off); the trajectory, the paths and the picture
@@ -424,18 +424,18 @@ def _floor_outputs(
     info: FloorInfo,
     out: Path,
     painter: _Painter,
-    files: list[Path],
     *,
     name: str,
     live_name: str | None,
     resolution: float,
     config: SlamConfig | None,
-) -> BuildingFloor:
-    """One floor's grid (into ``result.grids``), its map_server files and picture (into
-    ``files``, the picture drawn by the painter), and its entry in building.yaml."""
+) -> tuple[BuildingFloor, list[Path]]:
+    """One floor's entry in building.yaml and the files written for it: its grid (into
+    ``result.grids``), map_server files and picture (drawn by the painter)."""
     seg = result.segmentation
     job = _grid_job(result.run, seg, result.slam, info.index, resolution=resolution, config=config)
     grid = None if job is None else floor_grid(*job)
+    files: list[Path] = []
     entry: dict[str, Any] = {
         "index": info.index,
         "name": name,
@@ -454,9 +454,9 @@ def _floor_outputs(
             export.write_png, grid, png, f"floor {info.index} ({info.elevation_m:+.2f} m)"
         )
         pgm, yml = export.write_map_server(grid, out, stem)
-        files += [pgm, yml, png]
+        files = [pgm, yml, png]
         entry.update({"map": yml.name, "image": pgm.name, "png": png.name})
-    return BuildingFloor(**entry)
+    return BuildingFloor(**entry), files
 
 
 def _building(
