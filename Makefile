@@ -12,7 +12,7 @@ XDIST  := -n auto --dist loadgroup
 TAP    := $(BIN)/baromapd-tap
 TAP_CFLAGS := -std=gnu11 -O2 -Wall -Wextra -Werror
 
-.PHONY: demo test test-heavy check lint setup system-deps firmware bench clean tap viewer-client
+.PHONY: demo test check lint setup system-deps firmware bench clean tap viewer-client
 
 demo: $(STAMP) $(TAP)
 	$(BIN)/baromap demo
@@ -27,12 +27,7 @@ test: $(TEST_STAMP) $(TAP) viewer-client
 	$(MAKE) firmware; built=$$?; \
 	wait $$types; typed=$$?; cat "$$log"; rm -f "$$log"; \
 	test $$typed -eq 0 && test $$built -eq 0
-	$(BIN)/pytest $(XDIST) -m "not heavy" $(PYTEST_ARGS)
-
-# Whole real logs and the 46-minute simulated run through the SLAM (minutes of CPU). Run it,
-# and bench/gate.py, before a change to the mapping lands.
-test-heavy: $(TEST_STAMP)
-	$(BIN)/pytest $(XDIST) -m heavy $(PYTEST_ARGS)
+	$(BIN)/pytest $(XDIST) $(PYTEST_ARGS)
 
 # The inner loop: lint, types and the fast tests (no real processes, ptys, simulators or
 # networks; nothing marked slow). `make test` runs everything.

@@ -54,12 +54,6 @@ SHARED_DATA = find_shared_data()
 #: nature, so ``make check`` (``-m "not slow"``) leaves them to ``make test``. A test elsewhere
 #: that takes more than a few seconds of CPU carries ``@pytest.mark.slow`` itself.
 INTEGRATION_DIRS = ("daemon", "e2e", "firmware", "hardware", "live", "liveview")
-#: Tests that run a whole real log or the 46-minute simulated run through the SLAM, several
-#: times over (a minute of CPU each, four of them): ``make test`` leaves them to
-#: ``make test-heavy``, as it leaves the maps' quality over every log and variant to
-#: bench/gate.py.
-HEAVY = "heavy"
-HEAVY_TIMEOUT_S = 900
 
 
 def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool | None:
@@ -82,10 +76,6 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         relative = item.path.resolve().relative_to(tests_dir)
         if len(relative.parts) > 1 and relative.parts[0] in INTEGRATION_DIRS:
             item.add_marker(pytest.mark.slow)
-        if item.get_closest_marker(HEAVY):
-            item.add_marker(pytest.mark.slow)
-            # minutes on a loaded machine: the suite's 180 s would fail them for the load
-            item.add_marker(pytest.mark.timeout(HEAVY_TIMEOUT_S))
         group = _shared_fixture_group(item, tests_dir)
         if group:
             item.add_marker(pytest.mark.xdist_group(group))

@@ -1142,21 +1142,37 @@ def _check_thinned_log_run(
 
 
 @pytest.mark.slow
-@pytest.mark.heavy
 def test_a_sparse_scan_that_fits_along_a_ridge_is_matched_not_left_to_odometry(
     shared_data: Path,
 ) -> None:
-    """Acapulco, every second scan kept (431 scans, 2 m apart in open halls), odometry of the
-    varied family, seed 0. Keyframe 99's scan fits equally well anywhere over 0.3 m: the
-    search's best and runner-up scored 0.576 and 0.581, both within 0.17 m and 0.7 degrees
-    of GMapping's pose. Refused as ambiguous, the keyframe stood where odometry put it, 3.8
-    degrees off after a turn of 24, the next scans matched against it, and the first 200 m
-    of the run stayed turned: 0.96 m ATE (max 3.0 m). Taken as one ridge (the score stays
-    up between the two), its covariance reaching the runner-up and the keyframe placed on
-    the ridge where odometry likes it best: 0.18 m."""
-    _check_thinned_log_run(
-        shared_data, "acapulco", 2, ("varied", 0), scans=431, stat="front_ridges", ate_below=0.4
-    )
+    """Acapulco, every second scan kept (2 m apart in open halls), odometry of the varied
+    family, seed 0, up to 20 keyframes past keyframe 99. Keyframe 99's scan fits equally well
+    anywhere over 0.3 m: the search's best and runner-up scored 0.576 and 0.581, both within
+    0.17 m and 0.7 degrees of GMapping's pose. Refused as ambiguous, the keyframe stood where
+    odometry put it, 4 degrees off after a turn of 24, the next scans matched against it, and
+    the run stayed turned (0.67 m ATE over these 120 scans; 0.96 m over the whole log). Taken
+    as one ridge (the score stays up between the two), its covariance reaching the runner-up
+    and the keyframe placed on the ridge where odometry likes it best: the step within half a
+    degree, 0.40 m ATE over these scans (0.18 m over the whole log, whose later loops close).
+
+    The odometry is the whole log's, cut to the part: the part's own would be another draw."""
+    from baromap.evaluation.laser_logs import PreparedLog, odometry_model
+    from baromap.evaluation.trajectory import trajectory_error
+    from baromap.mapping.slam import run_slam
+    from baromap.odometry.synthesis import synthesize_odometry
+
+    laser = shared_data / "laser"
+    whole = PreparedLog(laser, "acapulco", stride=2)
+    part = PreparedLog(laser, "acapulco", scans=slice(0, 240), stride=2)
+    odom = synthesize_odometry(whole.reference, 0, odometry_model("varied", 0))[: len(part.times)]
+    zeros = np.zeros(len(part.times), dtype=np.int64)
+    result = run_slam(part.block, odom, zeros, zeros)
+    assert result.stats["front_ridges"] > 0
+    before, ridge = result.keyframes[98], result.keyframes[99]
+    step = se2.between(result.scan_poses[before], result.scan_poses[ridge])
+    true_step = se2.between(part.reference[before], part.reference[ridge])
+    assert abs(math.degrees(se2.wrap(step[2] - true_step[2]))) < 1.5
+    assert trajectory_error(result.scan_poses, part.reference).rms_m < 0.5
 
 
 @pytest.mark.slow

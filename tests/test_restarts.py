@@ -27,34 +27,51 @@ def _processes() -> int:
     return 2 if threading.active_count() == 1 else 1
 
 
-@pytest.mark.heavy
 def test_a_run_gone_wrong_is_replaced_by_one_whose_revisits_agree_better(
-    shared_data: Path,
+    shared_data: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Freiburg 079 with every 30th scan kept (a scan every 2-3 m), default odometry, seed 9:
-    the one run went 0.45 m from GMapping's poses (a wrong turn the closures did not put
-    right). Of three runs the one kept agrees better with its own scans at the revisits and
-    is within 0.2 m."""
+    the first run went 0.45 m from GMapping's poses (a wrong turn the closures did not put
+    right). The second run agrees better with its own scans at the revisits, is kept, and is
+    within 0.2 m."""
+    import baromap.mapping.restarts as restarts
+    from baromap.evaluation.trajectory import trajectory_error
+
+    # every run made in this process and the odometry it was made from; the first run (the
+    # odometry as given) is made once and handed out again when asked for again
+    made: list[SlamResult] = []
+    made_from: list[np.ndarray] = []
+    inner = restarts.run_slam
+
+    def run_slam(scans: object, odom: np.ndarray, *args: object, **kwargs: object) -> SlamResult:
+        if made and np.array_equal(odom, made_from[0]):
+            return made[0]
+        made.append(inner(scans, odom, *args, **kwargs))  # type: ignore[arg-type]
+        made_from.append(odom)
+        return made[-1]
+
+    monkeypatch.setattr(restarts, "run_slam", run_slam)
     log = PreparedLog(shared_data / "laser", "fr079", stride=30)
     model = odometry_model("default", 9)
-    one = run_prepared(log, 9, odometry=model)
-    assert one.result.stats["runs"] == 1
-    assert one.slam_ate.rms_m > 0.3
-    best = run_prepared(log, 9, odometry=model, runs=3)
-    assert best.result.stats["runs"] == 3
-    assert best.result.stats["run_kept"] > 0
+    best = run_prepared(log, 9, odometry=model, runs=2)
+    one = made[0]
+    assert len(made) == 2
+    assert trajectory_error(one.scan_poses, log.reference).rms_m > 0.3
+    assert best.result.stats["runs"] == 2
+    assert best.result.stats["run_kept"] == 1
     assert best.slam_ate.rms_m < 0.2
     # judged on the pairs the first run chose, as the restarts judge every run
     geometry = ScanGeometry(log.block)
-    partners = revisit_partners(one.result.scan_poses, geometry.radius_m)
-    first = consistency(geometry, one.result.scan_poses, partners).mean_m
+    partners = revisit_partners(one.scan_poses, geometry.radius_m)
+    first = consistency(geometry, one.scan_poses, partners).mean_m
     assert best.result.stats["revisits_mm"] < first * 1000
     assert best.result.stats["revisits_mm"] == pytest.approx(
         consistency(geometry, best.result.scan_poses, partners).mean_m * 1000
     )
-    # runs 2 and 3 made in another process while the first is made here: the same runs
+    # the second run made in another process while the first is (handed out) here: the
+    # same run
     processes = _processes()
-    beside = run_prepared(log, 9, odometry=model, runs=3, workers=2)
+    beside = run_prepared(log, 9, odometry=model, runs=2, workers=2)
     np.testing.assert_array_equal(beside.result.scan_poses, best.result.scan_poses)
     assert beside.result.stats.pop("run_processes") == processes
     assert best.result.stats.pop("run_processes") == 1
