@@ -390,8 +390,10 @@ class LoopCloser(SlamPart):
             self.pending.append((edge, score))
             self.stats["loop_proposed"] += 1
             return
+        # by identity: an Edge compares its arrays, and a list's remove compares by equality
+        taken = {id(other) for other, _ in agreeing}
+        self.pending = [p for p in self.pending if id(p[0]) not in taken]
         for other, other_score in agreeing:
-            self.pending.remove((other, other_score))
             self.chain.accept_loop(other, other_score)
         self.chain.accept_loop(edge, score)
         self.stats["loop_groups"] += 1
