@@ -20,6 +20,7 @@ from baromap.errors import ConfigError
 from baromap.floors import FloorDetectorConfig
 from baromap.live.settings import LiveSettings
 from baromap.messages import NS_PER_S, FloorEvent, Message, PressureSample
+from baromapd import live
 from baromapd.config import ConfigProblems, parse_config
 from baromapd.floors import FloorTracker
 from baromapd.live import LivePublisher, create_publisher
@@ -91,7 +92,12 @@ def run_robot(with_station: bool) -> list[Message]:
     return published
 
 
-def test_a_weather_front_is_a_floor_change_without_a_station_and_none_with_one() -> None:
+def test_a_weather_front_is_a_floor_change_without_a_station_and_none_with_one(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # pressure does not wake a publisher's worker, which looks every PRESSURE_HOLD_S: a
+    # hundred round trips at the default are 20 s of waiting that the wiring does not need
+    monkeypatch.setattr(live, "PRESSURE_HOLD_S", 0.01)
     alone = [m for m in run_robot(with_station=False) if isinstance(m, FloorEvent)]
     assert len(alone) == 1 and alone[0].delta_pa == pytest.approx(100.0, abs=10.0)
     corrected = [m for m in run_robot(with_station=True) if isinstance(m, FloorEvent)]
