@@ -523,7 +523,12 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the quick subset, seed 0")
     parser.add_argument("--cases", default=None, help="only the cases whose name matches REGEX")
-    parser.add_argument("--seeds", default=None, help="only these seeds (comma-separated)")
+    parser.add_argument(
+        "--seeds",
+        default=None,
+        help="these seeds of every chosen case (comma-separated); seeds the baseline does not "
+        "hold are measured and not compared",
+    )
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--tree", default=None, help="run the commands of this checkout")
     parser.add_argument("--baseline", type=Path, default=BASELINE)
@@ -561,12 +566,11 @@ def main() -> int:
         if (quick or not args.quick) and (args.cases is None or re.search(args.cases, name))
     ]
     chosen += [(parse_case(name), (0, 1, 2)) for name in args.extra]
-    only = {int(s) for s in args.seeds.split(",")} if args.seeds else None
+    only = tuple(int(s) for s in args.seeds.split(",")) if args.seeds else None
     cases = [
         (spec, seed)
         for spec, seeds in chosen
-        for seed in (seeds[:1] if args.quick else seeds)
-        if only is None or seed in only
+        for seed in (only if only is not None else seeds[:1] if args.quick else seeds)
     ]
     if args.list:
         for spec, seed in cases:
