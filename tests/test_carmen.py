@@ -17,7 +17,13 @@ from baromap.odometry.errors import OdometryErrorModel
 from baromap.odometry.synthesis import synthesize_odometry
 from baromap.recording import read_messages, read_metadata
 from baromap.recording.carmen import flaser_geometry, parse_lines, parse_time_ns, read_carmen
-from baromap.recording.carmen_import import import_carmen, laser_offset, to_laser_scan
+from baromap.recording.carmen_import import (
+    check_mount,
+    declared_mount,
+    import_carmen,
+    laser_offset,
+    to_laser_scan,
+)
 
 RANGES = " ".join(["1.5"] * 178 + ["81.83", "2.25"])
 FLASER = f"FLASER 180 {RANGES} 1.0 2.0 0.5 1.1 2.1 0.5 976052890.244111 pippo 976052890.244111"
@@ -458,6 +464,51 @@ def test_a_backward_facing_laser_mounting_is_read_whole() -> None:
     x, y, turn = laser_offset(parse_lines(lines))
     assert (x, y) == pytest.approx((-0.25, 0.02), abs=1e-5)
     assert abs(math.remainder(turn - math.pi, math.tau)) < 1e-3
+
+
+def _mounted_lines(mount: tuple[float, float, float], declared: str) -> list[str]:
+    """A log whose laser lines carry ``mount`` and whose PARAM lines say ``declared``."""
+    rng = np.random.default_rng(7)
+    lines = [f"PARAM robot_frontlaser_offset {declared} host 0"]
+    for k in range(20):
+        robot = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(-3, 3)])
+        laser = se2.compose(robot, np.array(mount))
+        poses = " ".join(f"{v:.6f}" for v in (*laser, *robot))
+        lines.append(f"FLASER 3 1.0 1.0 1.0 {poses} {10.0 + k:.6f} host {10.0 + k:.6f}")
+    return lines
+
+
+def test_a_mount_the_lines_carry_as_declared_says_nothing() -> None:
+    """A raw log prints the laser's pose as the robot's moved by the mount its PARAM declares."""
+    from structlog.testing import capture_logs
+
+    carmen = parse_lines(_mounted_lines((0.2, 0.0, 0.0), "0.2"))
+    with capture_logs() as logs:
+        assert not check_mount(carmen, laser_offset(carmen), "raw.log")
+    assert declared_mount(carmen) == (0.2, 0.0, 0.0)
+    assert not logs
+
+
+def test_a_declared_mount_the_lines_do_not_show_is_said(shared_data: Path) -> None:
+    """Freiburg 079's corrected log declares its laser 4 cm behind the robot's centre and
+    prints one pose for both: the trajectory is then the laser's, and the user is told."""
+    from structlog.testing import capture_logs
+
+    carmen = read_carmen(shared_data / "laser" / "freiburg-079-corrected.log.gz")
+    assert declared_mount(carmen) == (-0.04, 0.0, 0.0)
+    offset = laser_offset(carmen)
+    assert offset == pytest.approx((0.0, 0.0, 0.0), abs=1e-6)
+    with capture_logs() as logs:
+        assert check_mount(carmen, offset, "fr079")
+    assert [e["declared"] for e in logs] == ["-0.040 0.000 0.000"]
+    assert logs[0]["lines"] == "0.000 0.000 0.000"
+    assert logs[0]["log_level"] == "warning"
+
+
+def test_a_mount_param_that_is_no_number_is_no_mount() -> None:
+    carmen = parse_lines(_mounted_lines((0.0, 0.0, 0.0), "front"))
+    assert declared_mount(carmen) is None
+    assert not check_mount(carmen, laser_offset(carmen), "odd.log")
 
 
 def test_import_records_the_no_return_code_it_found(tmp_path: Path) -> None:

@@ -12,11 +12,26 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import structlog
 
 from baromap.errors import ConfigError
 from baromap.messages import BeamFlag, LaserScan, Odometry
 from baromap.odometry.synthesis import synthesize_odometry
 from baromap.recording.carmen import CarmenLog, CarmenScan, read_carmen
+
+log = structlog.get_logger(__name__)
+
+#: CARMEN's parameters for the front laser's place on the robot (carmen.ini): ahead of the
+#: centre, to its left (metres), and turned (radians).
+MOUNT_PARAMS = (
+    "robot_frontlaser_offset",
+    "robot_frontlaser_side_offset",
+    "robot_frontlaser_angular_offset",
+)
+#: A declared mount and the lines' own differ when apart by more than this (m, rad): the
+#: lines print poses to a millimetre or so.
+MOUNT_AGREE_M = 0.005
+MOUNT_AGREE_RAD = 0.005
 
 
 def to_laser_scan(scan: CarmenScan, index: int) -> LaserScan:
@@ -113,6 +128,45 @@ def laser_offset(carmen: CarmenLog) -> tuple[float, float, float]:
     )
 
 
+def declared_mount(carmen: CarmenLog) -> tuple[float, float, float] | None:
+    """The laser's pose on the robot as the log's ``PARAM`` lines declare it, or None where
+    they say nothing (or nothing that reads as a number)."""
+    if not any(name in carmen.params for name in MOUNT_PARAMS):
+        return None
+    try:
+        x, y, turn = (float(carmen.params.get(name, "0")) for name in MOUNT_PARAMS)
+    except ValueError:
+        return None
+    if not all(math.isfinite(v) for v in (x, y, turn)):
+        return None
+    return (x, y, turn)
+
+
+def check_mount(carmen: CarmenLog, offset: tuple[float, float, float], path: str) -> bool:
+    """Warn where the log's ``PARAM`` lines put the laser elsewhere on the robot than its laser
+    lines' two poses do; returns whether they disagree.
+
+    The lines are followed: a raw log prints the laser's pose as the robot's moved by the
+    mount, so the two agree; a "corrected" log (a SLAM's poses, written into both fields)
+    shows no mount although its robot had one. Its poses, and so ``trajectory.tum``, are then
+    the laser's, while ground truth of the robot's motion (Freiburg 079's relations) is the
+    robot centre's: a trajectory turned back on itself differs from it by twice the mount."""
+    declared = declared_mount(carmen)
+    if declared is None:
+        return False
+    apart = math.hypot(declared[0] - offset[0], declared[1] - offset[1])
+    turned = abs(math.remainder(declared[2] - offset[2], math.tau))
+    if apart <= MOUNT_AGREE_M and turned <= MOUNT_AGREE_RAD:
+        return False
+    log.warning(
+        "laser mount declared elsewhere than the lines put it; the lines' poses are followed",
+        path=path,
+        declared=" ".join(f"{v:.3f}" for v in declared),
+        lines=" ".join(f"{v:.3f}" for v in offset),
+    )
+    return True
+
+
 def import_carmen(
     log_path: str | Path,
     out_path: str | Path,
@@ -136,6 +190,7 @@ def import_carmen(
     carmen = read_carmen(log_path)
     odometry = odometry_messages(carmen, synth_seed, odometry_from)
     offset = laser_offset(carmen)
+    check_mount(carmen, offset, str(log_path))
     repair = carmen.stamps
     metadata = {
         "source": str(log_path),
