@@ -1,7 +1,7 @@
 """Where a gate case's error lies: the trajectories a ``bench/gate.py --keep DIR`` run kept,
 against the reference, along the run.
 
-    .venv/bin/python bench/gate_errors.py [DIR] [--cases REGEX] [--extra CASE]
+    .venv/bin/python bench/gate_errors.py [DIR] [--cases REGEX] [--seeds S] [--extra CASE]
                                             [--window-m 10] [--stretches 3] [--stretch-scans 25]
 
 For each case and seed kept in DIR (``CASE-sSEED/out/trajectory.tum``):
@@ -121,6 +121,7 @@ def main() -> int:
     parser.add_argument(
         "--extra", action="append", default=[], metavar="CASE", help="a gate.py --extra case"
     )
+    parser.add_argument("--seeds", default=None, help="these seeds (comma-separated)")
     parser.add_argument("--window-m", type=float, default=10.0)
     parser.add_argument("--stretches", type=int, default=3)
     parser.add_argument("--stretch-scans", type=int, default=25)
@@ -132,7 +133,7 @@ def main() -> int:
     for name, seeds, _ in [*gate.CASES, *((name, (0, 1, 2), False) for name in args.extra)]:
         if args.cases is not None and not re.search(args.cases, name):
             continue
-        for seed in seeds:
+        for seed in tuple(int(s) for s in args.seeds.split(",")) if args.seeds else seeds:
             case_dir = args.keep / f"{re.sub(r'[^A-Za-z0-9=.-]+', '_', name)}-s{seed}"
             if not (case_dir / "out" / "trajectory.tum").exists():
                 continue
