@@ -31,6 +31,7 @@ from baromap.mapping.slam.settings import (
     MATCH_SIGMA_RAD,
     MIN_SCATTER_EDGES,
     REFINE_ODOMETRY_INFLATION,
+    REFINE_ODOMETRY_ROBUST,
     REFINE_PASSES,
     SCATTER_KINDS,
 )
@@ -78,12 +79,19 @@ class FinalSolve(SlamPart):
         if self._weigh_by_scatter():
             self.chain.graph.optimize(iterations=FINAL_ITERATIONS)
         if REFINE_PASSES:
-            self._odometry_as_learnt(noise, REFINE_ODOMETRY_INFLATION, silent_steps)
+            self._odometry_as_learnt(
+                noise, REFINE_ODOMETRY_INFLATION, silent_steps, robust=REFINE_ODOMETRY_ROBUST
+            )
         for _ in range(REFINE_PASSES):
             self._refine()
 
     def _odometry_as_learnt(
-        self, noise: OdometryNoise | None, inflation: float, silent_steps: set[int]
+        self,
+        noise: OdometryNoise | None,
+        inflation: float,
+        silent_steps: set[int],
+        *,
+        robust: bool = False,
     ) -> None:
         """Every odometry edge with what the whole run taught about odometry: its systematic
         errors taken out, and the information of the noise that corrected odometry showed
@@ -103,6 +111,13 @@ class FinalSolve(SlamPart):
         the noise was fitted to keyframe steps of half a metre, and a minute's drive is far
         outside them (the simulated run's is 6 m and 19 degrees off, a hundred sigmas of the
         fit): weighed by the fit, that one edge holds every floor after it against the car.
+
+        ``robust``: the fitted edges get the loop closures' Cauchy kernel. In the refinement
+        the map fits place every keyframe, and a step the wheels misread by decimetres (a
+        slip, a bump), far beyond the fitted noise, would pull its neighbours off the map as
+        plain least squares; with the kernel it yields to the fits, while a step within a
+        few sigmas (every step along a corridor, where only odometry measures the travel)
+        weighs as before (docs/decisions.md, "Odometry yields to the map in the refinement").
         """
         edges = self.chain.graph.edges
         for e in edges:
@@ -113,6 +128,8 @@ class FinalSolve(SlamPart):
             if noise is not None and e.j not in silent_steps:
                 sigma_xy, sigma_theta = noise.sigmas(math.hypot(read[0], read[1]), read[2])
                 e.information = diagonal_information(inflation * sigma_xy, inflation * sigma_theta)
+                if robust:
+                    e.robust_c = LOOP_ROBUST_C
         self.chain.graph = graph_of(self.chain.graph.poses, edges)
 
     def _doubt_matches_beyond(self, noise: OdometryNoise) -> None:
