@@ -166,7 +166,7 @@ def test_a_part_of_the_run_nothing_ties_to_the_rest_is_said(tmp_path: Path) -> N
     assert later_ns <= stretch["t_start_ns"] < stretch["t_end_ns"] <= scan_t[-1]
     assert stretch["keyframes"] == len(part)
     assert stretch["cut_by"] == "odometry counted from zero again"  # the second from zero
-    (line,) = [line for line in summary_lines(result, tmp_path) if "gap alone" in line]
+    (line,) = [line for line in summary_lines(result, tmp_path) if "by odometry alone" in line]
     assert f"{len(part)} keyframes from {(stretch['t_start_ns'] - scan_t[0]) / 1e9:.1f} to" in line
     assert line.endswith(f"on floor(s) {second_floor}")
     assert "(odometry counted from zero again;" in line

@@ -598,7 +598,7 @@ def summary_lines(result: BuildResult, out: Path) -> list[str]:
     t0 = int(result.run.scans.t_ns[0])
     for stretch in _untied_entries(result):
         lines.append(
-            f"  placed by odometry across a gap alone ({stretch.cut_by}; nothing the scans "
+            f"  placed by odometry alone ({stretch.cut_by}; nothing the scans "
             f"saw ties it to the rest): {stretch.keyframes} keyframes from "
             f"{(stretch.t_start_ns - t0) / 1e9:.1f} to {(stretch.t_end_ns - t0) / 1e9:.1f} s"
             f" on floor(s) {', '.join(map(str, stretch.floors)) or 'none'}"

@@ -240,34 +240,48 @@ class _Slam:
         if not untied:
             return [], []
         # a part's first keyframe is reached by a step across a gap: what made it one
-        evidence = [self._gap_evidence(int(p[0])) for p in untied]
+        said = [self._gap_evidence(int(p[0])) for p in untied]
+        evidence = [text for text, _ in said]
         t = run.t_ns[run.kf_scan]
-        log.warning(
-            "part of the run is placed by odometry across a gap alone",
-            parts=len(untied),
-            keyframes=sum(len(p) for p in untied),
-            first_after_s=[round(float(t[p[0]] - t[0]) / 1e9, 1) for p in untied],
-            floors=sorted({int(f) for p in untied for f in run.kf_floor[p] if f >= 0}),
-            evidence=evidence,
-        )
+        for broke, event in ((True, "a gap"), (False, "a long step")):
+            parts = [p for p, (_, b) in zip(untied, said, strict=True) if b == broke]
+            if not parts:
+                continue
+            # a break (a silence in time, odometry counted again) is a fault to look at; a
+            # sparse log's step longer than the front end searches, in the scans' usual
+            # time, is what such a log is
+            (log.warning if broke else log.info)(
+                f"part of the run is placed by odometry across {event} alone",
+                parts=len(parts),
+                keyframes=sum(len(p) for p in parts),
+                first_after_s=[round(float(t[p[0]] - t[0]) / 1e9, 1) for p in parts],
+                floors=sorted({int(f) for p in parts for f in run.kf_floor[p] if f >= 0}),
+                evidence=[text for text, b in said if b == broke],
+            )
         return untied, evidence
 
-    def _gap_evidence(self, k: int) -> str:
-        """What made the step to keyframe ``k`` a gap, in words: a break in the odometry (the
-        scans either side of it are blind too, so it is said first), scans the odometry said
-        nothing about, or a drive with no scan further than the front end searches."""
+    def _gap_evidence(self, k: int) -> tuple[str, bool]:
+        """What made the step to keyframe ``k`` a gap, in words, and whether it is a break: in
+        the odometry (the scans either side of it are blind too, so it is said first), scans
+        the odometry said nothing about, a drive with no scan for longer than the scans
+        usually take; or not a break, a step longer than the front end searches taken in the
+        scans' usual time (a sparse log)."""
         run = self.keyframes
         a, b = int(run.kf_scan[k - 1]), int(run.kf_scan[k])
         if run.unmeasured_step[k]:
-            return "odometry counted from zero again"
+            return "odometry counted from zero again", True
         silent = np.flatnonzero(run.blind[a + 1 : b + 1]) + a + 1
         if len(silent):
             seconds = float(run.t_ns[silent[-1]] - run.t_ns[silent[0]]) / 1e9
-            return f"odometry silent for {seconds:.0f} s while the laser went on"
+            return f"odometry silent for {seconds:.0f} s while the laser went on", True
         step = se2.between(run.odom[a], run.odom[b])
+        moved = f"{math.hypot(step[0], step[1]):.1f} m and {math.degrees(abs(step[2])):.0f} deg"
+        if run.long_wait(k):
+            seconds = float(run.t_ns[b] - run.t_ns[a]) / 1e9
+            return f"laser silent for {seconds:.0f} s while the robot drove {moved}", True
         return (
-            f"laser silent while the robot drove {math.hypot(step[0], step[1]):.1f} m and "
-            f"turned {math.degrees(abs(step[2])):.0f} deg"
+            f"a step of {moved} in the scans' usual time, longer than the matching searches",
+            False,
         )
 
     def _end_visit(self) -> None:

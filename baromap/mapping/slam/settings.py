@@ -89,6 +89,9 @@ class SlamConfig:
 
 #: The search covers odometry's error to this many sigmas.
 WINDOW_SIGMAS = 3.0
+#: Two keyframes' scans this many of the log's usual intervals (per scan between them) apart
+#: were parted by a silence, not by a sparse log's long step.
+LONG_WAIT_INTERVALS = 3.0
 #: ... but never less than a couple of cells and a degree: the lattice must hold the optimum's
 #: neighbours for the refinement to start from, and never more than what a step can hold.
 MIN_WINDOW_M = 0.1

@@ -25,6 +25,7 @@ from baromap.mapping.slam.measurement import edge_covariance, rotate_information
 from baromap.mapping.slam.settings import (
     CAR_EXTENT_M,
     CAR_MIN_POINTS,
+    LONG_WAIT_INTERVALS,
     MIN_NOISE_STEPS,
     ODOMETRY_SIGMA_M,
     ODOMETRY_SIGMA_RAD,
@@ -165,12 +166,23 @@ class Keyframes:
             self.blind_step |= broken
             self.unmeasured_step |= broken
         self.t_ns = scans.t_ns
+        steps = np.diff(scans.t_ns)
+        #: the log's usual time from one scan to the next
+        self.interval_ns = float(np.median(steps[steps > 0])) if (steps > 0).any() else 0.0
         self.scans = scans
         self.blind = np.zeros(len(odom), dtype=bool) if blind is None else blind
         self.kf_scan = kf_scan
         self.kf_floor = kf_floor
         self.kf_visit = kf_visit
         self.clouds = KeyframeClouds(scans, odom, kf_scan, config)
+
+    def long_wait(self, k: int) -> bool:
+        """Whether the scans of keyframes k-1 and k lie further apart in time than the scans
+        between them take at the log's usual interval, LONG_WAIT_INTERVALS times over: the
+        laser was silent, or nothing was logged (a log that keeps a scan a metre is sparse,
+        not silent)."""
+        a, b = int(self.kf_scan[k - 1]), int(self.kf_scan[k])
+        return bool(self.t_ns[b] - self.t_ns[a] > LONG_WAIT_INTERVALS * (b - a) * self.interval_ns)
 
     def odometry_step(self, a: int, b: int) -> FloatArray:
         """Odometry's motion from keyframe a to keyframe b, as the wheels read it."""
