@@ -124,7 +124,7 @@ class FrontEnd(SlamPart):
         """Keyframe k matched against the submap ``sub`` from the ``prior``'s pose (in the
         anchor's frame), within three of its sigmas: the field it was matched in and the
         match. ``turn``: the odometric turn since the last keyframe (a poor match after a
-        turn, and a failed one after any step, is tried again, :meth:`_retry_after_turn`)."""
+        turn is tried again, :meth:`_retry_after_turn`)."""
         config = self.config
         points = self.clouds.points[k]
         local_guess = prior.pose
@@ -146,9 +146,7 @@ class FrontEnd(SlamPart):
         fld = sub.field
         coarse = sub.coarse(window.coarse_step_cells) if window.coarse_step_cells > 1 else None
         result = match(fld, points, local_guess, window, coarse_field=coarse, prior=prior)
-        if (result.score < FRONT_RETRY_BELOW and abs(turn) > FRONT_RETRY_TURN_RAD) or (
-            result.score < config.front_min_score
-        ):
+        if result.score < FRONT_RETRY_BELOW and abs(turn) > FRONT_RETRY_TURN_RAD:
             result = self._retry_after_turn(k, sub.anchor, result, window=window, prior=prior)
         return fld, result
 

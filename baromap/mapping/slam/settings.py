@@ -107,10 +107,7 @@ COARSE_STEP_CELLS = 4
 #: A front-end match scoring under this after a turn of more than FRONT_RETRY_TURN_RAD (the
 #: robot looking back over where it came from) is tried again against the keyframes of the
 #: last FRONT_RETRY_M of travel (:meth:`FrontEnd._retry_after_turn`). Dense logs, a keyframe
-#: every 25 degrees, never turn that far between keyframes. A match that fails outright (under
-#: ``front_min_score``) is tried again so whatever the turn: on a sparse log a scan metres on
-#: can overlap the active submap too little and the last 20 m enough, and refused, its step is
-#: odometry's, degrees off (Belgioioso every third scan, one seed: 1.45 -> 0.05 m ATE).
+#: every 25 degrees, never turn that far between keyframes.
 FRONT_RETRY_BELOW = 0.3
 FRONT_RETRY_M = 20.0
 FRONT_RETRY_TURN_RAD = math.radians(90.0)
