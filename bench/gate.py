@@ -285,15 +285,23 @@ class Sources:
         return self._logs[log]
 
 
-def prepare(spec: CaseSpec, seed: int, sources: Sources, case_dir: Path):  # type: ignore[no-untyped-def]
+def case_dir_name(name: str, seed: int) -> str:
+    """The directory a case's seed is run in, under the gate's root or ``--keep DIR``."""
+    return f"{re.sub(r'[^A-Za-z0-9=.-]+', '_', name)}-s{seed}"
+
+
+def variant_of(spec: CaseSpec, source, seed: int):  # type: ignore[no-untyped-def]
+    """The case's log for ``seed``, made from its source log."""
     from baromap.evaluation.log_variants import Variant, make_variant
 
-    source, relations = sources.get(spec.log)
-    variant = make_variant(
-        source,
-        Variant(spec.odometry, spec.timing, spec.stamps, spec.stride, spec.part),
-        seed,
+    return make_variant(
+        source, Variant(spec.odometry, spec.timing, spec.stamps, spec.stride, spec.part), seed
     )
+
+
+def prepare(spec: CaseSpec, seed: int, sources: Sources, case_dir: Path):  # type: ignore[no-untyped-def]
+    source, relations = sources.get(spec.log)
+    variant = variant_of(spec, source, seed)
     case_dir.mkdir(parents=True, exist_ok=True)
     variant.write(case_dir / "log.txt")
     return source, relations, variant
@@ -391,7 +399,7 @@ def run_gate(
     root.mkdir(parents=True, exist_ok=True)
     prepared = {}
     for spec, seed in cases:
-        case_dir = root / f"{re.sub(r'[^A-Za-z0-9=.-]+', '_', spec.name)}-s{seed}"
+        case_dir = root / case_dir_name(spec.name, seed)
         if case_dir.exists():
             shutil.rmtree(case_dir)
         prepared[(spec.name, seed)] = (case_dir, *prepare(spec, seed, sources, case_dir))

@@ -67,14 +67,11 @@ def _rms(values: np.ndarray) -> float:
 
 
 def describe(name: str, seed: int, case_dir: Path, args: argparse.Namespace) -> list[str]:
-    from baromap.evaluation.log_variants import Variant, make_variant
     from baromap.evaluation.trajectory import similarity_error, trajectory_error
 
     spec = gate.parse_case(name)
     source, _ = SOURCES.get(spec.log)
-    variant = make_variant(
-        source, Variant(spec.odometry, spec.timing, spec.stamps, spec.stride, spec.part), seed
-    )
+    variant = gate.variant_of(spec, source, seed)
     t, poses = gate._tum(case_dir / "out" / "trajectory.tum")
     rows = gate.scan_rows(variant, t)
     if rows is None or (rows < 0).any():
@@ -134,7 +131,7 @@ def main() -> int:
         if args.cases is not None and not re.search(args.cases, name):
             continue
         for seed in tuple(int(s) for s in args.seeds.split(",")) if args.seeds else seeds:
-            case_dir = args.keep / f"{re.sub(r'[^A-Za-z0-9=.-]+', '_', name)}-s{seed}"
+            case_dir = args.keep / gate.case_dir_name(name, seed)
             if not (case_dir / "out" / "trajectory.tum").exists():
                 continue
             found += 1

@@ -52,7 +52,7 @@ def sweep(times: np.ndarray, poses: np.ndarray, relations, declared: float) -> s
     errors = [relation_error(times, poses, relations, float(o)) for o in SWEEP_M]
     best = int(np.argmin(errors))
     return (
-        f"as scored {errors[int(np.flatnonzero(SWEEP_M == 0)[0])]:.4f} m, "
+        f"as scored {relation_error(times, poses, relations, 0.0):.4f} m, "
         f"at the declared mount {relation_error(times, poses, relations, -declared):.4f} m, "
         f"least {errors[best]:.4f} m at {SWEEP_M[best]:+.2f} m"
     )
@@ -69,7 +69,6 @@ def main() -> int:
 
     # the logs' own stamps are repaired on every read, as the gate's report says already
     structlog.configure(wrapper_class=structlog.make_filtering_bound_logger(logging.ERROR))
-    from baromap.evaluation.log_variants import Variant, make_variant
     from baromap.recording.carmen import read_carmen
     from baromap.recording.carmen_import import declared_mount
 
@@ -89,13 +88,10 @@ def main() -> int:
             print(f"{spec.log}: declared mount {declared[spec.log]:+.3f} m")
             print(f"  reference (GMapping's poses): {line}")
         for seed in seeds:
-            case_dir = args.keep / f"{re.sub(r'[^A-Za-z0-9=.-]+', '_', name)}-s{seed}"
-            tum = case_dir / "out" / "trajectory.tum"
+            tum = args.keep / gate.case_dir_name(name, seed) / "out" / "trajectory.tum"
             if not tum.exists():
                 continue
-            variant = make_variant(
-                source, Variant(spec.odometry, spec.timing, spec.stamps, spec.stride, None), seed
-            )
+            variant = gate.variant_of(spec, source, seed)
             t, poses = gate._tum(tum)
             rows = gate.scan_rows(variant, t)
             if rows is None or (rows < 0).any():
