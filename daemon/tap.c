@@ -18,7 +18,8 @@
  *   answered by the flush record; any other byte followed by a little-endian uint32 sets the
  *   frame size ("<cI", tap.EXPECT) at which the bytes held are handed over at once;
  * - bytes are handed over in one write when a frame's worth is held, or after QUIET_MS without
- *   more; when idle the tap looks every IDLE_MS whether its parent is still there;
+ *   more, or, while no frame size is known, once the oldest held is HOLD_MS old; when idle the
+ *   tap looks every IDLE_MS whether its parent is still there;
  * - exit 0 when the port hangs up (a read of nothing), stdin closes, the parent is gone, or on
  *   SIGINT (Python's KeyboardInterrupt); exit 1 when the port or a pipe fails (EIO: unplugged;
  *   EPIPE: the daemon went away) or at a bad command line (the only text, on stderr).
@@ -47,6 +48,7 @@ enum {
     RECORD_BYTES = 12,       /* tap.RECORD: int64 stamp, uint32 length */
     EXPECT_BYTES = 5,        /* tap.EXPECT: one byte, uint32 frame size */
     QUIET_MS = 4,            /* tap.QUIET_MS: why 4 is argued there */
+    HOLD_MS = 20,            /* tap.HOLD_MS: a line that never goes quiet, no frame size said */
     PRIORITY = 10,           /* tap.PRIORITY, within RLIMIT_RTPRIO */
     IDLE_MS = 1000,          /* tap.IDLE_MS */
     READ_CHUNK = 65536,      /* tap.READ_CHUNK */
@@ -119,6 +121,7 @@ static int serve(int port, int out, int control)
     size_t requested = 0;
     uint32_t frame = 0;  /* bytes in one of the device's frames, as last said (0: unknown) */
     uint64_t held = 0;   /* bytes read and not yet forwarded */
+    int64_t first = 0;   /* when the oldest of them was read */
     size_t used = 0;     /* bytes of pending[] in use */
     bool unquiet = false; /* bytes read since the last hand-over (tap.py: `pending` not empty) */
 
@@ -189,16 +192,19 @@ static int serve(int port, int out, int control)
             }
             put_le(record, (uint64_t)stamp, 8);
             put_le(record + 8, (uint64_t)size, 4);
+            if (!unquiet)
+                first = stamp;
             used += RECORD_BYTES + (size_t)size;
             unquiet = true;
             held += (uint64_t)size;
-            if (frame && held >= frame) {
-                /* a frame's worth: the daemon need not wait for the line to go quiet */
+            bool whole = frame && held >= frame; /* the daemon need not wait for quiet */
+            bool stale = !frame && stamp - first >= (int64_t)HOLD_MS * 1000000;
+            if (whole || stale) {
                 if (!write_all(out, pending, used))
                     return 1;
                 used = 0;
                 unquiet = false;
-                held %= frame; /* what came of the next frame already */
+                held = whole ? held % frame : 0; /* what came of the next frame already */
             }
         }
     }

@@ -68,6 +68,11 @@ EXPECT: Final = struct.Struct("<cI")
 #: the pauses within a frame (a USB adapter's packets come every 1 ms, the twins' every 2 ms, a
 #: 9600 baud byte takes 1 ms), shorter than the gap between a 500 kbaud laser's scans (6 ms).
 QUIET_MS: Final = 4
+#: Longest bytes are held while no frame size is known: a line that never goes quiet (a laser
+#: at 38400 baud sends its scans back to back, a few milliseconds apart at most) is handed over
+#: this often until the daemon has decoded a frame and said its size. Far below the daemon's
+#: silence limit (a second), a few times the quiet.
+HOLD_MS: Final = 20
 #: The tap's SCHED_FIFO priority, when its limits allow one (the unit's ``LimitRTPRIO=``).
 PRIORITY: Final = 10
 #: Longest wait when idle: the tap checks that its daemon is still there.
@@ -92,7 +97,8 @@ def serve(port: int, out: int, control: int) -> int:
 
     Every read is stamped the moment it returns; what was read goes to the daemon as soon as
     it makes a frame's worth of bytes (the size the daemon said its frames have:
-    :meth:`Tap.expect`), or after :data:`QUIET_MS` without bytes.
+    :meth:`Tap.expect`), or after :data:`QUIET_MS` without bytes, or, while no frame size is
+    known, once the oldest of it is :data:`HOLD_MS` old.
     """
     os.set_blocking(control, False)
     poll = select.poll()
@@ -105,6 +111,8 @@ def serve(port: int, out: int, control: int) -> int:
     requests = bytearray()
     frame = 0  # bytes in one of the device's frames, as the daemon last said (0: unknown)
     held = 0  # bytes read and not yet forwarded
+    first_ns = 0  # when the oldest of them was read
+    hold_ns = HOLD_MS * 1_000_000
     # One reused read buffer, as the daemon's readers (baromapd.session): os.read(port,
     # READ_CHUNK) allocates READ_CHUNK bytes and shrinks them to what came, and holding the
     # shrunk blocks while reading on fragments the heap (bench/memory.py --old-read).
@@ -151,12 +159,17 @@ def serve(port: int, out: int, control: int) -> int:
             if not size:
                 return 0  # hang-up
             data = bytes(chunk[:size])
+            if not pending:
+                first_ns = stamp
             pending.append(pack(stamp, len(data)))
             pending.append(data)
             held += len(data)
             if frame and held >= frame:
                 forward()  # a frame's worth: the daemon need not wait for the line to go quiet
                 held %= frame  # what came of the next frame already
+            elif not frame and stamp - first_ns >= hold_ns:
+                forward()  # a line that never goes quiet, frames of a size not known yet
+                held = 0
 
 
 def realtime() -> bool:

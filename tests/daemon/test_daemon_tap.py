@@ -114,6 +114,28 @@ def test_every_read_is_stamped_between_the_write_and_its_arrival(
     assert all(before <= stamp <= after for _, stamp in records)
 
 
+def test_a_line_that_never_goes_quiet_is_handed_over_though_no_frame_size_was_said(
+    pty_pair: tuple[int, int], tap: Tap
+) -> None:
+    """A laser just switched to streaming at 38400 baud fills its line: scans follow each
+    other closer than the quiet that ends a hand-over, and the frame size is not known until
+    a first scan is decoded. The tap must hand bytes over all the same, or the daemon hears a
+    silence and restarts a sensor that streams."""
+    device = pty_pair[0]
+    sent = bytearray()
+    first: int | None = None
+    end = time.monotonic() + 0.5
+    while time.monotonic() < end:  # 8 bytes every 2 ms: 38400 baud, never 4 ms quiet
+        chunk = bytes([len(sent) % 251] * 8)
+        os.write(device, chunk)
+        sent += chunk
+        if first is None and tap.read(0) is not None:
+            first = len(sent)
+        time.sleep(0.002)
+    assert first is not None, f"nothing handed over while {len(sent)} bytes streamed for 0.5 s"
+    assert first <= 40 * 8, f"the first hand-over came after {first} bytes"
+
+
 def test_a_flush_drops_everything_read_before_it(pty_pair: tuple[int, int], tap: Tap) -> None:
     device, port = pty_pair
     os.write(device, b"old bytes at the wrong speed")
