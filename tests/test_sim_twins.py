@@ -465,6 +465,33 @@ def test_output_a_line_cannot_carry_is_dropped_whole_not_queued_forever() -> Non
         port.close()
 
 
+def test_a_twin_held_up_delivers_its_backlog_at_the_line_rate_not_slower() -> None:
+    """A device's UART keeps sending while its twin's thread waits for a core: after a hold-up
+    of 0.4 s, a pump writes every byte whose line time is over. A twin that credited only the
+    last few tens of milliseconds turned a loaded test machine into a line running at a
+    fraction of its baud rate, and a laser that streams into a silence."""
+    import os
+    import time
+
+    from baromap.sim.twins.pty_port import PtyPort
+
+    port = PtyPort(38400)
+    try:
+        assert port.master is not None
+        scan = bytes(range(256)) * 3  # about one 0.5-degree scan: 0.2 s at 38400 baud
+        assert port.send(scan)
+        time.sleep(0.4)  # the twin's thread held up: the whole scan is on the line by now
+        port.pump()
+        assert port.pending == 0
+        slave = os.open(port.slave_path, os.O_RDONLY | os.O_NONBLOCK)
+        try:
+            assert os.read(slave, 4096) == scan
+        finally:
+            os.close(slave)
+    finally:
+        port.close()
+
+
 def test_p2os_watchdog_judges_the_host_in_wall_time(tmp_path: Path) -> None:
     """Sped up 8x, a host pulsing every 0.5 s (wall) keeps the robot driving."""
     with P2osTwin(SimClock(SCENARIO, speed=8.0), tmp_path / "p3at") as fast:

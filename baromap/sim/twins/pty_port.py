@@ -265,31 +265,39 @@ class PtyPort:
             if self.master is None or not self._out:
                 return
             now = time.monotonic()
-            # A twin thread held up for long delivers the backlog, but the line's idle
-            # credit never exceeds 50 ms.
-            self._budget_t = max(self._budget_t, now - 0.05)
-            allowed = int((now - self._budget_t) * self.baud / 10.0 + _BYTE_EPSILON)
-            if allowed <= 0:
-                return
-            chunk = bytes(self._out[: min(allowed, WRITE_CHUNK)])
-            line = self._as_received(chunk, self.baud, self.host_baud())
-            try:
-                written = os.write(self.master, line)
-            except BlockingIOError:
-                written = len(line)  # the host's buffer is full: the bytes are lost
-                self.bytes_unread += len(chunk)
-            except OSError as exc:
-                if exc.errno != errno.EIO:
-                    raise
-                written = len(line)
-            if line is not chunk:
-                written = len(chunk)  # garbled bytes are not resent: they were on the line
-            del self._out[:written]
-            self._budget_t += written * 10.0 / self.baud
-            self._done += written
-            self.bytes_sent += written
-            while self._ends and self._ends[0][0] <= self._done:
-                self.lateness.append(now - self._ends.popleft()[1])
+            # The queue's first byte started on the line at _budget_t (never before it was
+            # queued), and a UART keeps sending while the twin's thread waits for a core: a
+            # thread held up delivers the whole backlog whose line time is over, as a real
+            # line would have.
+            while self._out and self._write_due(now):
+                pass
+
+    def _write_due(self, now: float) -> bool:
+        """Write one chunk of what is due by ``now`` (under the lock); False when no more may go."""
+        allowed = int((now - self._budget_t) * self.baud / 10.0 + _BYTE_EPSILON)
+        if allowed <= 0 or self.master is None:
+            return False
+        chunk = bytes(self._out[: min(allowed, WRITE_CHUNK)])
+        line = self._as_received(chunk, self.baud, self.host_baud())
+        try:
+            written = os.write(self.master, line)
+        except BlockingIOError:
+            written = len(line)  # the host's buffer is full: the bytes are lost
+            self.bytes_unread += len(chunk)
+        except OSError as exc:
+            if exc.errno != errno.EIO:
+                raise
+            written = len(line)
+        if line is not chunk:
+            written = len(chunk)  # garbled bytes are not resent: they were on the line
+        del self._out[:written]
+        self._budget_t += written * 10.0 / self.baud
+        self._done += written
+        self.bytes_sent += written
+        while self._ends and self._ends[0][0] <= self._done:
+            self.lateness.append(now - self._ends.popleft()[1])
+        # a partial write: the host's buffer is nearly full, the rest waits for the next pump
+        return written == len(chunk)
 
     def read(self) -> bytes:
         """Whatever the host wrote (non-blocking)."""
