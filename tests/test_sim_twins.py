@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import math
+import os
+import termios
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -470,9 +473,6 @@ def test_a_twin_held_up_delivers_its_backlog_at_the_line_rate_not_slower() -> No
     of 0.4 s, a pump writes every byte whose line time is over. A twin that credited only the
     last few tens of milliseconds turned a loaded test machine into a line running at a
     fraction of its baud rate, and a laser that streams into a silence."""
-    import os
-    import time
-
     from baromap.sim.twins.pty_port import PtyPort
 
     port = PtyPort(38400)
@@ -489,6 +489,46 @@ def test_a_twin_held_up_delivers_its_backlog_at_the_line_rate_not_slower() -> No
         finally:
             os.close(slave)
     finally:
+        port.close()
+
+
+def test_a_backlog_larger_than_the_ptys_buffer_waits_for_a_host_that_reads_late() -> None:
+    """A twin held up at 500 kbaud owes the host more than a pty holds (a few kilobytes). A
+    host that reads, only late, must get every byte, as from a real port's kernel buffer;
+    bytes are lost only to a host that has not read for half a second."""
+    from baromap.sim.twins.pty_port import PtyPort
+
+    port = PtyPort(500_000)
+    slave = os.open(port.slave_path, os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        attrs = termios.tcgetattr(slave)
+        attrs[4] = attrs[5] = termios.B500000  # the host at the twin's speed
+        termios.tcsetattr(slave, termios.TCSANOW, attrs)
+        sent = bytes(range(256)) * 80  # 20 kB: 0.4 s of line time
+        assert port.send(sent)
+        time.sleep(0.41)  # all of it due, none of it read
+        port.pump()  # fills the pty's buffer
+        got = bytearray()
+        deadline = time.monotonic() + 2.0
+        while port.pending and time.monotonic() < deadline:
+            port.pump()
+            with contextlib.suppress(BlockingIOError):
+                got += os.read(slave, 65536)
+        while len(got) < len(sent) and time.monotonic() < deadline:
+            with contextlib.suppress(BlockingIOError):
+                got += os.read(slave, 65536)
+        assert (len(got), port.bytes_unread) == (len(sent), 0)
+        assert bytes(got) == sent
+
+        more = sent * 8  # 160 kB: more than a pty holds (64 kB at most), 3.2 s of line
+        assert port.send(more)
+        deadline = time.monotonic() + 8.0
+        while port.pending and time.monotonic() < deadline:  # a host that never reads
+            port.pump()
+            time.sleep(0.01)
+        assert port.pending == 0 and port.bytes_unread > 0
+    finally:
+        os.close(slave)
         port.close()
 
 

@@ -12,8 +12,9 @@ scheduling. On Linux the
 master reads back the termios speed the host set on the slave (TCGETS2, custom rates too);
 when it differs from the device's speed, both directions pass through
 :func:`~baromap.sim.twins.uart.misread`, so a host at the wrong speed reads garbage and a baud
-search has to really search. Output nobody reads is dropped when the pty's buffer is full, as a
-device on a cable with no host simply talks into the void.
+search has to really search. Output nobody reads is dropped once the pty's buffer has been full
+for :data:`QUEUE_S` of line time, as a device on a cable with no host simply talks into the
+void; a host that reads late loses nothing, as a real port's kernel buffer holds a second.
 
 Faults: a burst of garbage, dropped bytes (a frame cut short), a stall (silence for a while),
 unplug (the pty is closed and the stable symlink removed, as when a USB adapter is pulled)
@@ -282,7 +283,12 @@ class PtyPort:
         try:
             written = os.write(self.master, line)
         except BlockingIOError:
-            written = len(line)  # the host's buffer is full: the bytes are lost
+            if now - self._budget_t < QUEUE_S:
+                # The pty's buffer is a few kilobytes, a real port's kernel buffer tens: a
+                # host that reads, only late (a backlog after the twin was held up), loses
+                # nothing; the bytes wait for the next pump.
+                return False
+            written = len(line)  # a host that has not read for long: the bytes are lost
             self.bytes_unread += len(chunk)
         except OSError as exc:
             if exc.errno != errno.EIO:
