@@ -284,9 +284,9 @@ class PtyPort:
             written = os.write(self.master, line)
         except BlockingIOError:
             if now - self._budget_t < QUEUE_S:
-                # The pty's buffer is a few kilobytes, a real port's kernel buffer tens: a
-                # host that reads, only late (a backlog after the twin was held up), loses
-                # nothing; the bytes wait for the next pump.
+                # A pty's buffer fills sooner than a real port's (tens of kilobytes, a
+                # second of the line): a host that reads, only late (a backlog after the
+                # twin was held up), loses nothing; the bytes wait for the next pump.
                 return False
             written = len(line)  # a host that has not read for long: the bytes are lost
             self.bytes_unread += len(chunk)
