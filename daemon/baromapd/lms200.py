@@ -26,7 +26,7 @@ import structlog
 from baromap.errors import DeviceError
 from baromap.protocols import lms200
 from baromap.protocols.framing import BadFrame
-from baromapd.clock import LinePosition, transmission_ns
+from baromapd.clock import LinePosition, spaced_ends, transmission_ns
 from baromapd.config import LaserConfig
 from baromapd.session import DeviceRestarted, DeviceSession
 
@@ -253,10 +253,9 @@ class Lms200Session(DeviceSession):
         if not scans:
             return
         period_ns = round(lms200.scan_period_s(self.config.resolution_cdeg) * 1e9)
-        ends = [end for _, end in scans]
-        for i in range(len(ends) - 2, -1, -1):
-            spacing = max(period_ns, transmission_ns(scans[i + 1][0].wire_size, self.baud))
-            ends[i] = min(ends[i], ends[i + 1] - spacing)
+        ends = spaced_ends(
+            [end for _, end in scans], [m.wire_size for m, _ in scans], self.baud, period_ns
+        )
         for (message, _), end_ns in zip(scans, ends, strict=True):
             self._scan(message, read_ns, end_ns)
 

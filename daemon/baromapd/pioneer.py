@@ -33,7 +33,7 @@ from baromap.odometry.robot_metadata import ROBOT_METADATA, robot_metadata
 from baromap.protocols import p2os
 from baromap.protocols.framing import BadFrame
 from baromap.protocols.robot_models import RobotModel, find_model, select_model
-from baromapd.clock import LinePosition, transmission_ns
+from baromapd.clock import LinePosition, spaced_ends, transmission_ns
 from baromapd.config import BaseConfig
 from baromapd.session import DeviceRefused, DeviceSession
 
@@ -219,12 +219,12 @@ class PioneerSession(DeviceSession):
         a cycle; at 9600 baud a SIP is ~40 ms of line. Each SIP is stamped no later than the
         next one's end less the cycle (less its jitter): a backlog read at once after the host
         was held up would otherwise be squeezed to line time apart."""
-        ends = [end for _, end in sips]
-        for i in range(len(ends) - 2, -1, -1):
-            spacing = max(
-                self._sip_spacing_ns, transmission_ns(sips[i + 1][0].wire_size, self.baud)
-            )
-            ends[i] = min(ends[i], ends[i + 1] - spacing)
+        ends = spaced_ends(
+            [end for _, end in sips],
+            [s.wire_size for s, _ in sips],
+            self.baud,
+            self._sip_spacing_ns,
+        )
         for (sip, _), end_ns in zip(sips, ends, strict=True):
             self._odometry(sip, end_ns - transmission_ns(sip.wire_size, self.baud), read_ns)
 
