@@ -27,6 +27,7 @@ from baromap.sim.laser import LaserConfig, cast
 from baromap.sim.record import record_run, scan_floors
 from baromap.sim.scenario import make_scenario, pressure_run
 from baromap.sim.twins import Lms200Twin, SimClock
+from baromap.sim.twins.lms200 import INTERLACE, MIRROR_HZ
 
 
 def main() -> int:
@@ -114,7 +115,7 @@ def twin_rates(sc: object, seconds: float) -> None:
             taken = [t.t_mono_ns / 1e9 for t in twin.truth.records()]
         beams = angle * 100 // res + 1
         line_hz = baud / 10 / (10 + 2 * beams)
-        mirror_hz = 1.0 / lms200.scan_period_s(res)
+        mirror_hz = MIRROR_HZ / INTERLACE[res]
         rate = (len(taken) - 1) / (taken[-1] - taken[0]) if len(taken) > 1 else 0.0
         print(
             f"  {baud:>6} baud {angle} deg / {res / 100:.2f} deg: {rate:5.1f} scans/s "

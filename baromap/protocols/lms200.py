@@ -306,17 +306,6 @@ def range_max_m(units: Units, bits: int = DEFAULT_RANGE_BITS) -> float:
 
 #: Angular offset of each successive partial scan of an interlaced mode, degrees.
 PARTIAL_STEP_DEG: Final = 0.25
-#: The mirror's turns a second; a full scan at 0.5 or 0.25 degrees interlaces 2 or 4 turns.
-MIRROR_HZ: Final = 75.0
-INTERLACE: Final[dict[int, int]] = {100: 1, 50: 2, 25: 4}
-
-
-def scan_period_s(resolution_cdeg: int, mean_samples: int = 1) -> float:
-    """Shortest time between two scan telegrams of a variant (the mirror's limit; a slow line
-    only spaces them further)."""
-    return INTERLACE[resolution_cdeg] * max(mean_samples, 1) / MIRROR_HZ
-
-
 #: Documented beam counts -> (angular field, resolution) in degrees.
 SCAN_GEOMETRY: Final[dict[int, tuple[float, float]]] = {
     181: (180.0, 1.0),

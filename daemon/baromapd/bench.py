@@ -38,7 +38,6 @@ import numpy as np
 
 from baromap import logs
 from baromap.messages import DeviceHealth, LaserScan, Message, Odometry, PressureSample
-from baromap.protocols import lms200
 from baromapd.barometer import BarometerSession
 from baromapd.clock import HostClock
 from baromapd.config import DaemonConfig, LaserConfig, parse_config
@@ -46,6 +45,8 @@ from baromapd.session import DeviceSession
 
 #: Device name -> the message type its rate is measured on.
 STREAMS: Final = {"laser": LaserScan, "base": Odometry, "barometer": PressureSample}
+MIRROR_HZ: Final = 75.0
+INTERLACE: Final = {100: 1, 50: 2, 25: 4}
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -115,7 +116,7 @@ def laser_hz(baud: int, angle_deg: int, resolution_cdeg: int) -> float:
     second, 2 or 4 of them interlaced at 0.5 and 0.25 deg) allow."""
     beams = angle_deg * 100 // resolution_cdeg + 1
     telegram = 4 + 1 + 2 + 2 * beams + 1 + 2  # header, B0, count, ranges, status, CRC
-    return min(baud / 10 / telegram, 1.0 / lms200.scan_period_s(resolution_cdeg))
+    return min(baud / 10 / telegram, MIRROR_HZ / INTERLACE[resolution_cdeg])
 
 
 def expected_hz(session: DeviceSession) -> float:

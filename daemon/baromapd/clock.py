@@ -69,22 +69,6 @@ def transmission_ns(byte_count: int, baud: int) -> int:
     return byte_count * 10 * 1_000_000_000 // baud
 
 
-def spaced_ends(ends: list[int], sizes: list[int], baud: int, period_ns: int) -> list[int]:
-    """Frame ends (``LinePosition`` bounds) of frames decoded together, each no later than the
-    next one's end less the least time between two of the device's frames: ``period_ns`` (the
-    device's own rate) or the next frame's line time, whichever is longer.
-
-    A backlog read at once bounds each frame by the line time of the bytes after it, which
-    squeezes frames a device sends a period apart to line time apart; the device's period
-    gives the tighter bound, still never earlier than the truth.
-    """
-    out = list(ends)
-    for i in range(len(out) - 2, -1, -1):
-        gap = max(period_ns, transmission_ns(sizes[i + 1], baud))
-        out[i] = min(out[i], out[i + 1] - gap)
-    return out
-
-
 class LinePosition:
     """When a decoded frame's last byte arrived, from the reads that brought it.
 

@@ -7,10 +7,7 @@ switch to the configured baud, stop streaming, read type and status, set units t
 configuration block if they differ, set the variant, start continuous output.
 
 A scan's time is the receive time of its telegram's last byte minus the telegram's line time
-at the current baud: the sensor sends a scan as soon as the mirror has swept it. Scans that
-arrive together (a backlog, read at once after the host was held up) are at least a scan
-period apart, never closer: each is stamped no later than the next one's end less that
-period, where the line time alone would squeeze them together. The sensor
+at the current baud: the sensor sends a scan as soon as the mirror has swept it. The sensor
 announces a power cycle with the power-on telegram ``90`` (it is back at 9600 baud, with its
 defaults); the session then sets it up again on the same port while the other devices keep
 recording.
@@ -26,7 +23,7 @@ import structlog
 from baromap.errors import DeviceError
 from baromap.protocols import lms200
 from baromap.protocols.framing import BadFrame
-from baromapd.clock import LinePosition, spaced_ends, transmission_ns
+from baromapd.clock import LinePosition, transmission_ns
 from baromapd.config import LaserConfig
 from baromapd.session import DeviceRestarted, DeviceSession
 
@@ -229,45 +226,24 @@ class Lms200Session(DeviceSession):
             self._decode(b"".join([d for d, _ in part]), read_ns)
 
     def _decode(self, data: bytes, read_ns: int) -> None:
-        scans: list[tuple[lms200.ScanTelegram, int]] = []  # each with its end on the line
-        try:
-            for message in self.decoder.feed(data):
-                if isinstance(message, lms200.ScanTelegram):
-                    scans.append((message, self.line.end_ns(message.wire_size, self.baud)))
-                    continue
-                self.line.skip(message.wire_size)
-                if isinstance(message, lms200.Telegram) and message.command == POWER_ON:
-                    log.warning("laser power-on telegram: it was power-cycled", port=self.path)
-                    raise DeviceRestarted("the sensor sent its power-on telegram (power cycle)")
-                elif isinstance(message, BadFrame):
-                    self.bad_frame(message)
-                else:
-                    self.good_frame()
-        finally:
-            self._publish_scans(scans, read_ns)
+        for message in self.decoder.feed(data):
+            if isinstance(message, lms200.ScanTelegram):
+                self._scan(message, read_ns)
+                continue
+            self.line.skip(message.wire_size)
+            if isinstance(message, lms200.Telegram) and message.command == POWER_ON:
+                log.warning("laser power-on telegram: it was power-cycled", port=self.path)
+                raise DeviceRestarted("the sensor sent its power-on telegram (power cycle)")
+            elif isinstance(message, BadFrame):
+                self.bad_frame(message)
+            else:
+                self.good_frame()
 
-    def _publish_scans(self, scans: list[tuple[lms200.ScanTelegram, int]], read_ns: int) -> None:
-        """Scans decoded together, each no later than the next one's end less the shortest
-        scan period (their line time bounds each from the read alone, the mirror does better:
-        a backlog read at once would otherwise be squeezed to line time apart)."""
-        if not scans:
-            return
-        period_ns = round(lms200.scan_period_s(self.config.resolution_cdeg) * 1e9)
-        ends = spaced_ends(
-            [end for _, end in scans], [m.wire_size for m, _ in scans], self.baud, period_ns
-        )
-        for (message, _), end_ns in zip(scans, ends, strict=True):
-            self._scan(message, read_ns, end_ns)
-
-    def _scan(self, message: lms200.ScanTelegram, read_ns: int, end_ns: int | None = None) -> None:
-        """Publish a scan whose telegram ended on the line at ``end_ns`` (default: from the
-        reads that brought it)."""
+    def _scan(self, message: lms200.ScanTelegram, read_ns: int) -> None:
         self.good_frame()
         self._in_place = 0
         size = self._scan_bytes = message.wire_size
-        if end_ns is None:
-            end_ns = self.line.end_ns(size, self.baud)
-        start_ns = end_ns - transmission_ns(size, self.baud)
+        start_ns = self.line.end_ns(size, self.baud) - transmission_ns(size, self.baud)
         self.publish(message.to_laser_scan(self.clock.unix_ns(start_ns)), read_ns)
         # The status byte hardly ever changes: decode each value once, not 75 times a second.
         healthy = self._status_healthy.get(message.status)

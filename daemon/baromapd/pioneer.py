@@ -33,7 +33,7 @@ from baromap.odometry.robot_metadata import ROBOT_METADATA, robot_metadata
 from baromap.protocols import p2os
 from baromap.protocols.framing import BadFrame
 from baromap.protocols.robot_models import RobotModel, find_model, select_model
-from baromapd.clock import LinePosition, spaced_ends, transmission_ns
+from baromapd.clock import LinePosition, transmission_ns
 from baromapd.config import BaseConfig
 from baromapd.session import DeviceRefused, DeviceSession
 
@@ -47,9 +47,6 @@ CONFIG_WAIT_S: Final = 1.0
 FIRST_SIP_WAIT_S: Final = 1.5
 #: After ENABLE 0, how long to wait for a SIP that says the motors are off (two SIP cycles).
 MOTORS_OFF_WAIT_S: Final = 0.3
-#: SIPs read together are at least this share of the robot's SIP cycle apart (its cycle has a
-#: few milliseconds of jitter).
-SIP_SPACING_SHARE: Final = 0.9
 
 
 def choose_model(subclass: str, configured: str, allow_mismatch: bool) -> tuple[RobotModel, str]:
@@ -103,7 +100,6 @@ class PioneerSession(DeviceSession):
         self._session_open = False
         self._sips_seen = 0
         self._sip_bytes = 0  # the last SIP's size on the line: what a SIP in progress needs
-        self._sip_spacing_ns = 0  # least time between two SIPs (0: the cycle is not known)
 
     # ---- handshake ----------------------------------------------------------------------------
     def handshake(self) -> None:
@@ -152,8 +148,6 @@ class PioneerSession(DeviceSession):
             "motors_enabled": str(self.config.enable_motors).lower(),
             "port": self.path,
         }
-        cycle_ms = config.sip_cycle_ms if config is not None else None
-        self._sip_spacing_ns = round(SIP_SPACING_SHARE * cycle_ms * 1e6) if cycle_ms else 0
         if config is not None:
             for key in ("serial_number", "firmware_version", "watchdog_ms", "sip_cycle_ms"):
                 value = config.get(key)
@@ -197,7 +191,6 @@ class PioneerSession(DeviceSession):
         """Decode, count, and publish the SIPs as odometry stamped when they were sent."""
         self.line.chunk(len(data), read_ns)
         out: list[p2os.P2osMessage] = []
-        sips: list[tuple[p2os.StandardSip, int]] = []  # each with its end on the line
         for message in self.decoder.feed(data):
             size = message.wire_size
             if isinstance(message, BadFrame):
@@ -209,24 +202,11 @@ class PioneerSession(DeviceSession):
             if not isinstance(message, p2os.StandardSip):
                 self.line.skip(size)
                 continue
+            # The robot sends its pose as it takes it; at 9600 baud a SIP is ~40 ms of line.
             self._sip_bytes = size
-            sips.append((message, self.line.end_ns(size, self.baud)))
-        self._publish_sips(sips, read_ns)
+            end = self.line.end_ns(size, self.baud)
+            self._odometry(message, end - transmission_ns(size, self.baud), read_ns)
         return out
-
-    def _publish_sips(self, sips: list[tuple[p2os.StandardSip, int]], read_ns: int) -> None:
-        """Odometry from SIPs decoded together. The robot sends its pose as it takes it, once
-        a cycle; at 9600 baud a SIP is ~40 ms of line. Each SIP is stamped no later than the
-        next one's end less the cycle (less its jitter): a backlog read at once after the host
-        was held up would otherwise be squeezed to line time apart."""
-        ends = spaced_ends(
-            [end for _, end in sips],
-            [s.wire_size for s, _ in sips],
-            self.baud,
-            self._sip_spacing_ns,
-        )
-        for (sip, _), end_ns in zip(sips, ends, strict=True):
-            self._odometry(sip, end_ns - transmission_ns(sip.wire_size, self.baud), read_ns)
 
     # ---- streaming ----------------------------------------------------------------------------
     def handle(self, data: bytes, read_ns: int) -> None:

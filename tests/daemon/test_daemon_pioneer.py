@@ -20,10 +20,9 @@ import pytest
 
 from baromap.errors import DeviceError
 from baromap.messages import DeviceState, Message, Odometry
-from baromap.odometry.integrator import OdometryIntegrator
 from baromap.protocols import p2os
-from baromap.protocols.robot_models import P3AT_SH, robot_model
-from baromapd.clock import HostClock, transmission_ns
+from baromap.protocols.robot_models import robot_model
+from baromapd.clock import HostClock
 from baromapd.config import BaseConfig, Retry
 from baromapd.pioneer import PULSE_EVERY_S, PioneerSession, choose_model
 
@@ -254,30 +253,3 @@ def _wait_up(session: PioneerSession) -> None:
     while session.state is not DeviceState.UP and time.monotonic() < deadline:
         time.sleep(0.02)
     assert session.state is DeviceState.UP, session.detail
-
-
-def test_sips_read_together_keep_the_robots_cycle_between_their_stamps() -> None:
-    """A reader held up for half a second reads five SIPs at once. The line time after each
-    (41 ms at 9600 baud) bounds its end, but the robot sends one a cycle (100 ms): the
-    odometry's stamps must keep that spacing, less the cycle's jitter, or the robot's turns
-    are squeezed into half their time."""
-    sink: list[Message] = []
-    session = PioneerSession(
-        BaseConfig("unused"),
-        clock=HostClock(wall_ns=lambda: 0, mono_ns=lambda: 0),
-        publish=lambda m, _ns: sink.append(m),
-        resolve=lambda p: p,
-    )
-    session.integrator = OdometryIntegrator(P3AT_SH, origin_at_start=True)
-    session._sip_spacing_ns = 90_000_000  # a 100 ms cycle, as its config packet says
-    sips = [p2os.StandardSip(False, 10 * k, 0, 0, 0, 0, 125, 0, 0, 1, 0, ()) for k in range(5)]
-    packets = [sip.encode() for sip in sips]
-    ends = [1_000_000_000 + k * 100_000_000 for k in range(5)]
-    session.handle(b"".join(packets), ends[-1] + 2_000_000)  # read 2 ms after the last
-    stamps = [m.t_ns for m in sink if isinstance(m, Odometry)]
-    line = [transmission_ns(len(p), 9600) for p in packets]
-    late_ms = [(s - (e - n)) / 1e6 for s, e, n in zip(stamps, ends, line, strict=True)]
-    assert len(stamps) == 5
-    # never early (an upper bound), late by the read's 2 ms and the cycle's jitter share (10 ms
-    # a SIP back from the last), where line time alone leaves the first 240 ms late
-    assert all(1.9 <= late <= 42.1 for late in late_ms), late_ms

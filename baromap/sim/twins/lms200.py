@@ -45,6 +45,10 @@ from baromap.sim.twins.base import Twin
 REPLY_DELAY_S: Final = 0.01
 #: Silence after which a partial telegram from the host is given up.
 RX_IDLE_S: Final = 0.03
+#: Mirror turns per second.
+MIRROR_HZ: Final = 75.0
+#: Mirror turns interlaced into one full scan, by resolution in 0.01 deg.
+INTERLACE: Final = {100: 1, 50: 2, 25: 4}
 SOFTWARE_VERSION: Final = "V02.10 "
 _STREAMING: Final = frozenset(
     {lms200.Mode.CONTINUOUS, lms200.Mode.MEAN, lms200.Mode.SUBRANGE, lms200.Mode.MEAN_SUBRANGE}
@@ -239,7 +243,8 @@ class Lms200Twin(Twin):
     @property
     def scan_period_s(self) -> float:
         """Shortest time between two telegrams of the current mode (the mirror's limit)."""
-        return lms200.scan_period_s(self.variant[1], self.mean_samples)
+        turns = INTERLACE[self.variant[1]] * max(self.mean_samples, 1)
+        return turns / MIRROR_HZ
 
     def _laser_config(self) -> LaserConfig:
         bits = lms200.range_bits(self.config.measuring_mode)
