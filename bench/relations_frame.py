@@ -52,7 +52,7 @@ def sweep(times: np.ndarray, poses: np.ndarray, relations, declared: float) -> s
     errors = [relation_error(times, poses, relations, float(o)) for o in SWEEP_M]
     best = int(np.argmin(errors))
     return (
-        f"as scored {relation_error(times, poses, relations, 0.0):.4f} m, "
+        f"as scored {errors[int(np.flatnonzero(SWEEP_M == 0)[0])]:.4f} m, "
         f"at the declared mount {relation_error(times, poses, relations, -declared):.4f} m, "
         f"least {errors[best]:.4f} m at {SWEEP_M[best]:+.2f} m"
     )
