@@ -542,3 +542,18 @@ def test_p2os_watchdog_judges_the_host_in_wall_time(tmp_path: Path) -> None:
                 port.write(p2os.pulse())
             port.write(p2os.close_controller())
         assert fast.watchdog_trips == 0  # type: ignore[attr-defined]
+
+
+def test_a_twin_says_at_stop_how_late_it_put_its_messages_on_the_line(tmp_path: Path) -> None:
+    from structlog.testing import capture_logs
+
+    twin = BaroTwin(SimClock(SCENARIO), tmp_path / "baro")
+    twin.port.lateness.extend([0.001] * 97 + [0.025, 0.030, 0.350])  # seconds, as measured
+    with capture_logs() as logs:
+        twin.stop()
+    (line,) = [e for e in logs if e["event"] == "twin stopped"]
+    assert line["twin"] == "baro"
+    assert line["messages"] == 100
+    assert line["late_over_20ms"] == 3
+    assert line["late_max_ms"] == 350.0
+    assert line["late_p99_ms"] == 350.0  # the 99th of 100, counted from the least

@@ -7,6 +7,7 @@ simulated time, which the twin's thread carries out when the clock gets there.
 
 from __future__ import annotations
 
+import bisect
 import math
 import select
 import threading
@@ -23,6 +24,9 @@ from baromap.sim.twins.pty_port import PtyPort
 from baromap.sim.twins.truth import TruthLog, TruthSink
 
 log = structlog.get_logger(__name__)
+
+#: A message's end put on the line later than this is counted late in the twin's stop line.
+LATE_S = 0.02
 
 TICK_S = 0.002
 
@@ -144,6 +148,23 @@ class Twin(Started):
             self._thread.join(timeout=5.0)
             self._thread = None
         self.port.close()
+        self._log_lateness()
+
+    def _log_lateness(self) -> None:
+        """How late this twin put its messages' ends on the line: a host's stamps can be no
+        better than that (a twin's thread held up on a loaded machine delivers late, which no
+        real device does), so a host's timestamp error is told apart from the twin's own."""
+        late = sorted(self.port.lateness)
+        if not late:
+            return
+        log.info(
+            "twin stopped",
+            twin=self.name,
+            messages=len(late),
+            late_p99_ms=round(late[min(len(late) - 1, len(late) * 99 // 100)] * 1e3, 1),
+            late_max_ms=round(late[-1] * 1e3, 1),
+            late_over_20ms=len(late) - bisect.bisect_right(late, LATE_S),
+        )
 
     # ---- faults ---------------------------------------------------------------------------------
     def inject_garbage(self, data: bytes) -> None:
