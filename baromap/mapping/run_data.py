@@ -19,6 +19,7 @@ from baromap import messages
 from baromap.arrays import BoolArray, FloatArray, IntArray
 from baromap.errors import InputFormatError
 from baromap.mapping import se2
+from baromap.mapping.arrival_stamps import stamped_on_arrival, tighten
 from baromap.mapping.scans import ScanBlock
 from baromap.odometry.integrator import ORIGIN_M, ORIGIN_RAD
 from baromap.recording import (
@@ -360,9 +361,31 @@ def _say_odometry_silences(t_ns: IntArray, blind: BoolArray) -> None:
     )
 
 
+def _set_back_backlogs(
+    block: ScanBlock, odometry: OdometrySeries
+) -> tuple[ScanBlock, OdometrySeries]:
+    """Scans and odometry with the late stamps of their backlogs set back
+    (:mod:`baromap.mapping.arrival_stamps`)."""
+    scans, odo = tighten(block.t_ns), tighten(odometry.t_ns)
+    if scans.set_back or odo.set_back:
+        log.info(
+            "late stamps of backlogs set back",
+            scans=scans.set_back,
+            scans_most_ms=round(scans.most_ns / 1e6, 1),
+            scan_period_ms=round(scans.period_ns / 1e6, 2),
+            odometry=odo.set_back,
+            odometry_most_ms=round(odo.most_ns / 1e6, 1),
+            odometry_period_ms=round(odo.period_ns / 1e6, 2),
+        )
+    return replace(block, t_ns=scans.t_ns), replace(odometry, t_ns=odo.t_ns)
+
+
 def run_data(block: ScanBlock, metadata: dict[str, dict[str, str]], series: RunSeries) -> RunData:
-    """The run from its scans and series: odometry interpolated at every scan's stamp."""
+    """The run from its scans and series: odometry interpolated at every scan's stamp; where a
+    host stamped them as they arrived, their backlogs' late stamps set back first."""
     pressure, odometry, reference = series.pressure, series.odometry, series.reference
+    if stamped_on_arrival(metadata):
+        block, odometry = _set_back_backlogs(block, odometry)
     odometry_poses = odometry.poses()
     t = block.t_ns
     breaks = np.zeros(len(t), dtype=bool)
