@@ -23,6 +23,7 @@ from baromap.protocols.framing import BadFrame
 from baromap.protocols.robot_models import P3AT_SH
 from baromap.sim.scenario import make_scenario
 from baromap.sim.twins import BaroTwin, Lms200Twin, P2osTwin, SimClock
+from baromap.sim.twins.p2os import Session
 
 SCENARIO = make_scenario(2, floors=3, minutes=5.0)
 
@@ -557,3 +558,22 @@ def test_a_twin_says_at_stop_how_late_it_put_its_messages_on_the_line(tmp_path: 
     assert line["late_over_20ms"] == 3
     assert line["late_max_ms"] == 350.0
     assert line["late_p99_ms"] == 350.0  # the 99th of 100, counted from the least
+
+
+def test_a_sip_holds_the_pose_of_the_instant_its_truth_records(
+    base: P2osTwin, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # every reading of the clock a second later than the one before: a thread held up between
+    # two readings, as on a loaded machine
+    readings = itertools.count(50.0)  # the robot drives from 50 s on
+    monkeypatch.setattr(base.clock, "robot_time", lambda: float(next(readings)))
+    base._stop.set()  # the twin's own loop stays out of the way: this test ticks it
+    base.session = Session.OPEN
+    base._last_heard = time.monotonic()
+    base._next_sip = 0.0
+    before = base.truth.count
+    base.tick()
+    assert base.truth.count == before + 1
+    recorded = base.truth.records()[-1].t_sim_s
+    pose = SCENARIO.truth(np.array([recorded]))
+    assert base._prev == pytest.approx((pose.x[0], pose.y[0], pose.theta[0]))

@@ -268,14 +268,20 @@ class P2osTwin(Twin):
         self._next_sip += self.clock.real_delay(SIP_PERIOD_S)
         if self._next_sip < now:
             self._next_sip = now + self.clock.real_delay(SIP_PERIOD_S)
+        # The robot sends its pose as it takes it: the packet holds the pose of the instant
+        # the truth log records, and starts on the line then, however long this thread takes
+        # to build it (held up on a loaded machine, it is late on the line, as the port's
+        # lateness then says), never a pose of later than the instant recorded.
         pose_ns = time.monotonic_ns()
         pose_s = self.clock.robot_time()
-        if self.port.send(self.sip_packet()):
+        if self.port.send(self.sip_packet(pose_s), at=pose_ns / 1e9):
             self.truth.record(pose_ns, pose_s, boot=self.boot)
         self.sips_sent += 1
 
-    def sip_packet(self) -> bytes:
-        truth = self.clock.scenario.truth(np.array([self.clock.robot_time()]))
+    def sip_packet(self, robot_s: float | None = None) -> bytes:
+        """The SIP of the robot's pose at route time ``robot_s`` (default now)."""
+        at = self.clock.robot_time() if robot_s is None else robot_s
+        truth = self.clock.scenario.truth(np.array([at]))
         ds, dth = true_increments(truth.x, truth.y, truth.theta, self._prev)
         self._prev = (float(truth.x[0]), float(truth.y[0]), float(truth.theta[0]))
         driving = self.host_driving
