@@ -14,11 +14,12 @@ less ``j`` periods.
 The period is the stream's own, not the device's documented one (the demo's twins run several
 times faster than the devices they imitate): the lower quartile of its spacing over the run. A
 steady sender's spacing is its period nearly always; a jittery sender's lower quartile lies
-below its mean spacing, so that a frame is never set back by more than the jitter; backlogs are
-a small share of a run and do not move it. A frame is set back only where the bound undercuts its
-stamp by more than a period: within that is a jittery sender's ordinary spacing, not a backlog
-(at half a period, 168 of a demo run's 6020 SIPs moved where only 6 were over 20 ms late, and
-58 of them ended more than 5 ms early). The bound looks at most :data:`WINDOW_S` ahead.
+below its mean spacing, so that no frame is set earlier than it was sent by more than the
+jitter; backlogs are a small share of a run and do not move it. A frame is set back only where
+the bound undercuts its stamp by more than a period: within that is a jittery sender's ordinary
+spacing, not a backlog (at half a period, 168 of a demo run's 6020 SIPs moved where only 6 were
+over 20 ms late, and 58 of them ended more than 5 ms early). The bound looks at most
+:data:`WINDOW_S` ahead.
 """
 
 from __future__ import annotations

@@ -161,7 +161,7 @@ class Twin(Started):
             "twin stopped",
             twin=self.name,
             messages=len(late),
-            late_p99_ms=round(late[min(len(late) - 1, len(late) * 99 // 100)] * 1e3, 1),
+            late_p99_ms=round(late[(99 * len(late) + 99) // 100 - 1] * 1e3, 1),  # nearest rank
             late_max_ms=round(late[-1] * 1e3, 1),
             late_over_20ms=len(late) - bisect.bisect_right(late, LATE_S),
         )

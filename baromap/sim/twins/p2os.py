@@ -269,9 +269,8 @@ class P2osTwin(Twin):
         if self._next_sip < now:
             self._next_sip = now + self.clock.real_delay(SIP_PERIOD_S)
         # The robot sends its pose as it takes it: the packet holds the pose of the instant
-        # the truth log records, and starts on the line then, however long this thread takes
-        # to build it (held up on a loaded machine, it is late on the line, as the port's
-        # lateness then says), never a pose of later than the instant recorded.
+        # the truth log records and starts on the line then. A thread held up while it builds
+        # the packet (a loaded machine) delivers it late, which the port's lateness counts.
         pose_ns = time.monotonic_ns()
         pose_s = self.clock.robot_time()
         if self.port.send(self.sip_packet(pose_s), at=pose_ns / 1e9):
