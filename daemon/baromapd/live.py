@@ -280,6 +280,9 @@ class LivePublisher:
             if client and now >= check_ns:
                 check_ns = now + int(LINK_CHECK_S * 1e9)
                 self._check_link(session)
+        # what was offered while the last batch went out: the detector's last event is made
+        # as the readers stop, just before the daemon stops this worker
+        self._pump(publishers, timeout=0.0)
         token.undeclare()  # type: ignore[no-untyped-call]
 
     def _check_link(self, session: zenoh.Session) -> None:

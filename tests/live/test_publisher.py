@@ -9,8 +9,10 @@ the publisher stops within its bound.
 from __future__ import annotations
 
 import socket
+import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from procs import Child, endpoint, free_port
@@ -248,3 +250,56 @@ def test_a_publisher_that_never_started_ignores_and_stops_quietly() -> None:
     health = publisher.health()
     assert health["state"] == "disabled"
     assert health["ignored"] == 1 and health["offered"] == 1
+
+
+def test_an_event_offered_as_the_daemon_stops_still_reaches_a_watcher(tmp_path: Path) -> None:
+    # the detector's last event is made as the readers stop (a ride that ended with the run),
+    # and offered while the worker may be busy with the batch before it: stop() must not
+    # leave it in the queue, nor close the session before it went out
+    robot_ep = endpoint(free_port())
+    publisher = LivePublisher(LiveSettings(listen=(robot_ep,)), "r1")
+    publish = publisher._publish
+    busy = threading.Event()
+
+    def slow_publish(publishers: Any, out: Any) -> None:
+        if any(getattr(item.message, "event_id", 0) == 2 for item in out):
+            busy.set()
+            time.sleep(0.3)  # the worker in the middle of a batch
+        publish(publishers, out)
+
+    publisher._publish = slow_publish  # type: ignore[method-assign]
+    publisher.start()
+    try:
+        wait_open(publisher)
+        with FloorWatch(LiveSettings.client((robot_ep,)), "r1") as watch:
+            # the watcher hears the robot's events (its subscription takes a moment to reach
+            # the robot: the event is offered again until it does)
+            heard = None
+            for _ in range(20):
+                publisher.offer(event(0))
+                heard = watch.next(0.5)
+                while heard is not None and not isinstance(heard, EventReport):
+                    heard = watch.next(0.5)
+                if heard is not None:
+                    break
+            assert heard == EventReport("r1", event(0))
+            while watch.next(0.5) is not None:  # the repeats, if any
+                pass
+            publisher.offer(event(1))
+            assert busy.wait(10.0)
+            publisher.offer(event(2))  # while the worker publishes the one before
+            publisher.stop()
+            # the robot's liveliness may overtake its last data on the way (Zenoh orders by
+            # priority, and a declaration goes first): the watcher reports what comes
+            reports = []
+            report = watch.next(3.0)
+            while report is not None:
+                reports.append(report)
+                report = watch.next(3.0)
+            assert RobotGone("r1") in reports
+            assert [r for r in reports if isinstance(r, EventReport)] == [
+                EventReport("r1", event(1)),
+                EventReport("r1", event(2)),
+            ]
+    finally:
+        publisher.stop()
