@@ -1628,3 +1628,31 @@ def test_a_keyframe_on_a_ridge_stands_between_its_ends_nearest_odometry(
         on = b + t * d
         on[2] = se2.wrap(on[2])
         assert np.allclose(se2.wrap(place_on_ridge(on, info, b, d) - on), 0.0, atol=1e-9)
+
+
+def test_a_scan_its_floor_does_not_confirm_is_kept_out_of_the_grid() -> None:
+    from baromap.mapping.build import floor_scans, grid_scans
+    from baromap.mapping.slam import run_slam
+
+    # along the L-room's long arm and back, odometry exact; one scan between keyframes sees
+    # the inside of a 2 m box (the elevator car, or a stamp that paired it with the wrong
+    # odometry): nothing of the room
+    xs = np.concatenate([np.linspace(1.0, 9.0, 120), np.linspace(9.0, 1.0, 120)])
+    thetas = np.concatenate([np.zeros(120), np.full(120, math.pi)])
+    poses = np.column_stack([xs, np.full(240, 1.0), thetas])
+    scans = block(list(poses))
+    box = np.array([[-1, -1, 1, -1], [1, -1, 1, 1], [1, 1, -1, 1], [-1, 1, -1, -1]], float)
+    odd = 62  # between keyframes 56 and 64, where the grid takes every other scan
+    scans.ranges_m[odd] = cast(np.zeros(3), box)
+    one = np.zeros(240, dtype=np.int64)
+    result = run_slam(scans, poses, one, one)
+    assert odd not in set(result.keyframes.tolist())
+    registered = result.scan_registered
+    assert registered[result.keyframes].all()
+    assert not registered[odd]
+    assert registered.mean() > 0.9  # the room's own scans are placed by the map
+    everywhere = np.ones(240, dtype=bool)
+    assert odd in grid_scans(result.scan_poses, everywhere)  # spaced as the grid would take it
+    grid = floor_scans(result, everywhere)
+    assert odd not in grid
+    assert len(grid) >= len(grid_scans(result.scan_poses, everywhere)) - 2

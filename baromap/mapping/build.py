@@ -150,7 +150,7 @@ def _grid_job(
     only that floor's grid scans."""
     # a scan the odometry said nothing about has a pose drawn across the gap (see
     # run_slam's ``blind``): it is left out of the map
-    chosen = grid_scans(slam.scan_poses, (segmentation.scan_floor == floor) & ~run.blind)
+    chosen = floor_scans(slam, (segmentation.scan_floor == floor) & ~run.blind)
     if len(chosen) == 0:
         return None
     max_range = (config or SlamConfig()).max_range_m
@@ -160,6 +160,15 @@ def _grid_job(
 #: Scans inserted into a grid are at least this far apart (in the corrected trajectory).
 GRID_SCAN_M = 0.1
 GRID_SCAN_RAD = math.radians(5.0)
+
+
+def floor_scans(slam: SlamResult, on_floor: npt.NDArray[np.bool_]) -> npt.NDArray[np.int64]:
+    """The scans of a floor that go into its grid (:func:`grid_scans`), less those between
+    keyframes that agreed with too little of the floor's finished map to be placed by it: a
+    stamp that paired one with the wrong odometry, the inside of the elevator car. Its pose is
+    odometry's guess, and what it saw is not the floor where that guess puts it."""
+    mapped = slam.scan_registered if len(slam.scan_registered) else True
+    return grid_scans(slam.scan_poses, on_floor & mapped)
 
 
 def grid_scans(

@@ -62,6 +62,9 @@ class SlamResult:
     untied: list[IntArray] = field(default_factory=list)
     #: for each of ``untied``, what cut it from the rest: the evidence of the break
     untied_evidence: list[str] = field(default_factory=list)
+    #: (S,): the keyframes, and the scans between them whose pose the finished map of their
+    #: floor confirmed (:meth:`_Slam.register_scans`); empty until registered
+    scan_registered: BoolArray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
 
 def select_keyframes(
@@ -304,11 +307,12 @@ class _Slam:
             side[s] = np.where(s >= resumed, 1, -1)
         return side
 
-    def register_scans(self, scans: ScanBlock, floor: IntArray) -> FloatArray:
-        """Every scan's pose: keyframes as the graph has them; the scans between them
-        interpolated (:func:`scan_poses`) and then matched against the finished map of their
-        floor, pulled towards the interpolation as odometry would (a corridor cannot make a
-        scan slide). A scan that finds too little of the map keeps its interpolated pose.
+    def register_scans(self, scans: ScanBlock, floor: IntArray) -> tuple[FloatArray, BoolArray]:
+        """Every scan's pose, and which of them the map confirmed: keyframes as the graph has
+        them; the scans between them interpolated (:func:`scan_poses`) and then matched
+        against the finished map of their floor, pulled towards the interpolation as odometry
+        would (a corridor cannot make a scan slide). A scan that finds too little of the map
+        keeps its interpolated pose, unconfirmed.
 
         The pull's sigmas are corrected odometry's noise as the run showed it
         (:meth:`OdometryLearning.fit_noise`) over the travel and turn to the nearer keyframe,
@@ -321,6 +325,7 @@ class _Slam:
         poses = scan_poses(run.odom, run.kf_scan, kf_poses, silence=self._sides_of_silences())
         is_kf = np.zeros(len(poses), dtype=bool)
         is_kf[run.kf_scan] = True
+        confirmed = is_kf.copy()
         to_kf, turn_to_kf = _odometry_to_nearer_keyframe(run.odom, run.kf_scan)
         for f in np.unique(run.kf_floor):
             todo = np.flatnonzero((floor == f) & ~is_kf)
@@ -334,8 +339,9 @@ class _Slam:
                 pull = self._pull(to_kf[part], turn_to_kf[part])
                 out = refine_batch(fld, points, owner, poses[part], pull)
                 poses[part[out.usable]] = out.poses[out.usable]
+                confirmed[part[out.usable]] = True
                 self.stats["registered"] += int(out.usable.sum())
-        return poses
+        return poses, confirmed
 
     def _floor_field(self, f: int, kf_poses: FloatArray) -> LikelihoodField:
         """The finished map of floor f (its keyframes at ``kf_poses``), to match scans on."""
@@ -432,7 +438,7 @@ def run_slam(
         if progress is not None:
             progress(int(kf_scan[k]))
     result = slam.finish()
-    result.scan_poses = slam.register_scans(scans, floor)
+    result.scan_poses, result.scan_registered = slam.register_scans(scans, floor)
     log.info("slam done", **{k: int(v) for k, v in result.stats.items()})
     return result
 
