@@ -38,8 +38,6 @@ PERIOD_QUANTILE: Final = 25.0
 MIN_FRAMES: Final = 32
 #: How far ahead a later frame bounds an earlier one (s): a backlog lasts less.
 WINDOW_S: Final = 1.0
-#: The value of the recording header's ``daemon`` field that says its stamps are arrivals.
-DAEMON_PREFIX: Final = "baromapd"
 
 
 @dataclass(frozen=True, slots=True)
@@ -56,7 +54,7 @@ def stamped_on_arrival(metadata: dict[str, dict[str, str]]) -> bool:
     """Whether the recording's scans and odometry were stamped by a host as they arrived
     (baromapd), not by a clock that was there when they were measured (an imported log)."""
     header = metadata.get(topics.METADATA_NAME, {})
-    return header.get("daemon", "").startswith(DAEMON_PREFIX)
+    return header.get(topics.DAEMON_KEY, "").startswith(topics.DAEMON_NAME)
 
 
 def tighten(t_ns: IntArray) -> Tightened:

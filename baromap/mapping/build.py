@@ -167,8 +167,7 @@ def floor_scans(slam: SlamResult, on_floor: npt.NDArray[np.bool_]) -> npt.NDArra
     keyframes that agreed with too little of the floor's finished map to be placed by it: a
     stamp that paired one with the wrong odometry, the inside of the elevator car. Its pose is
     odometry's guess, and what it saw is not the floor where that guess puts it."""
-    mapped = slam.scan_registered if len(slam.scan_registered) else True
-    return grid_scans(slam.scan_poses, on_floor & mapped)
+    return grid_scans(slam.scan_poses, on_floor & slam.scan_registered)
 
 
 def grid_scans(

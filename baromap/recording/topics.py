@@ -23,12 +23,18 @@ METADATA_NAME = "baromap"
 #: need not look for restarts itself.
 ODOMETRY_TRACKS_KEY = "odometry_tracks"
 ODOMETRY_TRACKS_JOINED = "joined"
+#: A key of that record: the daemon that made the recording, "baromapd <version>". Its scans
+#: and odometry are stamped as they arrived, upper bounds of when they were sent.
+DAEMON_KEY = "daemon"
+DAEMON_NAME = "baromapd"
 #: 2: /odom as foxglove.Odometry (raw counters in its metadata), /tf_static. 1 read too.
 FORMAT_VERSION = "2"
 
 __all__ = [
     "BARO",
     "BASE_FRAME",
+    "DAEMON_KEY",
+    "DAEMON_NAME",
     "DIAGNOSTICS",
     "FLOOR_EVENT",
     "FLOOR_RIDE",

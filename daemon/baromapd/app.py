@@ -123,7 +123,7 @@ class Daemon:
         c = self.config
         data = {
             "role": c.role,
-            "daemon": f"baromapd {__version__}",
+            topics.DAEMON_KEY: f"{topics.DAEMON_NAME} {__version__}",
             "configuration": c.source_text,
             # the Pioneer session's integrator joins every new track at the last pose
             topics.ODOMETRY_TRACKS_KEY: topics.ODOMETRY_TRACKS_JOINED,

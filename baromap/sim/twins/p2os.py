@@ -277,10 +277,9 @@ class P2osTwin(Twin):
             self.truth.record(pose_ns, pose_s, boot=self.boot)
         self.sips_sent += 1
 
-    def sip_packet(self, robot_s: float | None = None) -> bytes:
-        """The SIP of the robot's pose at route time ``robot_s`` (default now)."""
-        at = self.clock.robot_time() if robot_s is None else robot_s
-        truth = self.clock.scenario.truth(np.array([at]))
+    def sip_packet(self, robot_s: float) -> bytes:
+        """The SIP of the robot's pose at route time ``robot_s``."""
+        truth = self.clock.scenario.truth(np.array([robot_s]))
         ds, dth = true_increments(truth.x, truth.y, truth.theta, self._prev)
         self._prev = (float(truth.x[0]), float(truth.y[0]), float(truth.theta[0]))
         driving = self.host_driving
