@@ -65,6 +65,9 @@ class SlamResult:
     #: (S,): the keyframes, and the scans between them whose pose the finished map of their
     #: floor confirmed (:meth:`_Slam.register_scans`); empty until registered
     scan_registered: BoolArray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    #: (L, 3): the motion from i to j each of ``loop_edges`` measured (the refinement's
+    #: ``graph`` holds no closure): what the scans said, beside where the run placed them
+    loop_motions: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 def select_keyframes(
@@ -216,6 +219,7 @@ class _Slam:
             (scale, turn, creep),
             untied,
             evidence,
+            loop_motions=np.array(self.chain.loop_motions, dtype=np.float64).reshape(-1, 3),
         )
 
     def _untied(self) -> tuple[list[IntArray], list[str]]:

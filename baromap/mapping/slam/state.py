@@ -275,6 +275,8 @@ class Chain:
         self.submaps = submaps
         self.stats = stats
         self.loops: list[tuple[int, int]] = []
+        #: the motion each of ``loops`` measured, in the same order
+        self.loop_motions: list[FloatArray] = []
         self.unsolved: list[int] = []  # loop edges added since the last solve
         self.last_closure = 0  # keyframe of the last accepted closure (or visit start)
 
@@ -292,6 +294,7 @@ class Chain:
         index = self.graph.add_edge(edge)
         self.unsolved.append(index)
         self.loops.append((edge.i, edge.j))
+        self.loop_motions.append(edge.z.copy())
         self.last_closure = max(self.last_closure, edge.j)
         log.debug("loop closure", frm=edge.i, to=edge.j, score=round(score, 3))
 
