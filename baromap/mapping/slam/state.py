@@ -275,6 +275,7 @@ class Chain:
         self.submaps = submaps
         self.stats = stats
         self.loops: list[tuple[int, int]] = []
+        self._pairs: set[tuple[int, int]] = set()  # the keyframes of ``loops``
         #: the motion each of ``loops`` measured, in the same order
         self.loop_motions: list[FloatArray] = []
         self.unsolved: list[int] = []  # loop edges added since the last solve
@@ -285,6 +286,16 @@ class Chain:
         self.last_closure = k
 
     def accept_loop(self, edge: Edge, score: float) -> None:
+        """Put a closure into the graph, unless one between the same two keyframes is there.
+
+        One keyframe's scan matched against one place is one measurement, however many
+        searches found it: two loop targets can frame the same revisited keyframe (a wide
+        search against the run around it is the same search for both), and a closure taken
+        twice weighs double in the graph. Its first finding stands."""
+        if (edge.i, edge.j) in self._pairs:
+            self.stats["loop_repeats"] += 1
+            return
+        self._pairs.add((edge.i, edge.j))
         # the largest correction a closure made to the graph as it stood: the front end's
         # drift at the first revisit after a long drive, for the bench to print
         poses = self.graph.poses
