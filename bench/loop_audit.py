@@ -75,11 +75,15 @@ def audit(
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("keep", type=Path, help="a bench/gate.py --keep directory")
-    parser.add_argument("cases", nargs="+", help="case names, as the gate's --cases/--extra")
+    parser.add_argument("keep", type=Path, nargs="?", help="a bench/gate.py --keep directory")
+    parser.add_argument("cases", nargs="*", help="case names, as the gate's --cases/--extra")
     parser.add_argument("--seeds", default="0,1,2")
     parser.add_argument("--wrong-m", type=float, default=1.0)
     args = parser.parse_args()
+    if args.keep is None or not args.cases:
+        # `make bench` runs every script bare
+        print("loop_audit: nothing to audit without a bench/gate.py --keep DIR and its cases")
+        return 0
     import structlog
 
     structlog.configure(wrapper_class=structlog.make_filtering_bound_logger(logging.ERROR))
