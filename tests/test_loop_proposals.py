@@ -46,9 +46,9 @@ def test_proposals_of_the_same_keyframes_pair_are_taken_by_identity() -> None:
 
 def test_a_closure_found_twice_between_the_same_keyframes_enters_the_graph_once() -> None:
     """Two loop targets can frame one revisited keyframe, and a wide search against the run
-    around it is then the same search twice (the gate's Infinite Corridor took such pairs
-    in every wide group): one scan matched against one place is one measurement, weighed
-    once, and the first finding stands."""
+    around it is then the same search twice (the gate's Infinite Corridor took the first
+    closure of its wide groups twice): one scan matched against one place is one
+    measurement, weighed once, and the first finding stands."""
     stats: Counter[str] = Counter()
     chain = Chain(cast(Submaps, None), stats)
     for pose in ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]):
