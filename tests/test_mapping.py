@@ -1198,18 +1198,19 @@ def test_a_closure_beyond_the_drift_model_puts_a_wrong_front_end_turn_right(
 def test_one_scan_matching_two_submaps_beyond_the_drift_model_confirms_itself(
     shared_data: Path,
 ) -> None:
-    """The same input, odometry of the varied family, seed 1. After turns of 111 and 165
-    degrees the front end left the run 22 degrees off (a failed match left keyframe 127 to
-    odometry, 9.5 degrees off; keyframe 130's match was taken 12 degrees off); keyframe 151
-    finds the correction against two submaps (scores 0.79 and 0.74), beyond the drift model.
-    Held until another keyframe agrees, it is never taken while the next keyframes search
-    around the turned estimate (the run ends 2 m off, 0.63 m ATE), so two closures of one scan
-    against different submaps, both scoring as loops, confirm each other."""
+    """The same input, odometry of the varied family, seed 0: a keyframe finds one
+    correction against two submaps, beyond the drift model and scoring as loops, and the
+    two closures confirm each other (0.112 m ATE; 0.122 m with them left waiting).
+
+    The input it was made for, seed 1, no longer needs it since a closure counts once in the
+    graph (0.204 m, none taken): there the front end left the run 22 degrees off after turns
+    of 111 and 165 degrees, and keyframe 151's two closures, left waiting while the next
+    keyframes searched around the turned estimate, ended the run 2 m off (0.63 m ATE)."""
     _check_thinned_log_run(
         shared_data,
         "fr079",
         30,
-        ("varied", 1),
+        ("varied", 0),
         scans=160,
         stat="loop_groups_one_scan",
         ate_below=0.3,
