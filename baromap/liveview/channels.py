@@ -53,6 +53,17 @@ from baromap.recording.writer import (
 LIVE_MAP = "/live/map"
 LIVE_PATH = "/live/path"
 LIVE_MAP_INFO = "/live/map/info"
+#: The daemon's JSON messages, their channels made before any viewer joins. A channel made
+#: while a viewer was connected was once advertised to it and its subscription then refused
+#: ("attempted to subscribe to unknown channel" in the SDK's log), and that viewer got
+#: nothing on the topic for the whole run. A simulator's truth stays lazy: a robot has none.
+EAGER_JSON = (
+    messages.PressureSample,
+    messages.FloorState,
+    messages.FloorEvent,
+    messages.RideEvent,
+    messages.DeviceHealth,
+)
 
 
 class ViewChannels:
@@ -73,6 +84,8 @@ class ViewChannels:
         self._grid = GridChannel(LIVE_MAP, context=context)
         self._path = PosesInFrameChannel(LIVE_PATH, context=context)
         self._info = self._json_channel(LIVE_MAP_INFO, LiveMapInfo)
+        for cls in EAGER_JSON:
+            self._json[cls] = self._json_channel(DEFAULT_TOPICS[cls], cls)
         #: messages of a type a recording has no channel for (none today; a newer sender)
         self.unknown = 0
 

@@ -85,6 +85,19 @@ async def _advertised(ws: ClientConnection, topics: set[str]) -> dict[str, int]:
     return found
 
 
+def test_the_daemons_topics_are_advertised_before_their_first_message(view: View) -> None:
+    """A viewer that joins before the barometer, the detector or the health report has said
+    anything finds their channels already there: made while it is connected, one was refused
+    as unknown when the viewer subscribed, and the demo's viewer got nothing on ``/baro``."""
+    wanted = {"/baro", "/floor/state", "/floor/event", "/floor/ride", "/diagnostics"}
+
+    async def main() -> dict[str, int]:
+        async with connect(view.url, subprotocols=[SDK_SUBPROTOCOL]) as ws:
+            return await _advertised(ws, wanted)
+
+    assert wanted <= asyncio.run(main()).keys()
+
+
 def test_both_names_of_the_protocol_are_accepted_and_others_refused(view: View) -> None:
     view.channels.log(scan(1))
 
