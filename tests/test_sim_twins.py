@@ -41,6 +41,18 @@ def read_for(port: serial.Serial, seconds: float) -> bytes:
     return bytes(out)
 
 
+def join_stream(port: serial.Serial, decoder: baro.Decoder) -> tuple[list[object], int]:
+    """Read a barometer stream that was flowing before the port opened, up to its first whole
+    frame: the frames so far and what the join cost. Opening a port flushes its input, so the
+    frame the board was writing then can arrive cut (a COBS error and its tail as garbage,
+    counted and resynced); after the first frame, nothing may be bad."""
+    frames: list[object] = []
+    deadline = time.monotonic() + 5.0
+    while not frames and time.monotonic() < deadline:
+        frames += decoder.feed(port.read(max(1, port.in_waiting)))
+    return frames, sum(decoder.stats.bad.values())
+
+
 def read_count(port: serial.Serial, decoder, kind: type, count: int, seconds: float = 10.0) -> list:  # type: ignore[no-untyped-def,type-arg]
     """Every message until ``count`` of ``kind`` arrived (a loaded machine may take a while)."""
     seen: list = []  # type: ignore[type-arg]
@@ -384,11 +396,13 @@ def test_baro_faults_unplug_and_replug(board: BaroTwin) -> None:
             read_for(held, 0.3)
     decoder = baro.Decoder()
     with serial.serial_for_url(str(link), baudrate=115200, timeout=0.05) as port:
+        frames, joined = join_stream(port, decoder)
         port.write(baro.identify())
-        frames = decoder.feed(read_for(port, 0.6))
+        frames += decoder.feed(read_for(port, 0.6))
     assert any(isinstance(f, baro.HelloFrame) for f in frames)
     assert any(isinstance(f, baro.SampleFrame) for f in frames)
-    assert decoder.stats.bad == {}
+    assert joined <= 2
+    assert sum(decoder.stats.bad.values()) == joined
 
 
 def test_faster_than_real_time(tmp_path: Path) -> None:
@@ -396,7 +410,7 @@ def test_faster_than_real_time(tmp_path: Path) -> None:
     with BaroTwin(fast) as twin:
         decoder = baro.Decoder()
         with serial.serial_for_url(twin.path, baudrate=115200, timeout=0.05) as port:
-            frames: list[object] = []
+            frames, joined = join_stream(port, decoder)
             deadline = time.monotonic() + 10.0  # a loaded machine may be slow to give 10
             while time.monotonic() < deadline and (
                 sum(isinstance(f, baro.SampleFrame) for f in frames) < 10
@@ -404,7 +418,8 @@ def test_faster_than_real_time(tmp_path: Path) -> None:
                 frames += decoder.feed(port.read(max(1, port.in_waiting)))
     samples = [f for f in frames if isinstance(f, baro.SampleFrame)]
     assert len(samples) >= 10
-    assert decoder.stats.bad == {}
+    assert joined <= 2
+    assert sum(decoder.stats.bad.values()) == joined
     # The board's clock and the simulated time run 8x the host's: compare the firmware's
     # microsecond stamps of two samples with the true instants they were measured at.
     first, last = samples[0], samples[-1]
